@@ -1,0 +1,1 @@
+"""The onboard avoidance service: stereo frames in, MAVLink aiming points out."""

@@ -1,0 +1,1 @@
+"""Shared conventions and wire formats: the only code both processes import."""

@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# The project's test command (README): set up .venv, lint, then run the whole suite.
+# Extra arguments go to pytest, e.g. `bash scripts/test.sh -k frames`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
+.venv/bin/ruff check .
+.venv/bin/ruff format --check .
+.venv/bin/python -m pytest "$@"
