@@ -1,0 +1,166 @@
+"""Quadrotor and flight-control parameters: Table 2 and Eq. (29)–(33) of Park & Kim.
+
+Everything the paper gives is reproduced exactly; everything it does not give is a named
+assumption with a unit and a one-line justification. Both dataclasses are frozen; build
+them from a mapping with :func:`from_dict`, which rejects unknown names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+__all__ = [
+    "ControlParams",
+    "QuadrotorParams",
+    "UnknownParameterError",
+    "from_dict",
+]
+
+_G_MPS2 = 9.81
+
+
+class UnknownParameterError(TypeError):
+    """A configuration mapping named a parameter that does not exist."""
+
+
+@dataclass(frozen=True)
+class QuadrotorParams:
+    """Rigid-body, aerodynamic and rotor parameters (paper Table 2 + stated assumptions)."""
+
+    # --- Table 2 ---------------------------------------------------------------------
+    mass_kg: float = 0.65
+    inertia_kgm2: tuple[float, float, float] = (7.5e-3, 7.5e-3, 1.3e-2)  # J = diag(Jx, Jy, Jz)
+    arm_length_m: float = 0.25  # d: centre of mass to rotor axis
+    drag_force_kgps: tuple[float, float, float] = (2.0, 2.0, 4.0)  # K_t = diag(ktx, kty, ktz)
+    drag_torque_kgm2ps: tuple[float, float, float] = (0.15, 0.15, 0.15)  # K_r
+    gravity_mps2: float = _G_MPS2  # |G|
+
+    # --- Assumptions (not in the paper) ------------------------------------------------
+    # T_i = c·F_i in Eq. (14). 0.016 m is typical of 8–10" props (k_m/k_f ≈ 0.01–0.02 m).
+    rotor_torque_coeff_m: float = 0.016
+    # Per-rotor thrust ceiling: thrust-to-weight 2.0, the usual minimum for a camera quad.
+    rotor_thrust_max_n: float = 2.0 * 0.65 * _G_MPS2 / 4.0
+    # Rotors cannot pull: fixed-pitch props produce no negative thrust.
+    rotor_thrust_min_n: float = 0.0
+    # Vehicle sphere used by collision checks: arm length plus a propeller radius of 0.1 m.
+    body_radius_m: float = 0.35
+
+    def __post_init__(self) -> None:
+        _require_positive("mass_kg", self.mass_kg)
+        _require_positive("arm_length_m", self.arm_length_m)
+        _require_positive("gravity_mps2", self.gravity_mps2)
+        _require_positive("rotor_torque_coeff_m", self.rotor_torque_coeff_m)
+        _require_positive("body_radius_m", self.body_radius_m)
+        for name in ("inertia_kgm2", "drag_force_kgps", "drag_torque_kgm2ps"):
+            value = getattr(self, name)
+            if len(value) != 3:
+                raise ValueError(f"{name} needs 3 values, got {len(value)}")
+            object.__setattr__(self, name, tuple(float(v) for v in value))
+            for v in getattr(self, name):
+                _require_positive(name, v, allow_zero=name != "inertia_kgm2")
+        if not 0.0 <= self.rotor_thrust_min_n < self.rotor_thrust_max_n:
+            raise ValueError(
+                "need 0 <= rotor_thrust_min_n < rotor_thrust_max_n, got "
+                f"{self.rotor_thrust_min_n} and {self.rotor_thrust_max_n}"
+            )
+        if 4.0 * self.rotor_thrust_max_n <= self.mass_kg * self.gravity_mps2:
+            raise ValueError("4 × rotor_thrust_max_n must exceed the weight m·g to fly")
+
+    @property
+    def hover_thrust_n(self) -> float:
+        """Total thrust that balances gravity, m·g [N]."""
+        return self.mass_kg * self.gravity_mps2
+
+
+@dataclass(frozen=True)
+class ControlParams:
+    """LQ weights (Eq. 29, 30, 32, 33), limits and loop rates of the flight controller."""
+
+    # --- Paper ----------------------------------------------------------------------------
+    # Attitude subsystem, state [φ, φ̇, θ, θ̇, ψ, ψ̇]: Eq. (29), (30).
+    q_attitude: tuple[float, ...] = (10.0, 6.0, 10.0, 6.0, 10.0, 6.0)
+    r_attitude: tuple[float, float, float] = (0.1, 0.1, 0.1)
+    # Position subsystem, state [x, ẋ, y, ẏ, z, ż]: Eq. (32), (33).
+    q_position: tuple[float, ...] = (2.0, 9.0, 2.0, 9.0, 2.0, 9.0)
+    r_position: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    # §6.1: desired roll and pitch within ±15°.
+    max_tilt_deg: float = 15.0
+
+    # --- Assumptions (not in the paper) ------------------------------------------------
+    # RK4 step rate. 400 Hz is ArduCopter's main-loop rate; the attitude poles
+    # (−1.3, −7.6 rad/s) are two orders below its Nyquist rate.
+    physics_rate_hz: float = 400.0
+    # Controller update rate (zero-order hold between updates); must divide physics_rate_hz.
+    control_rate_hz: float = 400.0
+    # Lowest vertical specific force the position loop may ask of the rotors [m/s²]
+    # (a fraction of g): keeps φ_d, θ_d defined when a steep descent is commanded.
+    min_vertical_accel_mps2: float = 0.2 * _G_MPS2
+
+    def __post_init__(self) -> None:
+        for name, n in (
+            ("q_attitude", 6),
+            ("r_attitude", 3),
+            ("q_position", 6),
+            ("r_position", 3),
+        ):
+            value = tuple(float(v) for v in getattr(self, name))
+            if len(value) != n:
+                raise ValueError(f"{name} needs {n} values, got {len(value)}")
+            if any(not math.isfinite(v) or v < 0.0 for v in value):
+                raise ValueError(f"{name} must be finite and non-negative, got {value}")
+            object.__setattr__(self, name, value)
+        if any(v <= 0.0 for v in self.r_attitude + self.r_position):
+            raise ValueError("LQ input weights R must be positive definite")
+        if not 0.0 < self.max_tilt_deg < 90.0:
+            raise ValueError(f"max_tilt_deg must be in (0, 90), got {self.max_tilt_deg}")
+        _require_positive("physics_rate_hz", self.physics_rate_hz)
+        _require_positive("control_rate_hz", self.control_rate_hz)
+        _require_positive("min_vertical_accel_mps2", self.min_vertical_accel_mps2)
+        ratio = self.physics_rate_hz / self.control_rate_hz
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError(
+                f"control_rate_hz ({self.control_rate_hz}) must divide "
+                f"physics_rate_hz ({self.physics_rate_hz})"
+            )
+
+    @property
+    def physics_dt_s(self) -> float:
+        """Fixed RK4 step [s]."""
+        return 1.0 / self.physics_rate_hz
+
+    @property
+    def steps_per_control(self) -> int:
+        """Physics steps per controller update."""
+        return round(self.physics_rate_hz / self.control_rate_hz)
+
+
+_P = TypeVar("_P", QuadrotorParams, ControlParams)
+
+
+def from_dict(cls: type[_P], values: Mapping[str, Any]) -> _P:
+    """Build a parameter dataclass from a mapping, rejecting unknown names.
+
+    Raises
+    ------
+    UnknownParameterError
+        If ``values`` names a field ``cls`` does not have; the message lists the
+        unknown names and the valid ones.
+    """
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise UnknownParameterError(
+            f"unknown {cls.__name__} parameter(s) {unknown}; valid names are {sorted(known)}"
+        )
+    return cls(**dict(values))
+
+
+def _require_positive(name: str, value: float, *, allow_zero: bool = False) -> None:
+    ok = value >= 0.0 if allow_zero else value > 0.0
+    if not (math.isfinite(value) and ok):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be finite and {bound}, got {value}")

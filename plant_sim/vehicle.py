@@ -1,0 +1,335 @@
+"""A quadrotor you can step: paper dynamics + flight controller behind a NED interface.
+
+:class:`Quadrotor` takes setpoints in MAVLink LOCAL_NED (metres, rad) and exposes its
+state in NED/FRD with MAVLink 3-2-1 angles; the paper's z-up frame stays inside. Time is
+simulation time in seconds, advanced only by :meth:`Quadrotor.step`: no clocks here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from plant_sim import flight_control as fc
+from plant_sim.dynamics import STATE_SIZE, PhysicsConstants, physics_constants, rk4_step
+from plant_sim.lq import design_tracker
+from plant_sim.params import ControlParams, QuadrotorParams
+from protocols import frames
+
+__all__ = ["Quadrotor", "Setpoint", "VehicleState"]
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    """What the flight controller tracks, in LOCAL_NED.
+
+    ``pos_ned_m`` and ``vel_ned_mps`` may each be None (not controlled); with both None
+    the vehicle holds zero velocity. ``yaw_rad`` None keeps the previous heading target;
+    ``yaw_rate_radps`` turns the heading target at that rate.
+    """
+
+    pos_ned_m: tuple[float, float, float] | None = None
+    vel_ned_mps: tuple[float, float, float] | None = None
+    yaw_rad: float | None = None
+    yaw_rate_radps: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("pos_ned_m", "vel_ned_mps"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            vec = tuple(float(v) for v in value)
+            if len(vec) != 3 or not all(math.isfinite(v) for v in vec):
+                raise ValueError(f"Setpoint.{name} must be 3 finite numbers, got {value!r}")
+            object.__setattr__(self, name, vec)
+        for name in ("yaw_rad", "yaw_rate_radps"):
+            value = getattr(self, name)
+            if value is not None and not math.isfinite(value):
+                raise ValueError(f"Setpoint.{name} must be finite, got {value!r}")
+
+
+@dataclass(frozen=True)
+class VehicleState:
+    """A snapshot of the vehicle and its controller, NED/FRD, MAVLink angle conventions."""
+
+    time_s: float
+    pos_ned_m: np.ndarray
+    vel_ned_mps: np.ndarray
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+    body_rates_frd_radps: np.ndarray
+    rotor_thrusts_n: np.ndarray
+    roll_cmd_rad: float
+    pitch_cmd_rad: float
+    yaw_cmd_rad: float
+    total_thrust_cmd_n: float
+    tilt_saturated: bool
+    rotor_saturated: bool
+    on_ground: bool
+    armed: bool
+
+    @property
+    def R_ned_from_frd(self) -> np.ndarray:
+        """Body FRD → NED rotation."""
+        return frames.rotation_321(self.roll_rad, self.pitch_rad, self.yaw_rad)
+
+
+@numba.njit(cache=True)
+def _advance(
+    state: np.ndarray,
+    ctrl_out: np.ndarray,
+    n_steps: int,
+    phase: int,
+    steps_per_control: int,
+    dt_s: float,
+    pos_sp_m: np.ndarray,
+    vel_sp_mps: np.ndarray,
+    yaw_sp_ned_rad: float,
+    yaw_rate_sp_radps: float,
+    gains_pos: np.ndarray,
+    gains_att: np.ndarray,
+    max_tilt_rad: float,
+    min_vertical_accel_mps2: float,
+    k: PhysicsConstants,
+    armed: bool,
+    ground_z_m: float,
+) -> tuple[np.ndarray, int, float, bool]:
+    """Advance ``n_steps`` RK4 steps with the controller every ``steps_per_control`` steps.
+
+    Returns the new state, the control phase, the (possibly turning) yaw target and
+    whether the vehicle rests on the ground. Ground contact is inelastic: the vehicle
+    stops on the plane ``z = ground_z_m`` (paper frame) and sits level there.
+    """
+    on_ground = False
+    for _ in range(n_steps):
+        if phase == 0:
+            if not math.isnan(yaw_rate_sp_radps):
+                yaw_sp_ned_rad += yaw_rate_sp_radps * dt_s * steps_per_control
+            if armed:
+                fc.control_law(
+                    state,
+                    pos_sp_m,
+                    vel_sp_mps,
+                    yaw_sp_ned_rad,
+                    gains_pos,
+                    gains_att,
+                    max_tilt_rad,
+                    min_vertical_accel_mps2,
+                    k,
+                    ctrl_out,
+                )
+            else:
+                for i in range(fc.OUT_SIZE):
+                    ctrl_out[i] = 0.0
+        phase = (phase + 1) % steps_per_control
+        state = rk4_step(state, ctrl_out[0:4], dt_s, k)
+        on_ground = False
+        if not math.isnan(ground_z_m) and state[2] <= ground_z_m and state[5] <= 0.0:
+            state[2] = ground_z_m
+            for i in (3, 4, 5, 6, 7, 9, 10, 11):
+                state[i] = 0.0
+            on_ground = True
+    return state, phase, yaw_sp_ned_rad, on_ground
+
+
+class Quadrotor:
+    """The paper's quadrotor with its FL + LQ flight controller, stepped in simulation time.
+
+    Parameters
+    ----------
+    params, control : vehicle and controller parameters (defaults: the paper's).
+    pos_ned_m : initial position, LOCAL_NED [m].
+    yaw_rad : initial MAVLink heading [rad]; also the initial heading target.
+    ground_down_m : NED down coordinate of a flat ground, or None for no ground.
+    armed : whether the rotors run from the start.
+
+    The initial setpoint holds the initial position.
+    """
+
+    def __init__(
+        self,
+        params: QuadrotorParams | None = None,
+        control: ControlParams | None = None,
+        *,
+        pos_ned_m: Sequence[float] = (0.0, 0.0, 0.0),
+        yaw_rad: float = 0.0,
+        ground_down_m: float | None = 0.0,
+        armed: bool = True,
+    ) -> None:
+        self.params = params or QuadrotorParams()
+        self.control = control or ControlParams()
+        self._k = physics_constants(self.params)
+        self._gains_pos = design_tracker(
+            self.control.q_position, self.control.r_position
+        ).per_axis_gains()
+        self._gains_att = design_tracker(
+            self.control.q_attitude, self.control.r_attitude
+        ).per_axis_gains()
+        self._max_tilt_rad = math.radians(self.control.max_tilt_deg)
+        self._dt_s = self.control.physics_dt_s
+        self._ground_z_m = math.nan if ground_down_m is None else -float(ground_down_m)
+
+        self._state = np.zeros(STATE_SIZE)
+        self._state[0:3] = frames.paper_from_ned(np.asarray(pos_ned_m, dtype=float))
+        self._state[8] = fc.paper_yaw_for_ned_heading(float(yaw_rad), 0.0, 0.0)
+        self._ctrl_out = np.zeros(fc.OUT_SIZE)
+        self._phase = 0
+        self._steps = 0
+        self._armed = bool(armed)
+        self._on_ground = False
+        self._pos_sp = np.full(3, np.nan)
+        self._vel_sp = np.full(3, np.nan)
+        self._yaw_sp_rad = float(yaw_rad)
+        self._yaw_rate_sp = math.nan
+        self.set_setpoint(Setpoint(pos_ned_m=tuple(pos_ned_m), yaw_rad=float(yaw_rad)))
+
+    # ---- commands ----------------------------------------------------------------------
+    @property
+    def armed(self) -> bool:
+        """True while the rotors run."""
+        return self._armed
+
+    def set_armed(self, armed: bool) -> None:
+        """Start or stop the rotors (disarmed: all rotor thrusts zero)."""
+        self._armed = bool(armed)
+
+    def set_setpoint(self, sp: Setpoint) -> None:
+        """Track ``sp`` from the next controller update on."""
+        self._pos_sp = (
+            np.full(3, np.nan)
+            if sp.pos_ned_m is None
+            else frames.paper_from_ned(np.asarray(sp.pos_ned_m))
+        )
+        self._vel_sp = (
+            np.full(3, np.nan)
+            if sp.vel_ned_mps is None
+            else frames.paper_from_ned(np.asarray(sp.vel_ned_mps))
+        )
+        if sp.yaw_rad is not None:
+            self._yaw_sp_rad = float(sp.yaw_rad)
+        self._yaw_rate_sp = math.nan if sp.yaw_rate_radps is None else float(sp.yaw_rate_radps)
+
+    @property
+    def setpoint(self) -> Setpoint:
+        """What the controller tracks now (yaw target included, turned by any yaw rate)."""
+        pos = None if np.isnan(self._pos_sp).all() else frames.ned_from_paper(self._pos_sp)
+        vel = None if np.isnan(self._vel_sp).all() else frames.ned_from_paper(self._vel_sp)
+        return Setpoint(
+            pos_ned_m=None if pos is None else tuple(np.nan_to_num(pos)),
+            vel_ned_mps=None if vel is None else tuple(np.nan_to_num(vel)),
+            yaw_rad=_wrap_pi(self._yaw_sp_rad),
+            yaw_rate_radps=None if math.isnan(self._yaw_rate_sp) else self._yaw_rate_sp,
+        )
+
+    # ---- time --------------------------------------------------------------------------
+    @property
+    def time_s(self) -> float:
+        """Simulation time [s]."""
+        return self._steps * self._dt_s
+
+    @property
+    def dt_s(self) -> float:
+        """Physics step [s]."""
+        return self._dt_s
+
+    def step(self, n_steps: int = 1) -> None:
+        """Advance ``n_steps`` physics steps."""
+        if n_steps < 0:
+            raise ValueError(f"n_steps must be >= 0, got {n_steps}")
+        if n_steps == 0:
+            return
+        self._state, self._phase, self._yaw_sp_rad, self._on_ground = _advance(
+            self._state,
+            self._ctrl_out,
+            int(n_steps),
+            self._phase,
+            self.control.steps_per_control,
+            self._dt_s,
+            self._pos_sp,
+            self._vel_sp,
+            self._yaw_sp_rad,
+            self._yaw_rate_sp,
+            self._gains_pos,
+            self._gains_att,
+            self._max_tilt_rad,
+            self.control.min_vertical_accel_mps2,
+            self._k,
+            self._armed,
+            self._ground_z_m,
+        )
+        self._steps += int(n_steps)
+        if not np.all(np.isfinite(self._state)):
+            raise FloatingPointError(f"vehicle state diverged at t={self.time_s:.3f} s")
+
+    def run_until(self, time_s: float) -> None:
+        """Advance to the physics step at or just after ``time_s``."""
+        target = math.ceil(time_s / self._dt_s - 1e-9)
+        self.step(max(0, target - self._steps))
+
+    # ---- state -------------------------------------------------------------------------
+    @property
+    def state_paper(self) -> np.ndarray:
+        """Copy of the paper-frame state (see :mod:`plant_sim.dynamics`)."""
+        return self._state.copy()
+
+    @property
+    def pos_ned_m(self) -> np.ndarray:
+        """Position, LOCAL_NED [m]."""
+        return frames.ned_from_paper(self._state[0:3])
+
+    @property
+    def vel_ned_mps(self) -> np.ndarray:
+        """Velocity, LOCAL_NED [m/s]."""
+        return frames.ned_from_paper(self._state[3:6])
+
+    @property
+    def rotor_thrusts_n(self) -> np.ndarray:
+        """Rotor thrusts F1..F4 applied over the last step [N]."""
+        return self._ctrl_out[fc.OUT_ROTORS].copy()
+
+    def snapshot(self) -> VehicleState:
+        """The vehicle and its controller now, in NED/FRD with MAVLink angles."""
+        s = self._state
+        R_paper = frames.rotation_123(s[6], s[7], s[8])
+        roll, pitch, yaw = frames.euler321_from_rotation(frames.rotation_ned_from_paper(R_paper))
+        # body rates: Ω = R_r φ̇ (Eq. 5) in paper body axes (FLU), then FRD
+        st, ct = math.sin(s[7]), math.cos(s[7])
+        sp, cp = math.sin(s[8]), math.cos(s[8])
+        omega_flu = np.array(
+            [
+                ct * cp * s[9] + sp * s[10],
+                -ct * sp * s[9] + cp * s[10],
+                st * s[9] + s[11],
+            ]
+        )
+        out = self._ctrl_out
+        roll_c, pitch_c, yaw_c = frames.mavlink_euler_from_paper_euler(
+            out[fc.OUT_PHI_D], out[fc.OUT_THETA_D], out[fc.OUT_PSI_D]
+        )
+        return VehicleState(
+            time_s=self.time_s,
+            pos_ned_m=self.pos_ned_m,
+            vel_ned_mps=self.vel_ned_mps,
+            roll_rad=roll,
+            pitch_rad=pitch,
+            yaw_rad=yaw,
+            body_rates_frd_radps=frames.ned_from_paper(omega_flu),
+            rotor_thrusts_n=self.rotor_thrusts_n,
+            roll_cmd_rad=roll_c,
+            pitch_cmd_rad=pitch_c,
+            yaw_cmd_rad=yaw_c,
+            total_thrust_cmd_n=float(out[fc.OUT_TOTAL_THRUST]),
+            tilt_saturated=bool(out[fc.OUT_TILT_SAT]),
+            rotor_saturated=bool(out[fc.OUT_ROTOR_SAT]),
+            on_ground=self._on_ground,
+            armed=self._armed,
+        )
+
+
+def _wrap_pi(angle_rad: float) -> float:
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi

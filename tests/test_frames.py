@@ -1,0 +1,100 @@
+"""Frame conventions: paper z-up / 1-2-3 Euler ↔ MAVLink NED/FRD / 3-2-1 Euler."""
+
+import math
+
+import numpy as np
+import pytest
+
+from protocols import frames
+
+RNG_SEED = 20261122
+
+
+def _random_angles(rng, n, max_pitch=1.48):
+    return np.column_stack(
+        [
+            rng.uniform(-math.pi, math.pi, n),
+            rng.uniform(-max_pitch, max_pitch, n),
+            rng.uniform(-math.pi, math.pi, n),
+        ]
+    )
+
+
+def test_position_round_trip_and_axes():
+    rng = np.random.default_rng(RNG_SEED)
+    for p in rng.uniform(-1e3, 1e3, (200, 3)):
+        np.testing.assert_allclose(frames.paper_from_ned(frames.ned_from_paper(p)), p, atol=1e-12)
+    # the paper's §6 start (20, 0, 7) z-up is NED (20, 0, -7)
+    np.testing.assert_array_equal(frames.ned_from_paper([20.0, 0.0, 7.0]), [20.0, 0.0, -7.0])
+
+
+def test_rotation_123_matches_eq4_closed_form():
+    phi, theta, psi = 0.3, -0.2, 1.1
+    sf, cf, st, ct, sp, cp = (
+        math.sin(phi),
+        math.cos(phi),
+        math.sin(theta),
+        math.cos(theta),
+        math.sin(psi),
+        math.cos(psi),
+    )
+    eq4 = np.array(
+        [
+            [ct * cp, -ct * sp, st],
+            [sf * st * cp + cf * sp, -sf * st * sp + cf * cp, -sf * ct],
+            [-cf * st * cp + sf * sp, cf * st * sp + sf * cp, cf * ct],
+        ]
+    )
+    np.testing.assert_allclose(frames.rotation_123(phi, theta, psi), eq4, atol=1e-15)
+
+
+def test_euler_round_trips_to_1e12():
+    rng = np.random.default_rng(RNG_SEED)
+    for phi, theta, psi in _random_angles(rng, 500):
+        got = frames.euler123_from_rotation(frames.rotation_123(phi, theta, psi))
+        np.testing.assert_allclose(got, (phi, theta, psi), atol=1e-12)
+        roll, pitch, yaw = frames.mavlink_euler_from_paper_euler(phi, theta, psi)
+        back = frames.paper_euler_from_mavlink_euler(roll, pitch, yaw)
+        np.testing.assert_allclose(back, (phi, theta, psi), atol=1e-12)
+    for roll, pitch, yaw in _random_angles(rng, 500):
+        got = frames.euler321_from_rotation(frames.rotation_321(roll, pitch, yaw))
+        np.testing.assert_allclose(got, (roll, pitch, yaw), atol=1e-12)
+
+
+def test_rotation_conjugation_maps_vectors_consistently():
+    """R_ned·v_frd must equal T·(R_paper·(T·v_frd)): the same physical rotation."""
+    rng = np.random.default_rng(RNG_SEED + 1)
+    for phi, theta, psi in _random_angles(rng, 100):
+        R_paper = frames.rotation_123(phi, theta, psi)
+        R_ned = frames.rotation_ned_from_paper(R_paper)
+        v_frd = rng.normal(size=3)
+        np.testing.assert_allclose(
+            R_ned @ v_frd,
+            frames.ned_from_paper(R_paper @ frames.paper_from_ned(v_frd)),
+            atol=1e-12,
+        )
+        np.testing.assert_allclose(R_ned @ R_ned.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(R_ned) == pytest.approx(1.0, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("paper", "mavlink"),
+    [
+        # level, paper ψ = +90° (counter-clockwise seen from above) is NED yaw −90° (west)
+        ((0.0, 0.0, math.pi / 2), (0.0, 0.0, -math.pi / 2)),
+        # paper θ > 0 tilts thrust toward +x (north): nose down, MAVLink pitch < 0
+        ((0.0, 0.2, 0.0), (0.0, -0.2, 0.0)),
+        # paper φ > 0 tilts thrust toward −y_paper = +east: right wing down, roll > 0
+        ((0.2, 0.0, 0.0), (0.2, 0.0, 0.0)),
+    ],
+)
+def test_known_attitudes(paper, mavlink):
+    np.testing.assert_allclose(frames.mavlink_euler_from_paper_euler(*paper), mavlink, atol=1e-15)
+
+
+def test_thrust_direction_of_known_attitudes():
+    """Body thrust (−z FRD) of a nose-down MAVLink attitude points forward-and-up in NED."""
+    R = frames.rotation_321(0.0, -0.2, 0.0)
+    thrust_ned = R @ np.array([0.0, 0.0, -1.0])
+    assert thrust_ned[0] == pytest.approx(math.sin(0.2))  # pushes north
+    assert thrust_ned[2] == pytest.approx(-math.cos(0.2))  # and up
