@@ -1,0 +1,413 @@
+"""Navigation ↔ avoidance switching (paper Fig. 5) with hysteresis and obstacle memory.
+
+One call per perception frame (30 Hz): boundary spheres in, a decision out. Pure: the
+state is a frozen :class:`GuidanceState` threaded through :func:`guidance_step`
+(:class:`Guidance` wraps it for callers that prefer an object); time is the caller's
+simulation time [s], there is no clock here.
+
+Each step
+---------
+1. Merge the detections into the obstacle memory (:mod:`companion.guidance.memory`).
+2. Reference direction: the velocity; below ``min_speed_mps`` the direction to the goal
+   (so a hovering vehicle does not start into an obstacle); zero at the goal.
+3. On or inside a boundary sphere → AVOID (``INSIDE_BOUNDARY``): setpoint radially out of
+   the deepest one, ``escape_clearance_m`` beyond its surface.
+4. *Threats* (paper §5: critical): the reference lies inside the obstacle's cone and its
+   surface is nearer than the goal plus ``goal_clearance_m``.
+5. Hysteresis on the active obstacle (AVOID/HOLD), checked in this order. It stays
+   active while it is a threat, and while the straight path to the goal crosses its
+   sphere (``GOAL_BLOCKED``: the aiming point keeps leading around it instead of turning
+   back into it, the chatter the paper's "return as soon as the velocity leaves the cone"
+   would cause). Otherwise it is released at once if its centre is behind the vehicle
+   (``(c - p)·v ≤ 0``); else it stays (``HYSTERESIS``) until the reference has been
+   outside its cone widened by ``exit_margin_rad`` continuously for
+   ``min_clear_time_s``. Forgotten by the memory → released.
+6. Active obstacle: the threat with the nearest surface, or the kept one if nearer.
+   None → NAVIGATE (setpoint = goal). A threat whose sphere holds the goal → HOLD
+   (``GOAL_INSIDE_BOUNDARY``): the goal cannot be reached safely.
+7. AVOID: :func:`~companion.guidance.planner.choose_aiming_point` over all remembered
+   obstacles, candidates from the cluster of cones overlapping the active and threatening
+   ones. Nothing free → HOLD (``NO_FREE_DIRECTION``).
+
+Setpoint while avoiding
+-----------------------
+A position target *at* the tangent point makes the position loop brake there, and the
+tangent point itself lies on the boundary sphere. The setpoint is therefore placed along
+the aiming direction at ``clip(L + setpoint_extension_m, min_setpoint_distance_m,
+max_setpoint_distance_m)`` from the vehicle (``L`` the tangent length). The ray from the
+vehicle along that direction is outside every other cone (planner) and only touches the
+active sphere, so any point on it is collision-free; recomputed every frame it acts as a
+carrot that leads around the sphere. Without the extension and the floor the carrot
+collapses as the vehicle skims the boundary (``L → 0``): a kinematic §6 run then stalls
+beside the obstacle. ``aiming_point_ned_m`` in the output is the tangent point itself.
+
+HOLD latches the position where it was entered; the link may map it to BRAKE/LOITER.
+The avoidance flag of Fig. 11 is ``mode is not NAVIGATE`` (HOLD is an avoidance action).
+
+Yaw: the vehicle faces the horizontal direction to its setpoint (the direction it is
+about to travel), so the forward camera looks where it goes; in HOLD and within
+``yaw_min_distance_m`` of the setpoint, the previous yaw is held.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from companion.guidance._vec import norm3
+from companion.guidance.cone import (
+    CollisionCone,
+    SphereLike,
+    collision_cone,
+    contains_direction,
+    escape_point,
+    segment_intersects_sphere,
+)
+from companion.guidance.config import GuidanceConfig
+from companion.guidance.memory import ObstacleMemory, TrackedObstacle, update_memory
+from companion.guidance.planner import choose_aiming_point, overlapping_cluster
+
+__all__ = [
+    "Guidance",
+    "GuidanceOutput",
+    "GuidanceState",
+    "Mode",
+    "Reason",
+    "guidance_step",
+]
+
+
+class Mode(Enum):
+    """What the vehicle is doing."""
+
+    NAVIGATE = "navigate"
+    """Waypoint guidance to the goal (paper Fig. 5, navigation maneuver)."""
+    AVOID = "avoid"
+    """Guidance to the aiming point (or out of a boundary sphere)."""
+    HOLD = "hold"
+    """Brake and hold position: no safe direction, or the goal is unreachable."""
+
+
+class Reason(Enum):
+    """Why the mode is what it is (for status messages, logs and failure statistics)."""
+
+    NO_THREAT = "no_threat"
+    CRITICAL = "critical"
+    HYSTERESIS = "hysteresis"
+    GOAL_BLOCKED = "goal_blocked"
+    INSIDE_BOUNDARY = "inside_boundary"
+    NO_FREE_DIRECTION = "no_free_direction"
+    GOAL_INSIDE_BOUNDARY = "goal_inside_boundary"
+
+
+@dataclass(frozen=True)
+class GuidanceState:
+    """Everything guidance remembers between frames.
+
+    Attributes
+    ----------
+    mode : Mode
+    active_id : int or None
+        Track id of the obstacle being avoided.
+    clear_since_s : float or None
+        Simulation time since which the exit condition has held [s].
+    hold_ned_m : tuple of 3 float or None
+        Latched HOLD position [m, NED].
+    yaw_rad : float or None
+        Last commanded yaw [rad] (NED: 0 north, +π/2 east).
+    time_s : float or None
+        Simulation time of the last step [s].
+    memory : ObstacleMemory
+    """
+
+    mode: Mode = Mode.NAVIGATE
+    active_id: int | None = None
+    clear_since_s: float | None = None
+    hold_ned_m: tuple[float, float, float] | None = None
+    yaw_rad: float | None = None
+    time_s: float | None = None
+    memory: ObstacleMemory = field(default_factory=ObstacleMemory)
+
+
+@dataclass(frozen=True, eq=False)
+class GuidanceOutput:
+    """One step's decision.
+
+    Attributes
+    ----------
+    time_s : float
+        Simulation time of the step [s].
+    mode : Mode
+    reason : Reason
+    avoidance_flag : bool
+        Fig. 11: True while avoiding (AVOID or HOLD).
+    setpoint_ned_m : ndarray, shape (3,)
+        Position setpoint [m, NED]: goal, extended aiming direction, escape or hold point.
+    yaw_rad : float
+        Desired yaw [rad], NED (0 north, +π/2 east), facing the setpoint.
+    active_obstacle : TrackedObstacle or None
+        The obstacle being avoided.
+    aiming_point_ned_m : ndarray, shape (3,) or None
+        The Eq. (28) tangent point chosen (AVOID via the planner only).
+    tracks : tuple of TrackedObstacle
+        The obstacle memory after this step.
+    """
+
+    time_s: float
+    mode: Mode
+    reason: Reason
+    avoidance_flag: bool
+    setpoint_ned_m: np.ndarray
+    yaw_rad: float
+    active_obstacle: TrackedObstacle | None
+    aiming_point_ned_m: np.ndarray | None
+    tracks: tuple[TrackedObstacle, ...]
+
+
+def _vec3(name: str, value) -> np.ndarray:
+    vec = np.array(value, dtype=float)
+    if vec.shape != (3,) or not np.all(np.isfinite(vec)):
+        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
+    return vec
+
+
+def _inside_ball(point: np.ndarray, cone: CollisionCone) -> bool:
+    return norm3(point - cone.center_ned_m) < cone.radius_m
+
+
+def guidance_step(
+    state: GuidanceState,
+    *,
+    time_s: float,
+    pos_ned_m,
+    vel_ned_mps,
+    goal_ned_m,
+    detections: Iterable[SphereLike] = (),
+    yaw_rad: float | None = None,
+    config: GuidanceConfig | None = None,
+) -> tuple[GuidanceState, GuidanceOutput]:
+    """Advance guidance by one perception frame.
+
+    Parameters
+    ----------
+    state : GuidanceState
+        State after the previous step (``GuidanceState()`` to start).
+    time_s : float
+        Simulation time of this frame [s]; must not decrease.
+    pos_ned_m, vel_ned_mps : array_like, shape (3,)
+        Vehicle position [m] and velocity [m/s] at the frame's capture time, NED.
+    goal_ned_m : array_like, shape (3,)
+        Navigation goal [m, NED].
+    detections : iterable of SphereLike
+        Boundary spheres perceived in this frame (inflated; may be empty).
+    yaw_rad : float, optional
+        Current vehicle yaw [rad]; only the first yaw command falls back to it when the
+        setpoint is too close to define a direction.
+    config : GuidanceConfig, optional
+        Defaults to ``GuidanceConfig()``.
+
+    Returns
+    -------
+    state : GuidanceState
+        State for the next step.
+    output : GuidanceOutput
+        This step's decision.
+    """
+    cfg = GuidanceConfig() if config is None else config
+    time_s = float(time_s)
+    if not math.isfinite(time_s):
+        raise ValueError(f"time_s must be finite, got {time_s!r}")
+    if state.time_s is not None and time_s < state.time_s:
+        raise ValueError(f"simulation time went backwards: {time_s} s after {state.time_s} s")
+    pos = _vec3("pos_ned_m", pos_ned_m)
+    vel = _vec3("vel_ned_mps", vel_ned_mps)
+    goal = _vec3("goal_ned_m", goal_ned_m)
+
+    memory = update_memory(
+        state.memory,
+        detections,
+        time_s=time_s,
+        pos_ned_m=pos,
+        vel_ned_mps=vel,
+        goal_ned_m=goal,
+        config=cfg,
+    )
+    tracks = memory.tracks
+    cones = [collision_cone(pos, t.sphere) for t in tracks]
+
+    to_goal = goal - pos
+    goal_dist = norm3(to_goal)
+    speed = norm3(vel)
+    if speed >= cfg.min_speed_mps and speed > 0.0:
+        ref = vel
+    elif goal_dist > 1e-9:
+        ref = to_goal
+    else:
+        ref = np.zeros(3)
+    has_ref = bool(np.any(ref != 0.0))
+
+    mode, reason = Mode.NAVIGATE, Reason.NO_THREAT
+    active: int | None = None
+    clear_since: float | None = None
+    setpoint = goal
+    aim: np.ndarray | None = None
+
+    inside = [i for i, c in enumerate(cones) if c.apex_inside]
+    if inside:
+        active = max(inside, key=lambda i: (cones[i].radius_m - cones[i].distance_m, -i))
+        mode, reason = Mode.AVOID, Reason.INSIDE_BOUNDARY
+        setpoint = escape_point(
+            pos, tracks[active].sphere, clearance_m=cfg.escape_clearance_m, reference_ned=ref
+        )
+    else:
+        threats = [
+            i
+            for i, c in enumerate(cones)
+            if has_ref
+            and c.surface_distance_m <= goal_dist + cfg.goal_clearance_m
+            and contains_direction(c, ref)
+        ]
+        kept: int | None = None
+        kept_reason = Reason.CRITICAL
+        if state.mode is not Mode.NAVIGATE:
+            kept = next((i for i, t in enumerate(tracks) if t.track_id == state.active_id), None)
+        if kept is not None and kept not in threats:
+            cone = cones[kept]
+            behind = not has_ref or float(ref @ cone.axis_ned) <= 0.0
+            if goal_dist > 1e-9 and segment_intersects_sphere(pos, goal, tracks[kept].sphere):
+                kept_reason = Reason.GOAL_BLOCKED
+            elif behind:
+                kept = None
+            elif contains_direction(cone, ref, margin_rad=cfg.exit_margin_rad):
+                kept_reason = Reason.HYSTERESIS
+            else:
+                since = time_s if state.clear_since_s is None else state.clear_since_s
+                if time_s - since >= cfg.min_clear_time_s:
+                    kept = None
+                else:
+                    kept_reason, clear_since = Reason.HYSTERESIS, since
+
+        candidates = threats if kept is None else sorted({*threats, kept})
+        if candidates:
+            active = min(candidates, key=lambda i: (cones[i].surface_distance_m, i))
+            reason = Reason.CRITICAL if active in threats else kept_reason
+            if reason is not Reason.HYSTERESIS:
+                clear_since = None
+            if active in threats and _inside_ball(goal, cones[active]):
+                mode, reason = Mode.HOLD, Reason.GOAL_INSIDE_BOUNDARY
+            else:
+                seeds = sorted({active, *threats})
+                choice = choose_aiming_point(
+                    cones,
+                    ref,
+                    n_candidates=cfg.n_candidates,
+                    tie_angle_rad=cfg.tie_angle_rad,
+                    cone_margin_rad=cfg.cone_margin_rad,
+                    candidate_indices=overlapping_cluster(
+                        cones, seeds, margin_rad=cfg.cone_margin_rad
+                    ),
+                )
+                if choice is None:
+                    mode, reason = Mode.HOLD, Reason.NO_FREE_DIRECTION
+                else:
+                    mode = Mode.AVOID
+                    aim = choice.aiming_point_ned_m
+                    reach = min(
+                        max(
+                            choice.distance_m + cfg.setpoint_extension_m,
+                            cfg.min_setpoint_distance_m,
+                        ),
+                        cfg.max_setpoint_distance_m,
+                    )
+                    setpoint = pos + choice.direction_ned * reach
+
+    hold: tuple[float, float, float] | None = None
+    if mode is Mode.HOLD:
+        if state.mode is Mode.HOLD and state.hold_ned_m is not None:
+            hold = state.hold_ned_m
+        else:
+            hold = (float(pos[0]), float(pos[1]), float(pos[2]))
+        setpoint = np.array(hold)
+        clear_since = None
+
+    previous_yaw = state.yaw_rad if state.yaw_rad is not None else yaw_rad
+    to_setpoint = setpoint - pos
+    if mode is not Mode.HOLD and math.hypot(to_setpoint[0], to_setpoint[1]) >= max(
+        cfg.yaw_min_distance_m, 1e-9
+    ):
+        yaw = math.atan2(float(to_setpoint[1]), float(to_setpoint[0]))
+    else:
+        yaw = 0.0 if previous_yaw is None else float(previous_yaw)
+
+    setpoint = np.array(setpoint, dtype=float)
+    setpoint.setflags(write=False)
+    if aim is not None:
+        aim = np.array(aim, dtype=float)
+        aim.setflags(write=False)
+    active_track = None if active is None else tracks[active]
+    new_state = GuidanceState(
+        mode=mode,
+        active_id=None if active_track is None else active_track.track_id,
+        clear_since_s=clear_since,
+        hold_ned_m=hold,
+        yaw_rad=yaw,
+        time_s=time_s,
+        memory=memory,
+    )
+    output = GuidanceOutput(
+        time_s=time_s,
+        mode=mode,
+        reason=reason,
+        avoidance_flag=mode is not Mode.NAVIGATE,
+        setpoint_ned_m=setpoint,
+        yaw_rad=yaw,
+        active_obstacle=active_track,
+        aiming_point_ned_m=aim,
+        tracks=tracks,
+    )
+    return new_state, output
+
+
+class Guidance:
+    """Stateful convenience wrapper around :func:`guidance_step`.
+
+    Parameters
+    ----------
+    config : GuidanceConfig, optional
+        Defaults to ``GuidanceConfig()``.
+    """
+
+    def __init__(self, config: GuidanceConfig | None = None) -> None:
+        self.config = GuidanceConfig() if config is None else config
+        self.state = GuidanceState()
+
+    def reset(self) -> None:
+        """Forget everything (mode, memory, yaw)."""
+        self.state = GuidanceState()
+
+    def step(
+        self,
+        *,
+        time_s: float,
+        pos_ned_m,
+        vel_ned_mps,
+        goal_ned_m,
+        detections: Iterable[SphereLike] = (),
+        yaw_rad: float | None = None,
+    ) -> GuidanceOutput:
+        """Run :func:`guidance_step` on the held state; returns the output."""
+        self.state, output = guidance_step(
+            self.state,
+            time_s=time_s,
+            pos_ned_m=pos_ned_m,
+            vel_ned_mps=vel_ned_mps,
+            goal_ned_m=goal_ned_m,
+            detections=detections,
+            yaw_rad=yaw_rad,
+            config=self.config,
+        )
+        return output

@@ -1,0 +1,133 @@
+"""Guidance parameters: aiming-point planner, mode switching and obstacle memory.
+
+None of these numbers is in the paper (§5 gives the cone and Eq. 28 only); each is a
+named assumption with its unit. Boundary spheres arrive already inflated (vehicle radius +
+margin), and the detection threshold (4 m in §6) is perception's parameter, not ours.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["GuidanceConfig", "UnknownGuidanceKeyError"]
+
+
+class UnknownGuidanceKeyError(TypeError):
+    """A guidance configuration mapping named a key that does not exist."""
+
+
+_INT_FIELDS = frozenset({"n_candidates", "max_tracks"})
+
+
+@dataclass(frozen=True)
+class GuidanceConfig:
+    """Tuning of the companion's guidance (all angles in radians, times in sim seconds).
+
+    Attributes
+    ----------
+    n_candidates : int
+        Aiming-point candidates sampled on each tangent circle (72 → 5° apart). The first
+        is the exact Eq. (28) point; the rest are the fallbacks when it is blocked.
+    tie_angle_rad : float
+        A reference direction within this angle of an obstacle's axis is head-on: the
+        deterministic right-hand side-step decides (see ``cone`` module docstring).
+        ~1°, a few times the angular noise of a perceived centre at 5 m.
+    cone_margin_rad : float
+        Extra half-angle when testing a candidate against the *other* obstacles' cones.
+    min_speed_mps : float
+        Below this speed the velocity has no usable direction and the direction to the
+        goal stands in for it (so a hovering vehicle does not start into an obstacle).
+    exit_margin_rad : float
+        Hysteresis: avoidance ends only once the reference is outside the active cone
+        by this angle (or the obstacle is behind) ...
+    min_clear_time_s : float
+        ... continuously for this long [s, simulation time].
+    setpoint_extension_m : float
+        The position setpoint is the aiming direction extended past the tangent point by
+        this much [m], so the position loop does not brake at the tangent point.
+    min_setpoint_distance_m, max_setpoint_distance_m : float
+        Clamp of the setpoint distance from the vehicle along the aiming direction [m].
+    escape_clearance_m : float
+        Inside a boundary sphere, the escape setpoint lies this far outside it [m].
+    goal_clearance_m : float
+        An obstacle whose surface is farther than ``|goal - p| + goal_clearance_m`` is not
+        a threat: the vehicle stops at the goal before reaching it [m].
+    yaw_min_distance_m : float
+        Below this horizontal distance to the setpoint the previous yaw is held [m].
+    merge_distance_m : float
+        A detection whose centre is within this distance of a remembered obstacle's centre
+        updates it instead of creating a new one [m].
+    merge_weight : float
+        Weight of the new detection when merging, in (0, 1]; 1 replaces the old sphere.
+    memory_timeout_s : float
+        An obstacle unseen for longer than this is forgotten [s, simulation time].
+    forget_distance_m : float
+        An unseen obstacle behind the vehicle (centre behind the plane normal to the
+        velocity) whose surface is farther than this is forgotten [m].
+    max_tracks : int
+        Most obstacles remembered; the least recently seen go first.
+    """
+
+    n_candidates: int = 72
+    tie_angle_rad: float = math.radians(1.0)
+    cone_margin_rad: float = 0.0
+    min_speed_mps: float = 0.2
+    exit_margin_rad: float = math.radians(5.0)
+    min_clear_time_s: float = 0.3
+    setpoint_extension_m: float = 1.0
+    min_setpoint_distance_m: float = 2.0
+    max_setpoint_distance_m: float = 10.0
+    escape_clearance_m: float = 0.5
+    goal_clearance_m: float = 1.0
+    yaw_min_distance_m: float = 0.5
+    merge_distance_m: float = 1.0
+    merge_weight: float = 0.5
+    memory_timeout_s: float = 10.0
+    forget_distance_m: float = 2.0
+    max_tracks: int = 16
+
+    def __post_init__(self) -> None:
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if field.name in _INT_FIELDS:
+                if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                    raise ValueError(f"{field.name} must be an integer >= 1, got {value!r}")
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"{field.name} must be a number, got {value!r}")
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{field.name} must be finite and >= 0, got {value!r}")
+            object.__setattr__(self, field.name, float(value))
+        if not 0.0 < self.merge_weight <= 1.0:
+            raise ValueError(f"merge_weight must be in (0, 1], got {self.merge_weight!r}")
+        if self.tie_angle_rad >= 0.5 * math.pi:
+            raise ValueError(f"tie_angle_rad must be < π/2, got {self.tie_angle_rad!r}")
+        if self.max_setpoint_distance_m < self.min_setpoint_distance_m:
+            raise ValueError(
+                "max_setpoint_distance_m must be >= min_setpoint_distance_m, got "
+                f"{self.max_setpoint_distance_m!r} < {self.min_setpoint_distance_m!r}"
+            )
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> GuidanceConfig:
+        """Build a config from a mapping (e.g. a parsed config file), defaults elsewhere.
+
+        Raises
+        ------
+        UnknownGuidanceKeyError
+            If ``values`` names a key that is not a field; the message names it and lists
+            the valid keys.
+        ValueError
+            If a value is out of range.
+        """
+        known = [f.name for f in dataclasses.fields(cls)]
+        unknown = sorted(set(values) - set(known))
+        if unknown:
+            raise UnknownGuidanceKeyError(
+                f"unknown guidance config key(s) {unknown}; valid keys are {sorted(known)}"
+            )
+        return cls(**dict(values))

@@ -1,0 +1,195 @@
+"""Obstacle memory: boundary spheres that outlive the camera's field of view.
+
+The paper (§6.2) returns to the goal as soon as the obstacle leaves the field of view. A
+forward camera loses a sphere while the vehicle is still beside it, so we remember each
+boundary sphere (NED, with the simulation time it was last seen) while it still matters.
+
+Rules (parameters in :class:`~companion.guidance.config.GuidanceConfig`):
+
+* **Merge.** Each detection updates the nearest remembered obstacle whose centre is within
+  ``merge_distance_m`` (one detection per obstacle per update, nearest pairs first);
+  otherwise it starts a new one with a fresh id. The merged centre and radius are the
+  ``merge_weight`` blend of the new and old values, with the radius raised if needed so
+  the merged sphere always encloses the newest detection (the latest measurement is never
+  under-covered).
+* **Forget.** An obstacle not seen in this update is dropped when it has been unseen for
+  more than ``memory_timeout_s``, or when it is *passed*: its centre is behind the vehicle
+  (``(c - p)·v < 0`` with speed ≥ ``min_speed_mps``), its surface is farther than
+  ``forget_distance_m``, and it does not block the straight segment to the goal. An
+  obstacle seen in this update is always kept.
+* **Capacity.** At most ``max_tracks`` are kept, the most recently seen first (ties: the
+  older id).
+
+Pure functions over frozen values; time is simulation time passed in by the caller.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from companion.guidance._vec import norm3
+from companion.guidance.cone import BoundarySphere, SphereLike, segment_intersects_sphere
+from companion.guidance.config import GuidanceConfig
+
+__all__ = ["ObstacleMemory", "TrackedObstacle", "update_memory"]
+
+
+@dataclass(frozen=True)
+class TrackedObstacle:
+    """A remembered boundary sphere.
+
+    Attributes
+    ----------
+    track_id : int
+        Stable id, unique within one memory.
+    sphere : BoundarySphere
+        Current estimate (NED [m]).
+    first_seen_s, last_seen_s : float
+        Simulation times of the first and the latest detection [s].
+    n_detections : int
+        Detections merged into it so far.
+    """
+
+    track_id: int
+    sphere: BoundarySphere
+    first_seen_s: float
+    last_seen_s: float
+    n_detections: int = 1
+
+
+@dataclass(frozen=True)
+class ObstacleMemory:
+    """The remembered obstacles, ordered by id, and the next id to hand out.
+
+    Attributes
+    ----------
+    tracks : tuple of TrackedObstacle
+    next_id : int
+    """
+
+    tracks: tuple[TrackedObstacle, ...] = ()
+    next_id: int = 0
+
+    def get(self, track_id: int | None) -> TrackedObstacle | None:
+        """The track with ``track_id``, or None."""
+        for track in self.tracks:
+            if track.track_id == track_id:
+                return track
+        return None
+
+
+def _merge(old: BoundarySphere, new: BoundarySphere, weight: float) -> BoundarySphere:
+    c_old = np.asarray(old.center_ned_m)
+    c_new = np.asarray(new.center_ned_m)
+    center = (1.0 - weight) * c_old + weight * c_new
+    radius = (1.0 - weight) * old.radius_m + weight * new.radius_m
+    radius = max(radius, new.radius_m + norm3(center - c_new))
+    return BoundarySphere(center_ned_m=tuple(center), radius_m=radius)
+
+
+def _is_passed(
+    sphere: BoundarySphere,
+    pos: np.ndarray,
+    vel: np.ndarray,
+    goal: np.ndarray | None,
+    config: GuidanceConfig,
+) -> bool:
+    speed = norm3(vel)
+    if speed < max(config.min_speed_mps, 1e-9):
+        return False
+    offset = np.asarray(sphere.center_ned_m) - pos
+    if float(offset @ vel) >= 0.0:
+        return False
+    if norm3(offset) - sphere.radius_m <= config.forget_distance_m:
+        return False
+    return goal is None or not segment_intersects_sphere(pos, goal, sphere)
+
+
+def update_memory(
+    memory: ObstacleMemory,
+    detections: Iterable[SphereLike],
+    *,
+    time_s: float,
+    pos_ned_m,
+    vel_ned_mps,
+    goal_ned_m=None,
+    config: GuidanceConfig,
+) -> ObstacleMemory:
+    """Merge this frame's boundary spheres into the memory and forget what no longer matters.
+
+    Parameters
+    ----------
+    memory : ObstacleMemory
+        Memory after the previous update.
+    detections : iterable of SphereLike
+        Boundary spheres perceived in this frame (centre NED [m], inflated radius [m]).
+    time_s : float
+        Simulation time of the frame [s].
+    pos_ned_m, vel_ned_mps : array_like, shape (3,)
+        Vehicle position [m] and velocity [m/s], NED.
+    goal_ned_m : array_like, shape (3,), optional
+        Goal [m, NED]; an obstacle blocking the straight path to it is not "passed".
+    config : GuidanceConfig
+
+    Returns
+    -------
+    ObstacleMemory
+        New memory (the input is not modified); tracks ordered by id.
+    """
+    pos = np.asarray(pos_ned_m, dtype=float)
+    vel = np.asarray(vel_ned_mps, dtype=float)
+    goal = None if goal_ned_m is None else np.asarray(goal_ned_m, dtype=float)
+    spheres = [BoundarySphere.of(d) for d in detections]
+
+    tracks = list(memory.tracks)
+    next_id = memory.next_id
+    seen: set[int] = set()  # indices into ``tracks`` updated in this call
+
+    # Nearest pairs first, so association does not depend on the detection order.
+    pairs = []
+    for i_det, det in enumerate(spheres):
+        c_det = np.asarray(det.center_ned_m)
+        for i_trk, trk in enumerate(tracks):
+            dist = norm3(c_det - np.asarray(trk.sphere.center_ned_m))
+            if dist <= config.merge_distance_m:
+                pairs.append((dist, i_det, i_trk))
+    pairs.sort()
+    matched_det: set[int] = set()
+    for _, i_det, i_trk in pairs:
+        if i_det in matched_det or i_trk in seen:
+            continue
+        matched_det.add(i_det)
+        seen.add(i_trk)
+        trk = tracks[i_trk]
+        tracks[i_trk] = replace(
+            trk,
+            sphere=_merge(trk.sphere, spheres[i_det], config.merge_weight),
+            last_seen_s=time_s,
+            n_detections=trk.n_detections + 1,
+        )
+    for i_det, det in enumerate(spheres):
+        if i_det in matched_det:
+            continue
+        seen.add(len(tracks))
+        tracks.append(
+            TrackedObstacle(track_id=next_id, sphere=det, first_seen_s=time_s, last_seen_s=time_s)
+        )
+        next_id += 1
+
+    kept = [
+        trk
+        for i, trk in enumerate(tracks)
+        if i in seen
+        or not (
+            time_s - trk.last_seen_s > config.memory_timeout_s
+            or _is_passed(trk.sphere, pos, vel, goal, config)
+        )
+    ]
+    if len(kept) > config.max_tracks:
+        kept.sort(key=lambda t: (-t.last_seen_s, t.track_id))
+        kept = kept[: config.max_tracks]
+    kept.sort(key=lambda t: t.track_id)
+    return ObstacleMemory(tracks=tuple(kept), next_id=next_id)

@@ -1,0 +1,188 @@
+"""Aiming point among several obstacles: the free tangent direction nearest the velocity.
+
+Extends Eq. (28) to several boundary spheres seen from one vehicle position. Candidates
+are sampled on every obstacle's tangent circle (``n_candidates`` each, the first being that
+obstacle's exact Eq. (28) point) and ranked by the angle between their direction and the
+reference direction (the velocity). A candidate is **rejected** when its point lies inside
+another boundary sphere or its direction lies inside another obstacle's collision cone
+(widened by ``cone_margin_rad``); the best remaining one is taken. The free directions are
+bounded by the union of the cones, so this is the free direction nearest the velocity, up
+to the sampling; with one obstacle it is exactly Eq. (28). Nothing free (the cones cover
+every sampled direction) → None, which the caller turns into a HOLD.
+
+Ranking ties (the head-on case) are broken deterministically: angles are compared to 1e-9
+in cosine, then the candidate nearer the horizontal plane wins (keep altitude), then the
+obstacle order given, then the sample order (the right-hand side-step first, see
+:mod:`companion.guidance.cone`). A reference within ``tie_angle_rad`` of the axis of a
+cone that contains it (the nearest such, by surface distance) is snapped onto that axis
+first, so near-head-on noise cannot flip the side.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.guidance.cone import CollisionCone, aiming_direction, circle_units
+
+__all__ = ["AimChoice", "choose_aiming_point", "overlapping_cluster"]
+
+
+@dataclass(frozen=True, eq=False)
+class AimChoice:
+    """The chosen aiming point.
+
+    Attributes
+    ----------
+    aiming_point_ned_m : ndarray, shape (3,)
+        Point on the tangent circle of ``cones[cone_index]`` [m, NED].
+    direction_ned : ndarray, shape (3,)
+        Unit vector from the vehicle to the aiming point.
+    distance_m : float
+        Vehicle to aiming point [m] (that cone's tangent length).
+    cone_index : int
+        Index into the ``cones`` given of the obstacle whose circle holds the point.
+    n_rejected : int
+        Better-ranked candidates that were rejected (0: the first choice was free).
+    """
+
+    aiming_point_ned_m: np.ndarray
+    direction_ned: np.ndarray
+    distance_m: float
+    cone_index: int
+    n_rejected: int
+
+
+def overlapping_cluster(
+    cones: Sequence[CollisionCone], seeds: Sequence[int], *, margin_rad: float = 0.0
+) -> list[int]:
+    """Indices of the cones connected to ``seeds`` through overlapping cones (sorted).
+
+    Two cones (same apex) overlap when the angle between their axes is smaller than the
+    sum of their half-angles plus ``margin_rad``. The union of a cluster is what the
+    vehicle has to go around, so its tangent circles hold the candidates.
+    """
+    cluster = set(seeds)
+    frontier = list(seeds)
+    while frontier:
+        i = frontier.pop()
+        for j, cone in enumerate(cones):
+            if j in cluster:
+                continue
+            cos_axes = min(max(float(cones[i].axis_ned @ cone.axis_ned), -1.0), 1.0)
+            limit = cones[i].half_angle_rad + cone.half_angle_rad + margin_rad
+            if limit >= math.pi or math.acos(cos_axes) < limit:
+                cluster.add(j)
+                frontier.append(j)
+    return sorted(cluster)
+
+
+def choose_aiming_point(
+    cones: Sequence[CollisionCone],
+    reference_ned,
+    *,
+    n_candidates: int = 72,
+    tie_angle_rad: float = 0.0,
+    cone_margin_rad: float = 0.0,
+    candidate_indices: Sequence[int] | None = None,
+) -> AimChoice | None:
+    """Choose the free tangent point whose direction is nearest the reference direction.
+
+    Parameters
+    ----------
+    cones : sequence of CollisionCone
+        Cones from one vehicle position (same apex), apex outside every sphere; at least
+        one. Every cone contributes candidates and rejects others'.
+    reference_ned : array_like, shape (3,)
+        Direction of travel (velocity [m/s, NED]); zero means the axis of the cone with the
+        nearest surface (the head-on tie-break then applies).
+    n_candidates : int
+        Samples per tangent circle.
+    tie_angle_rad : float
+        Head-on tolerance (module docstring).
+    cone_margin_rad : float
+        Widening of the other cones in the rejection test [rad].
+    candidate_indices : sequence of int, optional
+        Cones whose tangent circles supply candidates (default: all). Every cone still
+        rejects candidates. :func:`overlapping_cluster` gives a sensible set.
+
+    Returns
+    -------
+    AimChoice or None
+        None when every candidate is rejected.
+
+    Raises
+    ------
+    ValueError
+        No cones, cones with different apexes, or an apex inside a sphere.
+    """
+    if not cones:
+        raise ValueError("choose_aiming_point needs at least one collision cone")
+    apex = cones[0].apex_ned_m
+    for cone in cones:
+        if cone.apex_inside:
+            raise ValueError("the vehicle is inside a boundary sphere: escape first")
+        if not np.array_equal(cone.apex_ned_m, apex):
+            raise ValueError("all cones must share the vehicle position as apex")
+    if n_candidates < 1:
+        raise ValueError(f"n_candidates must be >= 1, got {n_candidates}")
+
+    by_urgency = sorted(range(len(cones)), key=lambda i: (cones[i].surface_distance_m, i))
+    ref = np.asarray(reference_ned, dtype=float)
+    ref_norm = math.sqrt(float(ref @ ref))
+    if ref_norm <= 1e-9:
+        ref_hat = cones[by_urgency[0]].axis_ned
+    else:
+        ref_hat = ref / ref_norm
+        cos_tie = math.cos(tie_angle_rad)
+        for i in by_urgency:
+            cos_axis = float(ref_hat @ cones[i].axis_ned)
+            if cos_axis >= cos_tie and cos_axis > math.cos(cones[i].half_angle_rad):
+                ref_hat = cones[i].axis_ned
+                break
+
+    generators = range(len(cones)) if candidate_indices is None else list(candidate_indices)
+    if len(generators) == 0:
+        raise ValueError("candidate_indices must name at least one cone")
+    points, units, owners = [], [], []
+    for i in generators:
+        cone = cones[i]
+        first = aiming_direction(cone, ref_hat, tie_angle_rad=tie_angle_rad)
+        u = circle_units(cone.axis_ned, first, n_candidates)
+        points.append(cone.circle_center_ned_m[None, :] + cone.circle_radius_m * u)
+        units.append(u)
+        owners.append(np.full(n_candidates, i))
+    pts = np.concatenate(points)
+    owner = np.concatenate(owners)
+    sample = np.tile(np.arange(n_candidates), len(owners))
+    offsets = pts - apex[None, :]
+    dists = np.sqrt(np.einsum("ij,ij->i", offsets, offsets))
+    dirs = offsets / dists[:, None]
+
+    free = np.ones(len(pts), dtype=bool)
+    for j, cone in enumerate(cones):
+        other = owner != j
+        limit = cone.half_angle_rad + cone_margin_rad
+        in_cone = (dirs @ cone.axis_ned) > math.cos(limit) if limit < math.pi else other
+        rel = pts - cone.center_ned_m[None, :]
+        in_ball = np.einsum("ij,ij->i", rel, rel) < cone.radius_m**2
+        free &= ~(other & (in_cone | in_ball))
+
+    cos_q = np.round((dirs @ ref_hat) * 1e9)
+    vert_q = np.round(np.abs(np.concatenate(units)[:, 2]) * 1e9)
+    order = np.lexsort((sample, owner, vert_q, -cos_q))
+    free_ranked = np.flatnonzero(free[order])
+    if free_ranked.size == 0:
+        return None
+    rank = int(free_ranked[0])
+    best = int(order[rank])
+    return AimChoice(
+        aiming_point_ned_m=pts[best],
+        direction_ned=dirs[best],
+        distance_m=float(dists[best]),
+        cone_index=int(owner[best]),
+        n_rejected=rank,
+    )

@@ -1,0 +1,497 @@
+"""Several obstacles, HOLD, mode switching with hysteresis, and the obstacle memory."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from companion.guidance import (
+    BoundarySphere,
+    Guidance,
+    GuidanceConfig,
+    GuidanceState,
+    Mode,
+    ObstacleMemory,
+    Reason,
+    UnknownGuidanceKeyError,
+    aiming_point,
+    choose_aiming_point,
+    collision_cone,
+    guidance_step,
+    update_memory,
+)
+
+START_NED_M = np.array([20.0, 0.0, -7.0])
+GOAL_NED_M = np.array([0.0, 0.0, -7.0])
+CENTER_NED_M = np.array([10.0, 0.0, -7.0])
+TRUE_RADIUS_M = 1.5
+INFLATED = BoundarySphere(center_ned_m=tuple(CENTER_NED_M), radius_m=2.0)  # + 0.25 arm + 0.25
+DT_S = 1.0 / 30.0
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=float)
+    return v / np.linalg.norm(v)
+
+
+def _angle(a, b) -> float:
+    return math.acos(min(max(float(np.dot(_unit(a), _unit(b))), -1.0), 1.0))
+
+
+def _edges(flags) -> tuple[int, int]:
+    """(rising, falling) edge counts of a boolean sequence."""
+    f = np.asarray(flags, dtype=int)
+    d = np.diff(f)
+    return int(np.sum(d == 1)), int(np.sum(d == -1))
+
+
+# --- config ---------------------------------------------------------------------------
+
+
+def test_config_from_dict_names_unknown_key():
+    with pytest.raises(UnknownGuidanceKeyError, match="exit_margin_deg"):
+        GuidanceConfig.from_dict({"exit_margin_deg": 5.0})
+    assert issubclass(UnknownGuidanceKeyError, TypeError)
+    cfg = GuidanceConfig.from_dict({"exit_margin_rad": 0.1, "n_candidates": 36})
+    assert cfg.exit_margin_rad == 0.1
+    assert cfg.n_candidates == 36
+    assert GuidanceConfig.from_dict({}) == GuidanceConfig()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.exit_margin_rad = 0.2  # type: ignore[misc]
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"n_candidates": 0},
+        {"n_candidates": 7.5},
+        {"min_clear_time_s": -1.0},
+        {"merge_weight": 0.0},
+        {"tie_angle_rad": math.nan},
+        {"min_setpoint_distance_m": 5.0, "max_setpoint_distance_m": 4.0},
+    ],
+)
+def test_config_rejects_bad_values(bad):
+    with pytest.raises(ValueError, match=next(iter(bad)).split("_")[0]):
+        GuidanceConfig.from_dict(bad)
+
+
+# --- several obstacles ----------------------------------------------------------------
+
+
+def test_single_obstacle_planner_is_eq28():
+    cone = collision_cone(START_NED_M, INFLATED)
+    vel = np.array([-2.0, 0.3, 0.1])
+    choice = choose_aiming_point([cone], vel)
+    assert choice is not None
+    assert choice.n_rejected == 0
+    np.testing.assert_allclose(choice.aiming_point_ned_m, aiming_point(cone, vel), atol=1e-12)
+    np.testing.assert_allclose(choice.distance_m, cone.tangent_length_m, rtol=1e-12)
+
+
+def test_second_obstacle_on_the_right_sends_the_paper_vehicle_left():
+    # B covers the right-hand tangent point of A, (10.4, -1.96, -7).
+    blocker = BoundarySphere(center_ned_m=(10.4, -3.2, -7.0), radius_m=1.5)
+    cones = [collision_cone(START_NED_M, INFLATED), collision_cone(START_NED_M, blocker)]
+    right = aiming_point(cones[0], [-2.0, 0.0, 0.0])
+    assert np.linalg.norm(right - np.array(blocker.center_ned_m)) < blocker.radius_m
+
+    choice = choose_aiming_point(cones, [-2.0, 0.0, 0.0])
+    assert choice is not None
+    assert choice.n_rejected > 0
+    # Head-on tie, right blocked: the next equally good point that keeps altitude is the
+    # left-hand side-step, exactly.
+    np.testing.assert_allclose(
+        choice.aiming_point_ned_m, [10.4, 2.0 * math.sqrt(96.0) / 10.0, -7.0], atol=1e-9
+    )
+    assert choice.cone_index == 0
+
+
+def test_random_scenes_never_aim_into_another_obstacle():
+    rng = np.random.default_rng(11)
+    n_checked = 0
+    for _ in range(150):
+        apex = rng.uniform(-5.0, 5.0, 3)
+        spheres = []
+        for _ in range(rng.integers(2, 4)):
+            direction = _unit(rng.normal(size=3) + np.array([3.0, 0.0, 0.0]))
+            radius = rng.uniform(0.5, 2.5)
+            center = apex + direction * rng.uniform(radius + 0.5, 12.0)
+            spheres.append(BoundarySphere(center_ned_m=tuple(center), radius_m=radius))
+        cones = [collision_cone(apex, s) for s in spheres]
+        vel = _unit(rng.normal(size=3) + np.array([2.0, 0.0, 0.0])) * 2.0
+        choice = choose_aiming_point(cones, vel, n_candidates=48)
+        if choice is None:
+            continue
+        n_checked += 1
+        own = cones[choice.cone_index]
+        np.testing.assert_allclose(choice.distance_m, own.tangent_length_m, rtol=1e-9)
+        for j, (sphere, cone) in enumerate(zip(spheres, cones, strict=True)):
+            if j == choice.cone_index:
+                continue
+            gap = np.linalg.norm(choice.aiming_point_ned_m - np.array(sphere.center_ned_m))
+            assert gap >= sphere.radius_m, "aiming point inside another boundary"
+            assert _angle(choice.direction_ned, cone.axis_ned) >= cone.half_angle_rad - 1e-12, (
+                "aiming direction inside another cone"
+            )
+    assert n_checked > 100
+
+
+def _surrounded(pos):
+    """Six spheres on ±x, ±y, ±z at 3 m, radius 2.5 m: half-angle 56.4° > 54.7°, no way out."""
+    spheres = []
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            center = np.array(pos, dtype=float)
+            center[axis] += 3.0 * sign
+            spheres.append(BoundarySphere(center_ned_m=tuple(center), radius_m=2.5))
+    return spheres
+
+
+def test_nothing_free_means_hold_latched_where_it_started():
+    pos = np.array([0.0, 0.0, -10.0])
+    spheres = _surrounded(pos)
+    cones = [collision_cone(pos, s) for s in spheres]
+    assert choose_aiming_point(cones, [1.0, 0.0, 0.0]) is None
+
+    state, out = guidance_step(
+        GuidanceState(),
+        time_s=0.0,
+        pos_ned_m=pos,
+        vel_ned_mps=[1.0, 0.0, 0.0],
+        goal_ned_m=[20.0, 0.0, -10.0],
+        detections=spheres,
+    )
+    assert out.mode is Mode.HOLD
+    assert out.reason is Reason.NO_FREE_DIRECTION
+    assert out.avoidance_flag
+    np.testing.assert_allclose(out.setpoint_ned_m, pos)
+    # Drifting on, the hold point stays where HOLD began.
+    state, out = guidance_step(
+        state,
+        time_s=DT_S,
+        pos_ned_m=pos + np.array([0.03, 0.0, 0.0]),
+        vel_ned_mps=[0.9, 0.0, 0.0],
+        goal_ned_m=[20.0, 0.0, -10.0],
+        detections=spheres,
+    )
+    assert out.mode is Mode.HOLD
+    np.testing.assert_allclose(out.setpoint_ned_m, pos)
+
+
+# --- mode switching -------------------------------------------------------------------
+
+
+def _step(state, t, pos, vel, goal, detections=(), config=None):
+    return guidance_step(
+        state,
+        time_s=t,
+        pos_ned_m=pos,
+        vel_ned_mps=vel,
+        goal_ned_m=goal,
+        detections=detections,
+        config=config,
+    )
+
+
+def _graze(config, angles_rad):
+    """Fly at each angle from the cone axis (horizontal, to the east side), static geometry."""
+    pos = np.zeros(3)
+    goal = np.array([0.0, 30.0, 0.0])  # clear of the obstacle: only the velocity matters
+    sphere = BoundarySphere(center_ned_m=(10.0, 0.0, 0.0), radius_m=2.0)
+    state = GuidanceState()
+    flags, times = [], []
+    for k, angle in enumerate(angles_rad):
+        vel = 2.0 * np.array([math.cos(angle), math.sin(angle), 0.0])
+        state, out = _step(state, k * DT_S, pos, vel, goal, [sphere], config)
+        flags.append(out.avoidance_flag)
+        times.append(k * DT_S)
+    return np.array(flags), np.array(times)
+
+
+def test_noisy_grazing_velocity_raises_the_flag_once():
+    alpha = math.asin(0.2)
+    rng = np.random.default_rng(5)
+    noise = rng.uniform(-math.radians(2.0), math.radians(2.0), 300)  # < 5° exit margin
+    grazing = alpha + noise
+    assert np.any(grazing < alpha) and np.any(grazing > alpha), "really crosses the edge"
+
+    flags, _ = _graze(GuidanceConfig(), grazing)
+    assert _edges(flags) == (1, 0)
+    # Without hysteresis the same input chatters: the test has teeth.
+    bare = GuidanceConfig(exit_margin_rad=0.0, min_clear_time_s=0.0)
+    rising, falling = _edges(_graze(bare, grazing)[0])
+    assert rising > 20 and falling > 20
+
+
+def test_flag_falls_once_after_clear_for_the_minimum_time():
+    cfg = GuidanceConfig()
+    alpha = math.asin(0.2)
+    rng = np.random.default_rng(6)
+    angles = np.concatenate(
+        [
+            alpha + rng.uniform(-0.03, 0.03, 60),
+            # Well outside, but with noise dipping into the margin band (must not count).
+            alpha + cfg.exit_margin_rad + rng.uniform(0.01, 0.1, 30),
+        ]
+    )
+    angles[70] = alpha + 0.5 * cfg.exit_margin_rad  # back inside the band: timer restarts
+    flags, times = _graze(cfg, angles)
+    assert _edges(flags) == (1, 1)
+    fall = int(np.flatnonzero(np.diff(flags.astype(int)) == -1)[0]) + 1
+    # The clear condition holds continuously from sample 71 on.
+    np.testing.assert_allclose(times[fall] - times[71], cfg.min_clear_time_s, atol=DT_S + 1e-9)
+
+
+def test_obstacle_behind_ends_avoidance_at_once():
+    sphere = BoundarySphere(center_ned_m=(10.0, 0.0, 0.0), radius_m=2.0)
+    goal = np.array([0.0, 30.0, 0.0])
+    state, out = _step(GuidanceState(), 0.0, [0.0, 0.0, 0.0], [2.0, 0.0, 0.0], goal, [sphere])
+    assert out.mode is Mode.AVOID and out.reason is Reason.CRITICAL
+    state, out = _step(state, DT_S, [0.0, 0.0, 0.0], [-2.0, 0.1, 0.0], goal, [sphere])
+    assert out.mode is Mode.NAVIGATE
+    np.testing.assert_allclose(out.setpoint_ned_m, goal)
+
+
+def test_avoidance_continues_while_the_goal_is_behind_the_obstacle():
+    # Beside the obstacle, flying along it: velocity outside the cone, goal still hidden.
+    sphere = BoundarySphere(center_ned_m=(10.0, 0.0, -7.0), radius_m=2.0)
+    state, out = _step(GuidanceState(), 0.0, START_NED_M, [-2.0, 0.0, 0.0], GOAL_NED_M, [sphere])
+    assert out.mode is Mode.AVOID
+    pos = np.array([12.0, -2.3, -7.0])
+    state, out = _step(state, 5.0, pos, [-2.0, 0.0, 0.0], GOAL_NED_M, [sphere])
+    assert not collision_cone(pos, sphere).apex_inside
+    assert out.mode is Mode.AVOID and out.reason is Reason.GOAL_BLOCKED
+
+
+def test_hovering_vehicle_does_not_start_into_the_obstacle():
+    _, out = _step(GuidanceState(), 0.0, START_NED_M, [0.0, 0.0, 0.0], GOAL_NED_M, [INFLATED])
+    assert out.mode is Mode.AVOID
+    # Zero velocity: the goal direction is the reference, head-on → the right side-step.
+    np.testing.assert_allclose(
+        out.aiming_point_ned_m, [10.4, -2.0 * math.sqrt(96.0) / 10.0, -7.0], atol=1e-9
+    )
+
+
+def test_head_on_side_is_stable_under_perception_noise():
+    rng = np.random.default_rng(9)
+    for _ in range(50):
+        center = CENTER_NED_M + np.array([rng.normal(0, 0.05), rng.normal(0, 0.05), 0.0])
+        sphere = BoundarySphere(center_ned_m=tuple(center), radius_m=2.0)
+        _, out = _step(GuidanceState(), 0.0, START_NED_M, [-2.0, 0.0, 0.0], GOAL_NED_M, [sphere])
+        assert out.mode is Mode.AVOID
+        assert out.aiming_point_ned_m[1] < -1.5, "always passes to the right (west)"
+
+
+def test_setpoint_extends_past_the_tangent_point():
+    cfg = GuidanceConfig()
+    _, out = _step(GuidanceState(), 0.0, START_NED_M, [-2.0, 0.0, 0.0], GOAL_NED_M, [INFLATED])
+    aim = out.aiming_point_ned_m
+    reach = min(
+        max(math.sqrt(96.0) + cfg.setpoint_extension_m, cfg.min_setpoint_distance_m),
+        cfg.max_setpoint_distance_m,
+    )
+    np.testing.assert_allclose(
+        out.setpoint_ned_m, START_NED_M + _unit(aim - START_NED_M) * reach, atol=1e-9
+    )
+    # Yaw faces the setpoint (NED: atan2(east, north)).
+    d = out.setpoint_ned_m - START_NED_M
+    np.testing.assert_allclose(out.yaw_rad, math.atan2(d[1], d[0]), atol=1e-12)
+
+
+def test_setpoint_never_collapses_onto_the_vehicle():
+    # Skimming the boundary, the tangent length → 0; the setpoint must stay ahead.
+    cfg = GuidanceConfig()
+    pos = CENTER_NED_M + np.array([0.3, -2.01, 0.0])
+    _, out = _step(GuidanceState(), 0.0, pos, [-2.0, 0.5, 0.0], GOAL_NED_M, [INFLATED])
+    assert out.mode is Mode.AVOID
+    assert collision_cone(pos, INFLATED).tangent_length_m < 0.5
+    reach = np.linalg.norm(out.setpoint_ned_m - pos)
+    np.testing.assert_allclose(reach, cfg.min_setpoint_distance_m, rtol=1e-9)
+
+
+def test_inside_a_boundary_escapes_radially():
+    pos = np.array([11.0, -1.0, -7.0])
+    _, out = _step(GuidanceState(), 0.0, pos, [-1.0, 0.0, 0.0], GOAL_NED_M, [INFLATED])
+    assert out.mode is Mode.AVOID and out.reason is Reason.INSIDE_BOUNDARY
+    out_dir = out.setpoint_ned_m - CENTER_NED_M
+    np.testing.assert_allclose(np.linalg.norm(out_dir), 2.0 + GuidanceConfig().escape_clearance_m)
+    np.testing.assert_allclose(_unit(out_dir), _unit(pos - CENTER_NED_M), atol=1e-12)
+
+
+def test_goal_inside_a_boundary_holds():
+    goal = CENTER_NED_M + np.array([0.5, 0.0, 0.0])
+    _, out = _step(GuidanceState(), 0.0, START_NED_M, [-2.0, 0.0, 0.0], goal, [INFLATED])
+    assert out.mode is Mode.HOLD and out.reason is Reason.GOAL_INSIDE_BOUNDARY
+
+
+def test_obstacle_beyond_the_goal_is_ignored():
+    goal = np.array([15.0, 0.0, -7.0])  # 5 m ahead; the obstacle surface is 8 m ahead
+    _, out = _step(GuidanceState(), 0.0, START_NED_M, [-2.0, 0.0, 0.0], goal, [INFLATED])
+    assert out.mode is Mode.NAVIGATE
+    np.testing.assert_allclose(out.setpoint_ned_m, goal)
+
+
+def test_time_must_not_go_backwards():
+    state, _ = _step(GuidanceState(), 1.0, START_NED_M, [0.0, 0.0, 0.0], GOAL_NED_M)
+    with pytest.raises(ValueError, match="backwards"):
+        _step(state, 0.5, START_NED_M, [0.0, 0.0, 0.0], GOAL_NED_M)
+
+
+# --- obstacle memory ------------------------------------------------------------------
+
+
+def test_memory_merges_nearby_detections_and_keeps_ids():
+    cfg = GuidanceConfig()
+    here = {"pos_ned_m": START_NED_M, "vel_ned_mps": [-2.0, 0.0, 0.0], "config": cfg}
+    mem = update_memory(ObstacleMemory(), [INFLATED], time_s=0.0, **here)
+    assert [t.track_id for t in mem.tracks] == [0]
+    shifted = BoundarySphere(center_ned_m=(10.4, 0.2, -7.0), radius_m=1.8)
+    far = BoundarySphere(center_ned_m=(5.0, 3.0, -7.0), radius_m=1.0)
+    mem = update_memory(mem, [far, shifted], time_s=0.1, **here)
+    assert [t.track_id for t in mem.tracks] == [0, 1]
+    merged = mem.get(0)
+    assert merged.n_detections == 2 and merged.last_seen_s == 0.1
+    np.testing.assert_allclose(merged.sphere.center_ned_m, [10.2, 0.1, -7.0], atol=1e-12)
+    # The merged sphere always encloses the newest detection.
+    gap = np.linalg.norm(np.subtract(merged.sphere.center_ned_m, shifted.center_ned_m))
+    assert merged.sphere.radius_m >= shifted.radius_m + gap - 1e-12
+    assert mem.get(1).sphere == far
+
+
+def test_memory_times_out_in_simulation_seconds():
+    cfg = GuidanceConfig(memory_timeout_s=2.0)
+    hover = {"pos_ned_m": START_NED_M, "vel_ned_mps": [0.0, 0.0, 0.0], "config": cfg}
+    mem = update_memory(ObstacleMemory(), [INFLATED], time_s=10.0, **hover)
+    assert len(update_memory(mem, [], time_s=12.0, **hover).tracks) == 1
+    assert len(update_memory(mem, [], time_s=12.01, **hover).tracks) == 0
+
+
+def test_memory_forgets_an_obstacle_once_passed():
+    cfg = GuidanceConfig()
+    mem = update_memory(
+        ObstacleMemory(),
+        [INFLATED],
+        time_s=0.0,
+        pos_ned_m=START_NED_M,
+        vel_ned_mps=[-2.0, 0.0, 0.0],
+        config=cfg,
+    )
+    beside = {"vel_ned_mps": [-2.0, 0.0, 0.0], "goal_ned_m": GOAL_NED_M, "config": cfg}
+
+    def x_at_surface_distance(gap_m):  # north coordinate on y = -2.5 with that surface gap
+        return 10.0 - math.sqrt((INFLATED.radius_m + gap_m) ** 2 - 2.5**2)
+
+    # Beside it and just past it: still remembered.
+    for x in (10.5, 10.0, x_at_surface_distance(cfg.forget_distance_m - 0.05)):
+        mem = update_memory(mem, [], time_s=1.0, pos_ned_m=[x, -2.5, -7.0], **beside)
+        assert len(mem.tracks) == 1, x
+    # Behind and farther than forget_distance_m: gone.
+    x = x_at_surface_distance(cfg.forget_distance_m + 0.05)
+    mem = update_memory(mem, [], time_s=1.0, pos_ned_m=[x, -2.5, -7.0], **beside)
+    assert len(mem.tracks) == 0
+
+
+def test_memory_keeps_an_obstacle_that_blocks_the_goal():
+    cfg = GuidanceConfig()
+    far_behind = {"pos_ned_m": [16.0, 0.0, -7.0], "vel_ned_mps": [2.0, 0.0, 0.0], "config": cfg}
+    mem = update_memory(ObstacleMemory(), [INFLATED], time_s=0.0, **far_behind)
+    # Flying away from it (behind, 4 m from its surface) but the goal lies beyond it.
+    kept = update_memory(mem, [], time_s=0.1, goal_ned_m=GOAL_NED_M, **far_behind)
+    assert len(kept.tracks) == 1
+    goal_aside = update_memory(mem, [], time_s=0.1, goal_ned_m=[20.0, 10.0, -7.0], **far_behind)
+    assert len(goal_aside.tracks) == 0
+
+
+def test_obstacle_out_of_view_is_still_avoided():
+    g = Guidance()
+    out = g.step(
+        time_s=0.0,
+        pos_ned_m=START_NED_M,
+        vel_ned_mps=[-2.0, 0.0, 0.0],
+        goal_ned_m=GOAL_NED_M,
+        detections=[INFLATED],
+    )
+    assert out.mode is Mode.AVOID
+    # Seen once; later frames are empty, the vehicle still heads for it.
+    for k in range(1, 60):
+        pos = START_NED_M + np.array([-0.05 * k, 0.0, 0.0])
+        out = g.step(
+            time_s=k * DT_S, pos_ned_m=pos, vel_ned_mps=[-1.5, 0.0, 0.0], goal_ned_m=GOAL_NED_M
+        )
+        assert out.mode is Mode.AVOID and out.reason is Reason.CRITICAL
+        assert out.active_obstacle is not None and out.active_obstacle.track_id == 0
+
+
+# --- closed loop ------------------------------------------------------------------------
+
+
+def _fly_paper_scenario(config=None, t_end_s=25.0):
+    """§6 with a kinematic vehicle and a 48°-wide, 4 m-threshold stand-in for perception.
+
+    The vehicle's velocity follows ``0.8 · (setpoint - p)`` (≤ 2.5 m/s) with a 0.3 s lag;
+    the camera faces the commanded yaw; the obstacle is detected (as its inflated
+    boundary) while its surface is within 4 m and any of it is inside ±24°.
+    """
+    guidance = Guidance(config)
+    pos, vel, yaw = START_NED_M.copy(), np.zeros(3), math.pi
+    log = []
+    for k in range(int(t_end_s / DT_S)):
+        off = CENTER_NED_M - pos
+        dist = float(np.linalg.norm(off))
+        bearing = (math.atan2(off[1], off[0]) - yaw + math.pi) % (2.0 * math.pi) - math.pi
+        visible = dist - TRUE_RADIUS_M <= 4.0 and abs(bearing) - math.asin(
+            min(TRUE_RADIUS_M / dist, 1.0)
+        ) < math.radians(24.0)
+        out = guidance.step(
+            time_s=k * DT_S,
+            pos_ned_m=pos,
+            vel_ned_mps=vel,
+            goal_ned_m=GOAL_NED_M,
+            detections=[INFLATED] if visible else [],
+        )
+        log.append((k * DT_S, pos.copy(), vel.copy(), out, visible))
+        yaw = out.yaw_rad
+        v_cmd = 0.8 * (out.setpoint_ned_m - pos)
+        speed = float(np.linalg.norm(v_cmd))
+        if speed > 2.5:
+            v_cmd *= 2.5 / speed
+        vel = vel + (v_cmd - vel) * DT_S / 0.3
+        pos = pos + vel * DT_S
+    return log
+
+
+def test_paper_scenario_closed_loop():
+    log = _fly_paper_scenario()
+    positions = np.array([p for _, p, _, _, _ in log])
+    flags = np.array([out.avoidance_flag for _, _, _, out, _ in log])
+    visible = np.array([v for *_, v in log])
+
+    np.testing.assert_allclose(positions[-1], GOAL_NED_M, atol=0.5)
+    clearance = np.linalg.norm(positions - CENTER_NED_M, axis=1) - TRUE_RADIUS_M
+    assert clearance.min() >= 0.25 + 0.2, "arm length + margin from the true surface"
+    assert clearance.min() >= INFLATED.radius_m - TRUE_RADIUS_M - 0.02, "hugs the boundary"
+    assert positions[:, 1].min() < -1.5, "passes on the right (west) of the south-bound path"
+    np.testing.assert_allclose(positions[:, 2], -7.0, atol=1e-9)  # keeps altitude
+
+    assert _edges(flags) == (1, 1), "one avoidance pulse, like Fig. 11"
+    rise = int(np.argmax(flags))
+    fall = rise + int(np.argmin(flags[rise:]))
+    assert visible[rise] and not visible[rise - 1], "rises on the first detection"
+    assert clearance[rise] <= 4.0 + 0.1
+    _, p_fall, v_fall, _, _ = log[fall]
+    assert float((CENTER_NED_M - p_fall) @ v_fall) <= 0.5 * np.linalg.norm(v_fall), "passed"
+    # The obstacle left the view while still being avoided: the memory carried it.
+    assert np.any(flags & ~visible)
+    # Forgetting unseen obstacles at once (no memory) makes the flag chatter instead.
+    no_memory = _fly_paper_scenario(GuidanceConfig(memory_timeout_s=0.0))
+    rising, _ = _edges([out.avoidance_flag for _, _, _, out, _ in no_memory])
+    assert rising > 3
+    # Yaw faces the setpoint whenever it is far enough to define a direction.
+    for _, p, _, out, _ in log[: fall + 30]:
+        d = out.setpoint_ned_m - p
+        if math.hypot(d[0], d[1]) > 1.0:
+            np.testing.assert_allclose(out.yaw_rad, math.atan2(d[1], d[0]), atol=1e-12)
