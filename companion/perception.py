@@ -102,6 +102,9 @@ class PerceptionConfig:
         Vehicle radius added to the boundary [m] (Table 2 arm 0.25 m + propeller; assumed).
     safety_margin_m : float
         Extra clearance added to the boundary [m] (assumed).
+    cap_depth_m : float
+        Depth of the nearest cap whose mean bearing gives the centre direction [m]
+        (at least 3 % of the nearest range).
     max_points : int
         Interior samples per obstacle for the boundary fit (its outer contour is always used
         whole), which bounds the per-obstacle cost.
@@ -123,6 +126,7 @@ class PerceptionConfig:
     vehicle_radius_m: float = 0.35
     safety_margin_m: float = 0.3
     max_points: int = 1500
+    cap_depth_m: float = 0.1
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "matcher", Matcher(self.matcher))
@@ -131,7 +135,7 @@ class PerceptionConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be finite and positive, got {value!r}")
-        for name in ("extent_margin_m", "vehicle_radius_m", "safety_margin_m"):
+        for name in ("extent_margin_m", "vehicle_radius_m", "safety_margin_m", "cap_depth_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
@@ -422,14 +426,20 @@ class StereoPerception:
         bearings[:, 0] = xn / norm
         bearings[:, 1] = yn / norm
         bearings[:, 2] = 1.0 / norm
-        # Mean bearing over the uniform grid samples only (the contour would bias it).
-        mean_bearing = bearings[:n_grid].sum(axis=0)
-        mean_bearing /= math.sqrt(float(mean_bearing @ mean_bearing))
-        cos_min = min(1.0, max(-1.0, float((bearings @ mean_bearing).min())))
-        half_angle = min(math.acos(cos_min), math.radians(cfg.max_half_angle_deg))
         # Nearest surface: the 1st percentile of the ranges, robust to a few outliers.
         rank = int(0.01 * (len(range_m) - 1))
         nearest_m = float(np.partition(range_m, rank)[rank])
+        # Centre bearing: the mean bearing of the nearest cap (grid samples within
+        # cap_depth_m of the nearest surface). A sphere's nearest cap is centred on the
+        # camera→centre line, so this stays unbiased when the image border cuts the
+        # silhouette (a pitched camera), where the mean over the whole region does not.
+        grid_bearings = bearings[:n_grid]
+        cap = range_m[:n_grid] <= nearest_m + max(cfg.cap_depth_m, 0.03 * nearest_m)
+        axis = (grid_bearings[cap] if np.any(cap) else grid_bearings).sum(axis=0)
+        axis /= math.sqrt(float(axis @ axis))
+        cos_min = min(1.0, max(-1.0, float((bearings @ axis).min())))
+        half_angle = min(math.acos(cos_min), math.radians(cfg.max_half_angle_deg))
+        mean_bearing = axis
         sin_a = math.sin(half_angle)
         radius_fit_m = nearest_m * sin_a / (1.0 - sin_a)
         center_cam = mean_bearing * (nearest_m + radius_fit_m)

@@ -2,12 +2,14 @@
 
 Position subsystem: the translational dynamics of Eq. (12) are linearized by cancelling
 gravity and the drag term, leaving ``ξ̈ = a`` per axis; the LQ tracker (gains of Eq. 34)
-gives ``a``; the thrust direction ``R e3 = [sθ, −sφ cθ, cφ cθ]`` of the 1-2-3 rotation
-then yields the virtual inputs (φ_d, θ_d), clamped to ±15° (§6.1). Total thrust keeps the
-vertical channel exactly linearized with the *actual* attitude: ``U1 = m a_z / (cφ cθ)``.
-With 1-2-3 angles the thrust direction does not depend on ψ, so the virtual inputs hold
-for any commanded yaw; the yaw command (MAVLink NED yaw) is converted into the paper's ψ
-for the current roll and pitch so that the vehicle's NED heading equals the command.
+gives ``a``. The virtual inputs are the roll and pitch that point the thrust along ``a``,
+taken in the frame of the commanded heading (what "roll" and "pitch" mean on the vehicle
+and in MAVLink) and clamped there to ±15° (§6.1); the commanded attitude
+``Rz(yaw) Ry(pitch) Rx(roll)`` is then expressed as the paper's 1-2-3 angles (φ_d, θ_d,
+ψ_d) through the rotation matrix. (Clamping the paper's φ, θ directly would bound the tilt
+about the inertial axes instead, letting a vehicle heading 45° tilt ~21° along its nose.)
+Total thrust keeps the vertical channel exactly linearized with the *actual* attitude:
+``U1 = m a_z / (cφ cθ)``.
 
 Attitude subsystem: Eq. (16) is linearized by choosing the body torque
 ``T = J (R_r v + Ṙ_r φ̇) + K_r Ω + Ω × JΩ`` so that ``φ̈ = v``; the LQ tracker (gains of
@@ -37,7 +39,6 @@ __all__ = [
     "OUT_TOTAL_THRUST",
     "control_law",
     "mix",
-    "paper_yaw_for_ned_heading",
 ]
 
 # Layout of the controller's output vector.
@@ -54,21 +55,6 @@ OUT_SIZE = 10
 @numba.njit(cache=True)
 def _wrap_pi(angle_rad: float) -> float:
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
-
-
-@numba.njit(cache=True)
-def paper_yaw_for_ned_heading(yaw_ned_rad: float, phi_rad: float, theta_rad: float) -> float:
-    """ψ (1-2-3, z-up) whose MAVLink 3-2-1 NED yaw equals ``yaw_ned_rad`` at this φ, θ.
-
-    MAVLink yaw is ``atan2(R_ned[1,0], R_ned[0,0])`` with ``R_ned = T R T``, i.e.
-    ``atan2(−(sφ sθ cψ + cφ sψ), cθ cψ)``; solving for ψ gives the closed form below.
-    At φ = θ = 0 it reduces to ψ = −yaw.
-    """
-    sy, cy = math.sin(yaw_ned_rad), math.cos(yaw_ned_rad)
-    return math.atan2(
-        -sy * math.cos(theta_rad) - cy * math.sin(phi_rad) * math.sin(theta_rad),
-        cy * math.cos(phi_rad),
-    )
 
 
 @numba.njit(cache=True)
@@ -144,18 +130,32 @@ def control_law(
     az = a_des[2] + (r20 * fbx + r21 * fby + r22 * fbz) / k.m + k.g
     az = max(az, min_vertical_accel_mps2)
 
-    # virtual inputs from the thrust direction [sθ, −sφ cθ, cφ cθ] ∥ a
-    phi_d = math.atan2(-ay, az)
-    theta_d = math.atan2(ax, math.sqrt(ay * ay + az * az))
+    # virtual inputs: roll and pitch of the thrust direction ∥ a in the frame of the
+    # commanded heading (MAVLink 3-2-1 convention), clamped there, then expressed as the
+    # paper's 1-2-3 angles through the rotation matrix R_ned = Rz(yaw) Ry(pitch) Rx(roll)
+    cy, sy = math.cos(yaw_sp_ned_rad), math.sin(yaw_sp_ned_rad)
+    a_north, a_east, a_down = ax, -ay, -az
+    a_fwd = cy * a_north + sy * a_east
+    a_right = -sy * a_north + cy * a_east
+    # thrust direction in the heading frame is (−sθ cφ, sφ, −cθ cφ) for MAVLink (φ, θ)
+    roll_d = math.atan2(a_right, math.sqrt(a_fwd * a_fwd + a_down * a_down))
+    pitch_d = math.atan2(-a_fwd, -a_down)
     tilt_sat = False
-    if abs(phi_d) > max_tilt_rad:
-        phi_d = math.copysign(max_tilt_rad, phi_d)
+    if abs(roll_d) > max_tilt_rad:
+        roll_d = math.copysign(max_tilt_rad, roll_d)
         tilt_sat = True
-    if abs(theta_d) > max_tilt_rad:
-        theta_d = math.copysign(max_tilt_rad, theta_d)
+    if abs(pitch_d) > max_tilt_rad:
+        pitch_d = math.copysign(max_tilt_rad, pitch_d)
         tilt_sat = True
+    cr, sr = math.cos(roll_d), math.sin(roll_d)
+    cpt, spt = math.cos(pitch_d), math.sin(pitch_d)
+    n00, n01, n02 = cy * cpt, cy * spt * sr - sy * cr, cy * spt * cr + sy * sr
+    n12, n22 = sy * spt * cr - cy * sr, cpt * cr
+    # R_paper = T R_ned T, T = diag(1, −1, −1); then the 1-2-3 angles of Eq. (4)
+    phi_d = math.atan2(-n12, n22)
+    theta_d = math.asin(max(-1.0, min(1.0, -n02)))
+    psi_d = math.atan2(n01, n00)
     total = k.m * az / max(cf * ct, 0.5)
-    psi_d = paper_yaw_for_ned_heading(yaw_sp_ned_rad, phi, theta)
 
     # ---- attitude subsystem: LQ tracker on φ̈ = v, then FL of Eq. (16)
     v0 = -gains_att[0, 0] * (phi - phi_d) - gains_att[0, 1] * dphi

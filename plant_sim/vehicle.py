@@ -176,7 +176,7 @@ class Quadrotor:
 
         self._state = np.zeros(STATE_SIZE)
         self._state[0:3] = frames.paper_from_ned(np.asarray(pos_ned_m, dtype=float))
-        self._state[8] = fc.paper_yaw_for_ned_heading(float(yaw_rad), 0.0, 0.0)
+        self._state[6:9] = frames.paper_euler_from_mavlink_euler(0.0, 0.0, float(yaw_rad))
         self._ctrl_out = np.zeros(fc.OUT_SIZE)
         self._phase = 0
         self._steps = 0

@@ -6,7 +6,6 @@ import math
 import numpy as np
 import pytest
 
-from plant_sim.flight_control import paper_yaw_for_ned_heading
 from plant_sim.params import ControlParams, QuadrotorParams
 from plant_sim.vehicle import Quadrotor, Setpoint
 from protocols import frames
@@ -94,17 +93,38 @@ def test_yaw_step_90_deg():
     assert max_excursion < 0.01
 
 
-def test_yaw_command_is_the_ned_heading_when_tilted():
-    rng = np.random.default_rng(11)
-    for yaw, phi, theta in zip(
-        rng.uniform(-math.pi, math.pi, 50),
-        rng.uniform(-0.3, 0.3, 50),
-        rng.uniform(-0.3, 0.3, 50),
-        strict=True,
-    ):
-        psi = paper_yaw_for_ned_heading(yaw, phi, theta)
-        _, _, yaw_back = frames.mavlink_euler_from_paper_euler(phi, theta, psi)
-        assert math.remainder(yaw_back - yaw, 2 * math.pi) == pytest.approx(0.0, abs=1e-12)
+@pytest.mark.parametrize("yaw_deg", [0.0, 45.0, 135.0, -100.0, 180.0])
+def test_tilt_clamp_is_on_vehicle_roll_and_pitch_at_any_heading(yaw_deg):
+    """A far diagonal target saturates MAVLink roll and pitch at exactly ±15°, whatever
+    the heading, and the commanded attitude keeps the commanded heading."""
+    yaw = math.radians(yaw_deg)
+    q = Quadrotor(pos_ned_m=(0.0, 0.0, -7.0), yaw_rad=yaw)
+    q.set_setpoint(Setpoint(pos_ned_m=(30.0, 40.0, -7.0), yaw_rad=yaw))
+    q.run_until(0.5)
+    s = q.snapshot()
+    assert s.tilt_saturated
+    limit = math.radians(15.0)
+    assert max(abs(s.roll_cmd_rad), abs(s.pitch_cmd_rad)) == pytest.approx(limit, abs=1e-12)
+    assert abs(s.roll_cmd_rad) <= limit + 1e-12
+    assert abs(s.pitch_cmd_rad) <= limit + 1e-12
+    assert math.remainder(s.yaw_cmd_rad - yaw, 2 * math.pi) == pytest.approx(0.0, abs=1e-12)
+    # the commanded thrust leans toward the target: its horizontal part points into the
+    # quadrant of (30, 40) seen from the vehicle
+    thrust_ned = frames.rotation_321(s.roll_cmd_rad, s.pitch_cmd_rad, s.yaw_cmd_rad) @ [0, 0, -1]
+    assert thrust_ned[0] > 0 and thrust_ned[1] > 0
+
+
+def test_unsaturated_thrust_direction_equals_desired_acceleration():
+    """Small step, tilt not saturated: thrust direction ∥ (a_des + g) in NED at any yaw."""
+    q = Quadrotor(pos_ned_m=(0.0, 0.0, -7.0), yaw_rad=math.radians(60))
+    q.set_setpoint(Setpoint(pos_ned_m=(0.3, -0.2, -7.0)))
+    q.step(1)
+    s = q.snapshot()
+    assert not s.tilt_saturated
+    k1 = 2**0.5  # Eq. (34) position gain; at rest only the position term acts
+    a_des = -k1 * (s.pos_ned_m - np.array([0.3, -0.2, -7.0])) - np.array([0, 0, P.gravity_mps2])
+    thrust_ned = frames.rotation_321(s.roll_cmd_rad, s.pitch_cmd_rad, s.yaw_cmd_rad) @ [0, 0, -1]
+    np.testing.assert_allclose(thrust_ned, a_des / np.linalg.norm(a_des), atol=1e-4)
 
 
 def test_velocity_setpoint_tracks_speed_and_direction():

@@ -11,7 +11,10 @@ Each step
 2. Reference direction: the velocity; below ``min_speed_mps`` the direction to the goal
    (so a hovering vehicle does not start into an obstacle); zero at the goal.
 3. On or inside a boundary sphere → AVOID (``INSIDE_BOUNDARY``): setpoint radially out of
-   the deepest one, ``escape_clearance_m`` beyond its surface.
+   the deepest one, ``escape_clearance_m`` beyond its surface, slid by
+   ``min_setpoint_distance_m`` along the direction of travel (the previous aiming
+   direction while going around it): a vehicle that strays into a boundary that grew
+   (the memory never shrinks one) keeps going around instead of backing out.
 4. *Threats* (paper §5: critical): the reference lies inside the obstacle's cone and its
    surface is nearer than the goal plus ``goal_clearance_m``.
 5. Hysteresis on the active obstacle (AVOID/HOLD), checked in this order. It stays
@@ -22,12 +25,30 @@ Each step
    (``(c - p)·v ≤ 0``); else it stays (``HYSTERESIS``) until the reference has been
    outside its cone widened by ``exit_margin_rad`` continuously for
    ``min_clear_time_s``. Forgotten by the memory → released.
+   A released obstacle is *cleared*: the straight path to the goal no longer crosses it,
+   so it is not a threat again unless that path becomes blocked by it (or the vehicle
+   enters its boundary, step 3). Close to a boundary the cone is nearly a half-space and
+   the velocity, turning from the tangent toward the goal, sweeps through it although the
+   path bulges away from the obstacle; without this rule the flag chatters there.
 6. Active obstacle: the threat with the nearest surface, or the kept one if nearer.
    None → NAVIGATE (setpoint = goal). A threat whose sphere holds the goal → HOLD
    (``GOAL_INSIDE_BOUNDARY``): the goal cannot be reached safely.
 7. AVOID: :func:`~companion.guidance.planner.choose_aiming_point` over all remembered
    obstacles, candidates from the cluster of cones overlapping the active and threatening
-   ones. Nothing free → HOLD (``NO_FREE_DIRECTION``).
+   ones. Nothing free → HOLD (``NO_FREE_DIRECTION``). Eq. (28)'s reference is the
+   velocity on entry and the previous aiming direction afterwards (below).
+
+Committing to a side
+--------------------
+On entry the aiming point is Eq. (28)'s: the tangent point nearest the velocity (or the
+head-on tie-break). While the same obstacle stays active, the reference becomes the
+previous aiming direction, i.e. the commanded direction of travel, so the aiming point
+moves continuously around the circle on the side chosen at entry. Using the actual
+velocity every frame is unstable in closed loop: the horizontal channel is tilt-limited
+(±15°) while the vertical one is not, so any small vertical part of the aiming direction
+grows the vertical velocity faster than the lateral one, which pulls the next aiming
+point further up or down; in the §6 scenario a 1° perception bias turned a side-step
+into a climb within half a second.
 
 Setpoint while avoiding
 -----------------------
@@ -122,6 +143,12 @@ class GuidanceState:
     time_s : float or None
         Simulation time of the last step [s].
     memory : ObstacleMemory
+    cleared_ids : frozenset of int
+        Tracks released after avoidance with the straight path to the goal clear: they
+        trigger avoidance again only if that path becomes blocked by them or the vehicle
+        enters their boundary.
+    aim_dir_ned : tuple of 3 float or None
+        Unit direction to the aiming point chosen at the last step (AVOID only).
     """
 
     mode: Mode = Mode.NAVIGATE
@@ -131,6 +158,8 @@ class GuidanceState:
     yaw_rad: float | None = None
     time_s: float | None = None
     memory: ObstacleMemory = field(default_factory=ObstacleMemory)
+    cleared_ids: frozenset[int] = frozenset()
+    aim_dir_ned: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -255,21 +284,39 @@ def guidance_step(
     clear_since: float | None = None
     setpoint = goal
     aim: np.ndarray | None = None
+    aim_dir: tuple[float, float, float] | None = None
 
+    live_ids = {t.track_id for t in tracks}
+    cleared = {i for i in state.cleared_ids if i in live_ids}
     inside = [i for i, c in enumerate(cones) if c.apex_inside]
     if inside:
         active = max(inside, key=lambda i: (cones[i].radius_m - cones[i].distance_m, -i))
         mode, reason = Mode.AVOID, Reason.INSIDE_BOUNDARY
-        setpoint = escape_point(
-            pos, tracks[active].sphere, clearance_m=cfg.escape_clearance_m, reference_ned=ref
+        keep_going = (
+            np.asarray(state.aim_dir_ned)
+            if state.aim_dir_ned is not None and state.active_id == tracks[active].track_id
+            else ref
         )
+        setpoint = escape_point(
+            pos,
+            tracks[active].sphere,
+            clearance_m=cfg.escape_clearance_m,
+            reference_ned=keep_going,
+            slide_m=cfg.min_setpoint_distance_m,
+        )
+        aim_dir = state.aim_dir_ned if state.active_id == tracks[active].track_id else None
     else:
+
+        def goal_blocked(i: int) -> bool:
+            return goal_dist > 1e-9 and segment_intersects_sphere(pos, goal, tracks[i].sphere)
+
         threats = [
             i
             for i, c in enumerate(cones)
             if has_ref
             and c.surface_distance_m <= goal_dist + cfg.goal_clearance_m
             and contains_direction(c, ref)
+            and (tracks[i].track_id not in cleared or goal_blocked(i))
         ]
         kept: int | None = None
         kept_reason = Reason.CRITICAL
@@ -278,15 +325,17 @@ def guidance_step(
         if kept is not None and kept not in threats:
             cone = cones[kept]
             behind = not has_ref or float(ref @ cone.axis_ned) <= 0.0
-            if goal_dist > 1e-9 and segment_intersects_sphere(pos, goal, tracks[kept].sphere):
+            if goal_blocked(kept):
                 kept_reason = Reason.GOAL_BLOCKED
             elif behind:
+                cleared.add(tracks[kept].track_id)
                 kept = None
             elif contains_direction(cone, ref, margin_rad=cfg.exit_margin_rad):
                 kept_reason = Reason.HYSTERESIS
             else:
                 since = time_s if state.clear_since_s is None else state.clear_since_s
                 if time_s - since >= cfg.min_clear_time_s:
+                    cleared.add(tracks[kept].track_id)
                     kept = None
                 else:
                     kept_reason, clear_since = Reason.HYSTERESIS, since
@@ -301,9 +350,19 @@ def guidance_step(
                 mode, reason = Mode.HOLD, Reason.GOAL_INSIDE_BOUNDARY
             else:
                 seeds = sorted({active, *threats})
+                plan_ref = ref
+                if (
+                    state.mode is Mode.AVOID
+                    and state.aim_dir_ned is not None
+                    and state.active_id == tracks[active].track_id
+                ):
+                    # Commit to the side chosen on entry: Eq. (28) against the previous
+                    # aiming direction (the commanded velocity) rather than the actual
+                    # velocity; see "Committing to a side" in the module docstring.
+                    plan_ref = np.asarray(state.aim_dir_ned)
                 choice = choose_aiming_point(
                     cones,
-                    ref,
+                    plan_ref,
                     n_candidates=cfg.n_candidates,
                     tie_angle_rad=cfg.tie_angle_rad,
                     cone_margin_rad=cfg.cone_margin_rad,
@@ -316,6 +375,7 @@ def guidance_step(
                 else:
                     mode = Mode.AVOID
                     aim = choice.aiming_point_ned_m
+                    aim_dir = tuple(float(x) for x in choice.direction_ned)
                     reach = min(
                         max(
                             choice.distance_m + cfg.setpoint_extension_m,
@@ -357,6 +417,8 @@ def guidance_step(
         yaw_rad=yaw,
         time_s=time_s,
         memory=memory,
+        cleared_ids=frozenset(cleared),
+        aim_dir_ned=aim_dir,
     )
     output = GuidanceOutput(
         time_s=time_s,

@@ -422,9 +422,14 @@ def tangent_circle_points(
 
 
 def escape_point(
-    pos_ned_m, sphere: SphereLike, *, clearance_m: float = 0.0, reference_ned=None
+    pos_ned_m,
+    sphere: SphereLike,
+    *,
+    clearance_m: float = 0.0,
+    reference_ned=None,
+    slide_m: float = 0.0,
 ) -> np.ndarray:
-    """The way out of a boundary sphere: radially away from its centre.
+    """The way out of a boundary sphere: radially away from its centre, sliding along it.
 
     Parameters
     ----------
@@ -435,24 +440,32 @@ def escape_point(
     clearance_m : float
         Distance beyond the surface [m].
     reference_ned : array_like, shape (3,), optional
-        Velocity; used only when the vehicle is exactly at the centre, where the escape
-        direction is the side-step of :func:`side_step_direction` (north axis).
+        Direction of travel (velocity or commanded direction). Its part tangent to the
+        sphere sets the slide direction; when the vehicle is exactly at the centre, the
+        escape direction is the side-step of :func:`side_step_direction` (north axis).
+    slide_m : float
+        How far to move the exit point along the tangent part of ``reference_ned`` [m]:
+        a vehicle that strayed into a boundary while going around it keeps going around
+        instead of backing out radially. The point stays outside the sphere.
 
     Returns
     -------
     ndarray, shape (3,)
-        ``c + (p - c)/|p - c| · (R + clearance_m)`` [m, NED].
+        ``c + r̂ (R + clearance_m) + t̂ slide_m`` [m, NED], with ``r̂ = (p - c)/|p - c|``
+        and ``t̂`` the unit tangent part of the reference (omitted when it has none).
     """
     pos = _vec3("pos_ned_m", pos_ned_m)
     center = np.asarray(sphere.center_ned_m, dtype=float)
+    ref = np.zeros(3) if reference_ned is None else np.asarray(reference_ned, dtype=float)
     away = pos - center
     norm = norm3(away)
-    if norm > _EPS:
-        direction = away / norm
-    else:
-        ref = np.zeros(3) if reference_ned is None else np.asarray(reference_ned, dtype=float)
-        direction = side_step_direction(ref, np.array([1.0, 0.0, 0.0]))
-    return center + direction * (float(sphere.radius_m) + clearance_m)
+    direction = away / norm if norm > _EPS else side_step_direction(ref, np.array([1.0, 0.0, 0.0]))
+    exit_ned = center + direction * (float(sphere.radius_m) + clearance_m)
+    tangent = ref - float(ref @ direction) * direction
+    t_norm = norm3(tangent)
+    if slide_m > 0.0 and t_norm > _EPS * max(norm3(ref), 1.0):
+        exit_ned = exit_ned + tangent * (slide_m / t_norm)
+    return exit_ned
 
 
 def segment_intersects_sphere(start_ned_m, end_ned_m, sphere: SphereLike) -> bool:

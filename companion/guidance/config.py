@@ -35,7 +35,8 @@ class GuidanceConfig:
     tie_angle_rad : float
         A reference direction within this angle of an obstacle's axis is head-on: the
         deterministic right-hand side-step decides (see ``cone`` module docstring).
-        ~1°, a few times the angular noise of a perceived centre at 5 m.
+        5°: several times the angular error of a perceived centre at the 4 m threshold
+        (up to ~1.5° with the camera pitched 15° nose-down), so noise never picks the side.
     cone_margin_rad : float
         Extra half-angle when testing a candidate against the *other* obstacles' cones.
     min_speed_mps : float
@@ -60,9 +61,7 @@ class GuidanceConfig:
         Below this horizontal distance to the setpoint the previous yaw is held [m].
     merge_distance_m : float
         A detection whose centre is within this distance of a remembered obstacle's centre
-        updates it instead of creating a new one [m].
-    merge_weight : float
-        Weight of the new detection when merging, in (0, 1]; 1 replaces the old sphere.
+        (or inside it) updates it instead of creating a new one [m].
     memory_timeout_s : float
         An obstacle unseen for longer than this is forgotten [s, simulation time].
     forget_distance_m : float
@@ -73,7 +72,7 @@ class GuidanceConfig:
     """
 
     n_candidates: int = 72
-    tie_angle_rad: float = math.radians(1.0)
+    tie_angle_rad: float = math.radians(5.0)
     cone_margin_rad: float = 0.0
     min_speed_mps: float = 0.2
     exit_margin_rad: float = math.radians(5.0)
@@ -85,7 +84,6 @@ class GuidanceConfig:
     goal_clearance_m: float = 1.0
     yaw_min_distance_m: float = 0.5
     merge_distance_m: float = 1.0
-    merge_weight: float = 0.5
     memory_timeout_s: float = 10.0
     forget_distance_m: float = 2.0
     max_tracks: int = 16
@@ -102,8 +100,6 @@ class GuidanceConfig:
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{field.name} must be finite and >= 0, got {value!r}")
             object.__setattr__(self, field.name, float(value))
-        if not 0.0 < self.merge_weight <= 1.0:
-            raise ValueError(f"merge_weight must be in (0, 1], got {self.merge_weight!r}")
         if self.tie_angle_rad >= 0.5 * math.pi:
             raise ValueError(f"tie_angle_rad must be < π/2, got {self.tie_angle_rad!r}")
         if self.max_setpoint_distance_m < self.min_setpoint_distance_m:

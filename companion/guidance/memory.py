@@ -6,12 +6,13 @@ boundary sphere (NED, with the simulation time it was last seen) while it still 
 
 Rules (parameters in :class:`~companion.guidance.config.GuidanceConfig`):
 
-* **Merge.** Each detection updates the nearest remembered obstacle whose centre is within
-  ``merge_distance_m`` (one detection per obstacle per update, nearest pairs first);
-  otherwise it starts a new one with a fresh id. The merged centre and radius are the
-  ``merge_weight`` blend of the new and old values, with the radius raised if needed so
-  the merged sphere always encloses the newest detection (the latest measurement is never
-  under-covered).
+* **Merge.** Each detection updates the nearest remembered obstacle it overlaps: centres
+  within ``merge_distance_m``, or either centre inside the other sphere; otherwise it
+  starts a new one with a fresh id. Several detections may update one obstacle in one
+  frame (a close obstacle seen in fragments). The merged sphere is the smallest sphere
+  enclosing both: a remembered obstacle never shrinks. Close up, the camera sees only a
+  cap of a large obstacle, or loses part of it at the image border; a blend would let
+  such partial views shrink the boundary exactly when the vehicle is beside it.
 * **Forget.** An obstacle not seen in this update is dropped when it has been unseen for
   more than ``memory_timeout_s``, or when it is *passed*: its centre is behind the vehicle
   (``(c - p)·v < 0`` with speed ≥ ``min_speed_mps``), its surface is farther than
@@ -81,13 +82,22 @@ class ObstacleMemory:
         return None
 
 
-def _merge(old: BoundarySphere, new: BoundarySphere, weight: float) -> BoundarySphere:
+def _merge(old: BoundarySphere, new: BoundarySphere) -> BoundarySphere:
+    """Smallest sphere enclosing ``old`` and ``new``."""
     c_old = np.asarray(old.center_ned_m)
     c_new = np.asarray(new.center_ned_m)
-    center = (1.0 - weight) * c_old + weight * c_new
-    radius = (1.0 - weight) * old.radius_m + weight * new.radius_m
-    radius = max(radius, new.radius_m + norm3(center - c_new))
+    gap = norm3(c_new - c_old)
+    if gap + new.radius_m <= old.radius_m:
+        return old
+    if gap + old.radius_m <= new.radius_m:
+        return new
+    radius = 0.5 * (gap + old.radius_m + new.radius_m)
+    center = c_old + (radius - old.radius_m) / gap * (c_new - c_old)
     return BoundarySphere(center_ned_m=tuple(center), radius_m=radius)
+
+
+def _overlaps(det: BoundarySphere, trk: BoundarySphere, gap_m: float, config) -> bool:
+    return gap_m <= config.merge_distance_m or gap_m < max(det.radius_m, trk.radius_m)
 
 
 def _is_passed(
@@ -148,28 +158,30 @@ def update_memory(
     next_id = memory.next_id
     seen: set[int] = set()  # indices into ``tracks`` updated in this call
 
-    # Nearest pairs first, so association does not depend on the detection order.
-    pairs = []
+    # Each detection updates the nearest overlapping remembered obstacle (by centre gap),
+    # so association does not depend on the detection order.
+    matched_det: set[int] = set()
+    n_remembered = len(tracks)
     for i_det, det in enumerate(spheres):
         c_det = np.asarray(det.center_ned_m)
-        for i_trk, trk in enumerate(tracks):
-            dist = norm3(c_det - np.asarray(trk.sphere.center_ned_m))
-            if dist <= config.merge_distance_m:
-                pairs.append((dist, i_det, i_trk))
-    pairs.sort()
-    matched_det: set[int] = set()
-    for _, i_det, i_trk in pairs:
-        if i_det in matched_det or i_trk in seen:
+        best: tuple[float, int] | None = None
+        for i_trk in range(n_remembered):
+            trk_sphere = tracks[i_trk].sphere
+            gap = norm3(c_det - np.asarray(trk_sphere.center_ned_m))
+            if _overlaps(det, trk_sphere, gap, config) and (best is None or gap < best[0]):
+                best = (gap, i_trk)
+        if best is None:
             continue
         matched_det.add(i_det)
-        seen.add(i_trk)
+        i_trk = best[1]
         trk = tracks[i_trk]
         tracks[i_trk] = replace(
             trk,
-            sphere=_merge(trk.sphere, spheres[i_det], config.merge_weight),
+            sphere=_merge(trk.sphere, det),
             last_seen_s=time_s,
-            n_detections=trk.n_detections + 1,
+            n_detections=trk.n_detections + (0 if i_trk in seen else 1),
         )
+        seen.add(i_trk)
     for i_det, det in enumerate(spheres):
         if i_det in matched_det:
             continue

@@ -1,0 +1,139 @@
+"""``stereo-avoid``: lockstep runs of the paper's §6 scenario and Monte Carlo batches.
+
+Subcommands
+-----------
+``stereo-avoid paper [--out DIR] [--json]``
+    Fly §6 (start (20, 0, −7), goal (0, 0, −7), obstacle (10, 0, −7) r 1.5 m), print
+    progress and a verdict, write Fig. 6–11 as PNG and the time history as CSV.
+``stereo-avoid montecarlo --n N --seed S [--jobs J] [--json]``
+    N random scenes (seeds S … S+N−1) on J processes; a summary table or JSON, with the
+    seed of every failure so it can be replayed with ``stereo-avoid replay SEED``.
+``stereo-avoid replay SEED [--out DIR] [--json]``
+    One random scene, with figures, exactly as Monte Carlo flew it.
+
+Exit status: 0 when every run reached its goal without collision, 1 otherwise, 2 on a
+usage error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from plant_sim.lockstep.harness import RunConfig, RunResult, run_scene
+from plant_sim.lockstep.montecarlo import run_batch, summarize
+from plant_sim.lockstep.plots import write_figures
+from plant_sim.lockstep.scenes import Scene, paper_scene, random_scene
+
+__all__ = ["main"]
+
+
+def _progress(stream):
+    def report(sim_time_s: float, goal_distance_m: float) -> None:
+        print(f"  t={sim_time_s:5.1f} s  distance to goal {goal_distance_m:5.2f} m", file=stream)
+        stream.flush()
+
+    return report
+
+
+def _fly_and_report(scene: Scene, out_dir: Path, as_json: bool) -> int:
+    cfg = RunConfig()
+    log = sys.stderr if as_json else sys.stdout
+    print(f"flying scene '{scene.name}' in lockstep (simulation time)", file=log)
+    result: RunResult = run_scene(scene, cfg, progress=_progress(log))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    csv_path = out_dir / "history.csv"
+    result.history.write_csv(csv_path)
+    figures = write_figures(
+        result.history,
+        scene.world,
+        scene.goal_ned_m,
+        out_dir,
+        max_tilt_deg=cfg.control.max_tilt_deg,
+        rotor_limits_n=(cfg.vehicle.rotor_thrust_min_n, cfg.vehicle.rotor_thrust_max_n),
+        detect_threshold_m=cfg.perception.threshold_m,
+    )
+    verdict = dataclasses.asdict(result.verdict)
+    verdict["passed"] = result.verdict.passed
+    (out_dir / "verdict.json").write_text(json.dumps(verdict, indent=2) + "\n")
+    if as_json:
+        print(json.dumps(verdict, indent=2))
+    else:
+        print("verdict:", "PASS" if result.verdict.passed else "FAIL")
+        for key, value in verdict.items():
+            print(f"  {key:24s} {value}")
+        print(f"history: {csv_path}")
+        for path in figures:
+            print(f"figure:  {path}")
+    return 0 if result.verdict.passed else 1
+
+
+def _montecarlo(args: argparse.Namespace) -> int:
+    log = sys.stderr if args.json else sys.stdout
+
+    def progress(done: int, total: int, verdict) -> None:
+        status = "ok" if verdict.passed else f"FAIL ({verdict.failure or 'goal not reached'})"
+        print(f"  [{done:4d}/{total}] seed {verdict.seed:6d} {status}", file=log)
+        log.flush()
+
+    verdicts = run_batch(range(args.seed, args.seed + args.n), jobs=args.jobs, progress=progress)
+    summary = summarize(verdicts)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(f"runs                 {summary['runs']}")
+        print(f"goal reached rate    {summary['goal_reached_rate']:.3f}")
+        print(f"collision rate       {summary['collision_rate']:.3f}")
+        sep = summary["min_separation_m"]
+        print(
+            "min separation [m]   "
+            f"min {sep['min']:.2f}  p5 {sep['p5']:.2f}  median {sep['median']:.2f}"
+        )
+        print(f"avoidance time [s]   mean {summary['avoidance_time_s']['mean']:.2f}")
+        print(f"failures by cause    {summary['failures_by_cause'] or 'none'}")
+        if summary["failed_seeds"]:
+            print(f"replay a failure     stereo-avoid replay {summary['failed_seeds'][0]}")
+    return 0 if summary["failed_seeds"] == [] else 1
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="stereo-avoid", description=__doc__.split("\n")[0].split(": ", 1)[1]
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    paper = sub.add_parser("paper", help="fly the paper's §6 scenario in lockstep")
+    paper.add_argument("--out", type=Path, default=Path("runs/paper"), help="output folder")
+    paper.add_argument("--json", action="store_true", help="print the verdict as JSON")
+    mc = sub.add_parser("montecarlo", help="random scenes on all cores")
+    mc.add_argument("--n", type=int, default=20, help="number of scenes")
+    mc.add_argument("--seed", type=int, default=0, help="first seed")
+    mc.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="processes")
+    mc.add_argument("--json", action="store_true", help="print the summary as JSON")
+    replay = sub.add_parser("replay", help="fly one Monte Carlo scene by its seed")
+    replay.add_argument("seed", type=int)
+    replay.add_argument("--out", type=Path, default=None, help="output folder")
+    replay.add_argument("--json", action="store_true", help="print the verdict as JSON")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``stereo-avoid`` console script."""
+    args = _parser().parse_args(argv)
+    if args.command == "paper":
+        return _fly_and_report(paper_scene(), args.out, args.json)
+    if args.command == "replay":
+        out = args.out or Path(f"runs/replay-{args.seed}")
+        return _fly_and_report(random_scene(args.seed), out, args.json)
+    if args.n < 1 or args.jobs < 1:
+        print("stereo-avoid: --n and --jobs must be >= 1", file=sys.stderr)
+        return 2
+    return _montecarlo(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,79 @@
+"""Monte Carlo over random scenes: each seed flown in lockstep, on all cores."""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from typing import Any
+
+import numpy as np
+
+from plant_sim.lockstep.harness import RunConfig, Verdict, run_scene
+from plant_sim.lockstep.scenes import random_scene
+
+__all__ = ["fly_seed", "run_batch", "summarize"]
+
+
+def fly_seed(seed: int) -> Verdict:
+    """Fly the random scene of ``seed`` with the default configuration."""
+    return run_scene(random_scene(seed), RunConfig()).verdict
+
+
+def _init_worker() -> None:
+    # one BLAS/OpenCV/numba thread per worker: the pool already uses every core
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    import cv2
+    import numba
+
+    cv2.setNumThreads(1)
+    numba.set_num_threads(1)
+
+
+def run_batch(
+    seeds: Iterable[int],
+    *,
+    jobs: int = 1,
+    progress: Callable[[int, int, Verdict], None] | None = None,
+) -> list[Verdict]:
+    """Fly every seed; verdicts in seed order. ``jobs`` > 1 uses worker processes."""
+    seeds = list(seeds)
+    verdicts: dict[int, Verdict] = {}
+    if jobs <= 1:
+        for seed in seeds:
+            verdicts[seed] = fly_seed(seed)
+            if progress is not None:
+                progress(len(verdicts), len(seeds), verdicts[seed])
+    else:
+        with ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker) as pool:
+            futures = {pool.submit(fly_seed, seed): seed for seed in seeds}
+            for future in as_completed(futures):
+                verdict = future.result()
+                verdicts[futures[future]] = verdict
+                if progress is not None:
+                    progress(len(verdicts), len(seeds), verdict)
+    return [verdicts[s] for s in seeds]
+
+
+def summarize(verdicts: list[Verdict]) -> dict[str, Any]:
+    """Rates, the minimum-separation distribution, time in avoidance, failures by cause."""
+    n = len(verdicts)
+    sep = np.array([v.min_surface_distance_m for v in verdicts])
+    avoid = np.array([v.avoidance_time_s for v in verdicts])
+    causes = Counter(v.failure or "goal not reached" for v in verdicts if not v.passed)
+    return {
+        "runs": n,
+        "goal_reached_rate": sum(v.reached_goal for v in verdicts) / n,
+        "collision_rate": sum(v.collided for v in verdicts) / n,
+        "min_separation_m": {
+            "min": float(sep.min()),
+            "p5": float(np.percentile(sep, 5)),
+            "median": float(np.median(sep)),
+            "max": float(sep.max()),
+        },
+        "avoidance_time_s": {"mean": float(avoid.mean()), "max": float(avoid.max())},
+        "failures_by_cause": dict(causes),
+        "failed_seeds": [v.seed for v in verdicts if not v.passed],
+        "verdicts": [v.__dict__ for v in verdicts],
+    }
