@@ -292,6 +292,21 @@ class Quadrotor:
         """Rotor thrusts F1..F4 applied over the last step [N]."""
         return self._ctrl_out[fc.OUT_ROTORS].copy()
 
+    def tilt_cmd_rad(self) -> tuple[float, float]:
+        """Commanded MAVLink (roll, pitch) [rad] of the last controller update.
+
+        Cheap scalar path for per-step monitoring: with ``R_ned = T R T`` (Eq. 4),
+        ``roll = atan2(R21, R22)`` and ``pitch = asin(R20_paper)``.
+        """
+        out = self._ctrl_out
+        phi, theta, psi = out[fc.OUT_PHI_D], out[fc.OUT_THETA_D], out[fc.OUT_PSI_D]
+        sf, cf = math.sin(phi), math.cos(phi)
+        st, ct = math.sin(theta), math.cos(theta)
+        sp, cp = math.sin(psi), math.cos(psi)
+        r20 = -cf * st * cp + sf * sp
+        r21 = cf * st * sp + sf * cp
+        return math.atan2(r21, cf * ct), math.asin(max(-1.0, min(1.0, r20)))
+
     def snapshot(self) -> VehicleState:
         """The vehicle and its controller now, in NED/FRD with MAVLink angles."""
         s = self._state

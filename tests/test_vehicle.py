@@ -105,6 +105,7 @@ def test_tilt_clamp_is_on_vehicle_roll_and_pitch_at_any_heading(yaw_deg):
     assert s.tilt_saturated
     limit = math.radians(15.0)
     assert max(abs(s.roll_cmd_rad), abs(s.pitch_cmd_rad)) == pytest.approx(limit, abs=1e-12)
+    np.testing.assert_allclose(q.tilt_cmd_rad(), (s.roll_cmd_rad, s.pitch_cmd_rad), atol=1e-12)
     assert abs(s.roll_cmd_rad) <= limit + 1e-12
     assert abs(s.pitch_cmd_rad) <= limit + 1e-12
     assert math.remainder(s.yaw_cmd_rad - yaw, 2 * math.pi) == pytest.approx(0.0, abs=1e-12)

@@ -162,10 +162,10 @@ def run_scene(
         t_next = seq * frame_period_s
         while quad.time_s < t_next - 1e-12:
             quad.step(quad.control.steps_per_control)
-            s = quad.snapshot()
-            max_roll = max(max_roll, abs(s.roll_cmd_rad))
-            max_pitch = max(max_pitch, abs(s.pitch_cmd_rad))
-            min_surface = min(min_surface, nearest_surface_m(scene.world, s.pos_ned_m))
+            roll_cmd, pitch_cmd = quad.tilt_cmd_rad()
+            max_roll = max(max_roll, abs(roll_cmd))
+            max_pitch = max(max_pitch, abs(pitch_cmd))
+            min_surface = min(min_surface, nearest_surface_m(scene.world, quad.pos_ned_m))
 
     verdict = Verdict(
         scene=scene.name,
