@@ -349,13 +349,16 @@ class StereoPerception:
         if not blobs:
             return PerceptionResult(frame.sequence, frame.capture_ns, (), unknown_fraction)
 
-        # Depth-continuous flood fill from each blob out to threshold + extent margin.
+        # Depth-continuous flood fill from each blob out to threshold + extent margin, on
+        # the same 2x subsampled grid as the blobs: a quarter of the pixels to convert and
+        # fill, and the sphere fit samples at most ``max_points`` of them anyway.
         d_far = fb / (cfg.threshold_m + cfg.extent_margin_m)
-        disp_px = disp.astype(np.float32) * (1.0 / _DISP_SCALE)
-        disp_px[disp_px < d_far] = -1.0e6  # invalid and far pixels stop the fill
-        fill = np.zeros((height + 2, width + 2), np.uint8)
-        step_px = cfg.continuity_rel * fb / cfg.threshold_m
         disp_half = disp[::2, ::2]
+        disp_px = disp_half.astype(np.float32) * (1.0 / _DISP_SCALE)
+        disp_px[disp_px < d_far] = -1.0e6  # invalid and far pixels stop the fill
+        h_half, w_half = disp_px.shape
+        fill = np.zeros((h_half + 2, w_half + 2), np.uint8)
+        step_px = cfg.continuity_rel * fb / cfg.threshold_m
         regions: list[tuple[int, tuple[int, int, int, int], int]] = []
         # Largest blob first, so the obstacle numbering is deterministic and meaningful.
         for label in sorted(blobs, key=lambda i: (-stats[i, cv2.CC_STAT_AREA], i)):
@@ -364,7 +367,7 @@ class StereoPerception:
                 labels[y0 : y0 + h, x0 : x0 + w] == label, disp_half[y0 : y0 + h, x0 : x0 + w], -1
             )
             iy, ix = np.unravel_index(int(np.argmax(sub_disp)), sub_disp.shape)
-            seed = (2 * int(x0 + ix), 2 * int(y0 + iy))  # nearest pixel of the blob
+            seed = (int(x0 + ix), int(y0 + iy))  # nearest pixel of the blob
             if fill[seed[1] + 1, seed[0] + 1] or len(regions) >= 254:
                 continue  # same surface as an earlier blob (one obstacle), or too many
             value = len(regions) + 1
@@ -377,23 +380,28 @@ class StereoPerception:
         # Columns the right image cannot see at the largest disparity, plus half a block.
         band_px = n_disp + (cfg.block_size_px or _auto_block_size(width)) // 2
         obstacles = []
-        for value, (x0, y0, w, h), n_pixels in regions:
+        for value, (x0, y0, w, h), n_half in regions:
             region = (fill[y0 + 1 : y0 + h + 1, x0 + 1 : x0 + w + 1] == value).view(np.uint8)
-            n_near = int(np.count_nonzero(region & near[y0 : y0 + h, x0 : x0 + w]))
+            n_near = 4 * int(np.count_nonzero(region & near_half[y0 : y0 + h, x0 : x0 + w]))
             xs, ys, n_grid = _sample_region(region, self.config.max_points)
             xs += x0
             ys += y0
-            truncated = bool(x0 <= band_px + 1 or y0 <= 0 or x0 + w >= width or y0 + h >= height)
+            truncated = bool(
+                2 * x0 <= band_px + 2
+                or y0 <= 0
+                or 2 * (x0 + w) >= width - 1
+                or 2 * (y0 + h) >= height - 1
+            )
             obstacles.append(
                 self._boundary(
-                    xs,
-                    ys,
+                    2 * xs,
+                    2 * ys,
                     n_grid,
                     disp_px[ys, xs].astype(np.float64),
                     k,
                     pos_ned_m,
                     R_ned_from_frd,
-                    n_pixels,
+                    4 * n_half,
                     n_near,
                     truncated,
                 )
