@@ -9,3 +9,6 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install --quiet --disable-pip-version-check --upgrade pip
 .venv/bin/python -m pip install --quiet --disable-pip-version-check -e '.[dev]'
+# A real ground station for the integration tests. --no-deps: MAVProxy's requirements
+# would replace opencv-python-headless with the GUI opencv-python 5.x (see pyproject).
+.venv/bin/python -m pip install --quiet --disable-pip-version-check --no-deps 'mavproxy==1.8.75'

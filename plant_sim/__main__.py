@@ -1,0 +1,218 @@
+"""``python -m plant_sim`` / ``plant-sim``: the autopilot-and-world emulator process.
+
+Parses the command line into a :class:`~plant_sim.service.PlantConfig` in one place
+(:func:`config_from_args`) and runs :func:`run`. Once every socket is bound it prints one
+readiness line on stdout (one line; wrapped here)::
+
+    PLANT_SIM READY mavlink=udpin:0.0.0.0:14550,udpout:127.0.0.1:14551
+        zenoh=listen:tcp/127.0.0.1:7447 key=stereo_avoid/sim1/stereo speedup=1
+
+and at exit (SIGINT, SIGTERM, or ``--duration``) flushes the logs and prints
+``PLANT_SIM STATS {json}``. Exit status 0 on a clean stop, 2 on a bad configuration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import math
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+__all__ = ["build_parser", "config_from_args", "main", "run"]
+
+_KEY_ENV = "STEREO_AVOID_SIGNING_KEY"
+
+
+def _speedup(text: str) -> float:
+    if text.lower() in ("max", "inf"):
+        return math.inf
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"speedup must be a number or 'max', got {text!r}"
+        ) from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"speedup must be > 0, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="plant-sim",
+        description="Quadrotor plant + ArduCopter-compatible MAVLink autopilot + "
+        "stereo camera over Zenoh.",
+    )
+    p.add_argument("--scenario", type=Path, help="scenario .toml/.json (default: the paper's §6)")
+    p.add_argument(
+        "--mavlink",
+        action="append",
+        metavar="URL",
+        help="MAVLink endpoint, repeatable: udpin:HOST:PORT | udpout:HOST:PORT "
+        "(default udpin:0.0.0.0:14550)",
+    )
+    p.add_argument(
+        "--zenoh-listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh listen endpoint, repeatable (default tcp/127.0.0.1:7447)",
+    )
+    p.add_argument(
+        "--zenoh-connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to connect to (router or companion), repeatable",
+    )
+    p.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 config file (routers, TLS, ACL)")
+    p.add_argument("--no-camera", action="store_true", help="do not render or publish frames")
+    p.add_argument("--camera-rate-hz", type=float, help="override the scenario's camera rate")
+    p.add_argument("--vehicle-id", help="override the scenario's vehicle id (Zenoh keys)")
+    p.add_argument(
+        "--speedup",
+        type=_speedup,
+        default=1.0,
+        help="simulation seconds per wall second, or 'max' (default 1)",
+    )
+    p.add_argument(
+        "--duration", type=float, metavar="SIM_S", help="stop after this simulation time"
+    )
+    p.add_argument(
+        "--start-on-ground",
+        action="store_true",
+        help="start disarmed on the ground below the start point",
+    )
+    p.add_argument(
+        "--signing-key",
+        metavar="HEX|PASSPHRASE",
+        help=f"MAVLink 2 signing key (prefer --signing-key-file or ${_KEY_ENV})",
+    )
+    p.add_argument("--signing-key-file", type=Path, help="file holding the signing key")
+    p.add_argument(
+        "--log-dir",
+        type=Path,
+        help="directory for plant_sim.tlog and truth.csv (default runs/plant_sim-<time>)",
+    )
+    p.add_argument("--no-logs", action="store_true", help="write no .tlog / truth log")
+    p.add_argument(
+        "--autopilot-rate-hz",
+        type=float,
+        default=50.0,
+        help="autopilot loop rate, simulation time (max telemetry rate)",
+    )
+    p.add_argument(
+        "--truth-rate-hz", type=float, default=50.0, help="truth-log rows per sim second"
+    )
+    p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    return p
+
+
+def config_from_args(args: argparse.Namespace):
+    """The one place CLI flags become a :class:`PlantConfig` (raises ValueError if invalid)."""
+    from plant_sim.autopilot.link import SigningKey, parse_endpoint
+    from plant_sim.camera_publisher import ZenohSettings
+    from plant_sim.scenario import load_scenario, paper_scenario
+    from plant_sim.service import PlantConfig
+    from protocols.keys import validate_vehicle_id
+
+    scenario = load_scenario(args.scenario) if args.scenario else paper_scenario()
+    if args.vehicle_id:
+        scenario = dataclasses.replace(scenario, vehicle_id=validate_vehicle_id(args.vehicle_id))
+    camera = scenario.camera
+    if args.no_camera:
+        camera = dataclasses.replace(camera, enabled=False)
+    if args.camera_rate_hz is not None:
+        if not args.camera_rate_hz > 0:
+            raise ValueError(f"--camera-rate-hz must be > 0, got {args.camera_rate_hz}")
+        camera = dataclasses.replace(camera, rate_hz=args.camera_rate_hz)
+    scenario = dataclasses.replace(scenario, camera=camera)
+    if args.start_on_ground:
+        scenario = dataclasses.replace(
+            scenario, start=dataclasses.replace(scenario.start, airborne=False)
+        )
+    endpoints = tuple(parse_endpoint(u) for u in (args.mavlink or ["udpin:0.0.0.0:14550"]))
+    listen = tuple(args.zenoh_listen)
+    if not listen and not args.zenoh_connect and args.zenoh_config is None:
+        listen = ("tcp/127.0.0.1:7447",)
+    key_text = None
+    if args.signing_key_file is not None:
+        key_text = args.signing_key_file.read_text(encoding="utf-8")
+    elif args.signing_key:
+        key_text = args.signing_key
+    elif os.environ.get(_KEY_ENV):
+        key_text = os.environ[_KEY_ENV]
+    log_dir = None
+    if not args.no_logs:
+        log_dir = args.log_dir or Path("runs") / time.strftime("plant_sim-%Y%m%d-%H%M%S")
+    if args.duration is not None and not args.duration > 0:
+        raise ValueError(f"--duration must be > 0, got {args.duration}")
+    return PlantConfig(
+        scenario=scenario,
+        mavlink=endpoints,
+        zenoh=ZenohSettings(
+            listen=listen, connect=tuple(args.zenoh_connect), config_file=args.zenoh_config
+        ),
+        speedup=args.speedup,
+        signing_key=SigningKey.from_text(key_text) if key_text is not None else None,
+        log_dir=log_dir,
+        autopilot_rate_hz=args.autopilot_rate_hz,
+        truth_rate_hz=args.truth_rate_hz,
+        duration_s=args.duration,
+    )
+
+
+def run(config) -> int:
+    """Open the plant, print the readiness line, run until stopped, close, print stats."""
+    from plant_sim.service import PlantService, stats_line
+
+    stop = threading.Event()
+
+    def _on_signal(signum, _frame) -> None:
+        logging.getLogger("plant_sim").info("signal %d: stopping", signum)
+        stop.set()
+
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    service = PlantService(config)
+    try:
+        service.open()
+        print(service.readiness_line(), flush=True)
+        service.run(stop.is_set)
+    finally:
+        stats = service.close()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    print(stats_line(stats), flush=True)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Console entry point (``plant-sim``)."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=getattr(logging, args.log_level),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        config = config_from_args(args)
+    except (ValueError, OSError) as exc:
+        print(f"plant-sim: configuration error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return run(config)
+    except OSError as exc:
+        print(f"plant-sim: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""An ArduCopter-compatible autopilot emulation: modes, commands, parameters, telemetry, link."""

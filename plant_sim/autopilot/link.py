@@ -1,0 +1,457 @@
+"""MAVLink 2 over UDP: several endpoints, robust framing, signing checked before replay state.
+
+Endpoints use pymavlink-style URLs:
+
+* ``udpin:HOST:PORT`` (or ``udp:``) — bind and answer every peer that writes to it
+  (peers silent for ``PEER_TIMEOUT_S`` of wall time are forgotten);
+* ``udpout:HOST:PORT`` — send to that address from an ephemeral port and read its replies.
+
+Each datagram is framed on its own (no state carried across datagrams or senders): garbage,
+truncated frames, bad CRCs, unknown message ids and refused signatures are counted in
+:class:`LinkStats` and dropped, never raised. With a signing key, every incoming frame must
+carry a valid signature: the SHA-256 signature is verified *before* the per-stream
+timestamp is consulted or updated, so a forged frame with a huge timestamp cannot block a
+genuine stream (pymavlink's own ``check_signature`` updates the timestamp first). Outgoing
+frames are signed with the same key. Keys never reach logs: :class:`SigningKey` has no key
+in its ``repr``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import errno
+import hashlib
+import hmac
+import logging
+import select
+import socket
+import struct
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+__all__ = [
+    "PEER_TIMEOUT_S",
+    "EndpointSpec",
+    "LinkStats",
+    "MavlinkLink",
+    "SignatureVerifier",
+    "SigningKey",
+    "parse_endpoint",
+    "signing_timestamp_now",
+    "split_frames",
+]
+
+_log = logging.getLogger("plant_sim.link")
+
+PEER_TIMEOUT_S = 30.0
+_MAX_DATAGRAM = 65535
+_SIGNING_EPOCH_UNIX_S = 1420070400  # 2015-01-01T00:00:00Z, MAVLink signing epoch
+_NEW_STREAM_WINDOW = 60 * 100_000  # a new stream may lag our timestamp by 1 min [10 µs]
+_V1, _V2 = 0xFE, 0xFD
+_IFLAG_SIGNED = 0x01
+
+
+@dataclass(frozen=True)
+class EndpointSpec:
+    """A parsed endpoint URL."""
+
+    kind: str  # "udpin" | "udpout"
+    host: str
+    port: int
+
+    @property
+    def url(self) -> str:
+        return f"{self.kind}:{self.host}:{self.port}"
+
+
+def parse_endpoint(url: str) -> EndpointSpec:
+    """Parse ``udpin:HOST:PORT``, ``udp:HOST:PORT`` or ``udpout:HOST:PORT``.
+
+    Raises
+    ------
+    ValueError
+        With the URL and what is wrong.
+    """
+    parts = url.split(":")
+    if len(parts) != 3:
+        raise ValueError(
+            f"MAVLink endpoint {url!r}: expected KIND:HOST:PORT (e.g. udpin:0.0.0.0:14550)"
+        )
+    kind, host, port_text = parts
+    kind = {"udp": "udpin"}.get(kind, kind)
+    if kind not in ("udpin", "udpout"):
+        raise ValueError(f"MAVLink endpoint {url!r}: kind must be udpin, udp or udpout")
+    try:
+        port = int(port_text)
+    except ValueError:
+        raise ValueError(f"MAVLink endpoint {url!r}: port {port_text!r} is not a number") from None
+    if not (0 <= port <= 65535) or (kind == "udpout" and port == 0):
+        raise ValueError(f"MAVLink endpoint {url!r}: port {port} out of range")
+    if not host:
+        raise ValueError(f"MAVLink endpoint {url!r}: empty host")
+    return EndpointSpec(kind, host, port)
+
+
+class SigningKey:
+    """A 32-byte MAVLink 2 signing key: 64 hex digits, or a passphrase hashed with SHA-256."""
+
+    __slots__ = ("_secret",)
+
+    def __init__(self, secret: bytes) -> None:
+        if len(secret) != 32:
+            raise ValueError(f"a signing key has 32 bytes, got {len(secret)}")
+        self._secret = bytes(secret)
+
+    @classmethod
+    def from_text(cls, text: str) -> SigningKey:
+        """64 hex digits → those bytes; anything else → SHA-256 of the UTF-8 passphrase."""
+        text = text.strip()
+        if not text:
+            raise ValueError("empty signing key")
+        if len(text) == 64:
+            try:
+                return cls(bytes.fromhex(text))
+            except ValueError:
+                pass
+        return cls(hashlib.sha256(text.encode("utf-8")).digest())
+
+    @property
+    def secret(self) -> bytes:
+        return self._secret
+
+    def __repr__(self) -> str:
+        return "SigningKey(<redacted>)"
+
+
+def signing_timestamp_now(wall_unix_s: float | None = None) -> int:
+    """MAVLink signing timestamp [10 µs since 2015-01-01] for the wall clock."""
+    now = time.time() if wall_unix_s is None else wall_unix_s
+    return int((now - _SIGNING_EPOCH_UNIX_S) * 100_000)
+
+
+@dataclass
+class LinkStats:
+    """Counters of everything received; ``dropped`` sums every refusal."""
+
+    datagrams: int = 0
+    frames_ok: int = 0
+    garbage_bytes: int = 0
+    truncated: int = 0
+    bad_frames: int = 0  # CRC, header or payload errors
+    unknown_msgid: int = 0
+    unsigned_refused: int = 0
+    bad_signature_refused: int = 0
+    replay_refused: int = 0
+    foreign_target: int = 0  # valid frames addressed to another system/component
+    socket_errors: int = 0
+
+    @property
+    def signing_refused(self) -> int:
+        return self.unsigned_refused + self.bad_signature_refused + self.replay_refused
+
+    @property
+    def dropped(self) -> int:
+        return self.truncated + self.bad_frames + self.unknown_msgid + self.signing_refused
+
+    def as_dict(self) -> dict[str, int]:
+        return dataclasses.asdict(self)
+
+
+def split_frames(data: bytes) -> Iterator[tuple[str, int, bytes]]:
+    """Cut a datagram into candidate MAVLink frames.
+
+    Yields ``("frame", offset, bytes)`` for each length-consistent candidate,
+    ``("garbage", offset, bytes)`` for bytes before a start marker and
+    ``("truncated", offset, bytes)`` for a frame that runs past the end. The caller
+    validates candidates (CRC, signature); framing resumes after a candidate's length
+    whatever its verdict, since UDP senders put whole frames in a datagram.
+    """
+    i, n = 0, len(data)
+    while i < n:
+        j = i
+        while j < n and data[j] != _V2 and data[j] != _V1:
+            j += 1
+        if j > i:
+            yield ("garbage", i, data[i:j])
+        if j >= n:
+            return
+        if data[j] == _V2:
+            if j + 3 > n:
+                yield ("truncated", j, data[j:])
+                return
+            total = 12 + data[j + 1] + (13 if data[j + 2] & _IFLAG_SIGNED else 0)
+        else:
+            if j + 2 > n:
+                yield ("truncated", j, data[j:])
+                return
+            total = 8 + data[j + 1]
+        if j + total > n:
+            yield ("truncated", j, data[j:])
+            return
+        yield ("frame", j, data[j : j + total])
+        i = j + total
+
+
+class SignatureVerifier:
+    """MAVLink 2 signature check with replay protection, in the safe order.
+
+    1. signature (SHA-256 over key + frame without the signature) — a forgery stops here and
+       touches no state;
+    2. timestamp against the stream's last one (new streams: within one minute of ours);
+    3. only then record the timestamp.
+    """
+
+    def __init__(self, key: SigningKey, clock_unix_s: Callable[[], float] = time.time) -> None:
+        self._key = key
+        self._clock = clock_unix_s
+        self._last: dict[tuple[int, int, int], int] = {}
+
+    def verify(self, frame: bytes) -> str | None:
+        """None if ``frame`` is acceptable, else "unsigned" / "bad_signature" / "replay"."""
+        if frame[0] != _V2 or not frame[2] & _IFLAG_SIGNED or len(frame) < 25:
+            return "unsigned"
+        expected = hashlib.sha256(self._key.secret + frame[:-6]).digest()[:6]
+        if not hmac.compare_digest(expected, frame[-6:]):
+            return "bad_signature"
+        link_id = frame[-13]
+        tlow, thigh = struct.unpack_from("<IH", frame, len(frame) - 12)
+        timestamp = tlow | (thigh << 32)
+        stream = (link_id, frame[5], frame[6])
+        last = self._last.get(stream)
+        if last is not None:
+            if timestamp <= last:
+                return "replay"
+        elif timestamp + _NEW_STREAM_WINDOW < signing_timestamp_now(self._clock()):
+            return "replay"
+        self._last[stream] = timestamp
+        return None
+
+
+@dataclass
+class _Endpoint:
+    spec: EndpointSpec
+    sock: socket.socket
+    peers: dict[tuple[str, int], float] = field(default_factory=dict)  # addr → last wall s
+
+    def destinations(self, now_s: float) -> list[tuple[str, int]]:
+        if self.spec.kind == "udpout":
+            return [(self.spec.host, self.spec.port)]
+        stale = [a for a, seen in self.peers.items() if now_s - seen > PEER_TIMEOUT_S]
+        for addr in stale:
+            del self.peers[addr]
+        return list(self.peers)
+
+
+class MavlinkLink:
+    """Sockets of every endpoint, framing, signing and fan-out of outgoing messages.
+
+    Network I/O happens in :meth:`open`, never in ``__init__``. ``on_send`` and
+    ``on_receive`` get the raw bytes of every sent / accepted frame (the .tlog).
+    """
+
+    def __init__(
+        self,
+        specs: list[EndpointSpec],
+        *,
+        system_id: int = 1,
+        component_id: int = 1,
+        signing_key: SigningKey | None = None,
+        on_send: Callable[[bytes], None] | None = None,
+        on_receive: Callable[[bytes], None] | None = None,
+        log_interval_s: float = 5.0,
+    ) -> None:
+        if not specs:
+            raise ValueError("at least one MAVLink endpoint is needed")
+        self._specs = list(specs)
+        self._endpoints: list[_Endpoint] = []
+        self.system_id = system_id
+        self.component_id = component_id
+        self.stats = LinkStats()
+        self._signing_key = signing_key
+        self._verifier = SignatureVerifier(signing_key) if signing_key is not None else None
+        self._encoder = mavlink.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
+        if signing_key is not None:
+            self._encoder.signing.secret_key = signing_key.secret
+            self._encoder.signing.sign_outgoing = True
+            self._encoder.signing.link_id = 0
+        self._decoder = mavlink.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
+        self._on_send = on_send
+        self._on_receive = on_receive
+        self._log_interval_s = log_interval_s
+        self._last_log_s = time.monotonic()
+        self._logged = LinkStats()
+        self.sent_frames = 0
+        self.send_errors = 0
+
+    # ---- lifecycle ----------------------------------------------------------------
+    def open(self) -> None:
+        """Create and bind the sockets."""
+        for spec in self._specs:
+            family = (
+                socket.AF_INET6 if ":" in spec.host and spec.host.count(":") > 1 else socket.AF_INET
+            )
+            sock = socket.socket(family, socket.SOCK_DGRAM)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 * 1024 * 1024)
+            if spec.kind == "udpin":
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                try:
+                    sock.bind((spec.host, spec.port))
+                except OSError as exc:
+                    sock.close()
+                    raise OSError(
+                        exc.errno, f"cannot bind MAVLink endpoint {spec.url}: {exc.strerror}"
+                    ) from None
+            sock.setblocking(False)
+            self._endpoints.append(_Endpoint(spec, sock))
+
+    def close(self) -> None:
+        for ep in self._endpoints:
+            ep.sock.close()
+        self._endpoints.clear()
+
+    @property
+    def bound_urls(self) -> list[str]:
+        """Endpoint URLs with the actual bound ports (port 0 resolved)."""
+        out = []
+        for ep in self._endpoints:
+            if ep.spec.kind == "udpin":
+                _host, port = ep.sock.getsockname()[:2]
+                out.append(f"udpin:{ep.spec.host}:{port}")
+            else:
+                out.append(ep.spec.url)
+        return out
+
+    def filenos(self) -> list[socket.socket]:
+        return [ep.sock for ep in self._endpoints]
+
+    # ---- sending --------------------------------------------------------------------
+    def send(self, msg) -> None:
+        """Encode (and sign) ``msg`` once and send it to every endpoint and peer."""
+        enc = self._encoder
+        if self._signing_key is not None:
+            enc.signing.timestamp = max(enc.signing.timestamp, signing_timestamp_now())
+        buf = msg.pack(enc)
+        enc.seq = (enc.seq + 1) % 256
+        self.sent_frames += 1
+        if self._on_send is not None:
+            self._on_send(buf)
+        now = time.monotonic()
+        for ep in self._endpoints:
+            for addr in ep.destinations(now):
+                try:
+                    ep.sock.sendto(buf, addr)
+                except OSError as exc:
+                    # ECONNREFUSED from a closed udpout peer, ENOBUFS under load: count, go on
+                    self.send_errors += 1
+                    if exc.errno not in (errno.ECONNREFUSED, errno.ENOBUFS, errno.EAGAIN):
+                        _log.warning("send to %s failed: %s", addr, exc)
+
+    # ---- receiving ------------------------------------------------------------------
+    def wait(self, timeout_s: float) -> bool:
+        """Block up to ``timeout_s`` until a socket is readable; True if one is."""
+        if not self._endpoints:
+            time.sleep(max(0.0, timeout_s))
+            return False
+        readable, _, _ = select.select(self.filenos(), [], [], max(0.0, timeout_s))
+        return bool(readable)
+
+    def poll(self, max_datagrams: int = 2000) -> list:
+        """Drain every socket (up to ``max_datagrams``) and return the accepted messages."""
+        out: list = []
+        now = time.monotonic()
+        budget = max_datagrams
+        for ep in self._endpoints:
+            while budget > 0:
+                try:
+                    data, addr = ep.sock.recvfrom(_MAX_DATAGRAM)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError as exc:
+                    self.stats.socket_errors += 1
+                    if exc.errno == errno.ECONNREFUSED:
+                        continue  # ICMP port unreachable from a udpout peer that is not up
+                    _log.warning("receive on %s failed: %s", ep.spec.url, exc)
+                    break
+                budget -= 1
+                self.stats.datagrams += 1
+                accepted = self._handle_datagram(data, out)
+                if accepted and ep.spec.kind == "udpin":
+                    ep.peers[addr] = now
+        self._maybe_log(now)
+        return out
+
+    def _handle_datagram(self, data: bytes, out: list) -> bool:
+        stats = self.stats
+        accepted = False
+        for kind, _offset, chunk in split_frames(data):
+            if kind == "garbage":
+                stats.garbage_bytes += len(chunk)
+                continue
+            if kind == "truncated":
+                stats.truncated += 1
+                continue
+            msg = self._accept_frame(chunk)
+            if msg is not None:
+                out.append(msg)
+                accepted = True
+        return accepted
+
+    def _accept_frame(self, frame: bytes):
+        stats = self.stats
+        if frame[0] == _V2 and frame[2] & ~_IFLAG_SIGNED:
+            stats.bad_frames += 1
+            return None
+        if self._verifier is not None:
+            verdict = self._verifier.verify(frame)
+            if verdict is not None:
+                # CRC first, so that line noise is not reported as a signing attack
+                if not self._crc_ok(frame):
+                    stats.bad_frames += 1
+                elif verdict == "unsigned":
+                    stats.unsigned_refused += 1
+                elif verdict == "bad_signature":
+                    stats.bad_signature_refused += 1
+                else:
+                    stats.replay_refused += 1
+                return None
+        try:
+            msg = self._decoder.decode(bytearray(frame))
+        except (mavlink.MAVError, struct.error, ValueError, IndexError, TypeError):
+            stats.bad_frames += 1
+            return None
+        if isinstance(msg, mavlink.MAVLink_unknown):
+            stats.unknown_msgid += 1
+            return None
+        if msg.get_srcSystem() == self.system_id and msg.get_srcComponent() == self.component_id:
+            stats.foreign_target += 1  # our own frames looped back
+            return None
+        stats.frames_ok += 1
+        if self._on_receive is not None:
+            self._on_receive(frame)
+        return msg
+
+    def _crc_ok(self, frame: bytes) -> bool:
+        try:
+            self._decoder.decode(bytearray(frame))
+        except (mavlink.MAVError, struct.error, ValueError, IndexError, TypeError):
+            return False
+        return True
+
+    def _maybe_log(self, now: float) -> None:
+        if now - self._last_log_s < self._log_interval_s:
+            return
+        self._last_log_s = now
+        cur, prev = self.stats.as_dict(), self._logged.as_dict()
+        delta = {
+            k: cur[k] - prev[k]
+            for k in cur
+            if cur[k] != prev[k] and k not in ("datagrams", "frames_ok")
+        }
+        if delta:
+            _log.warning(
+                "MAVLink input dropped in the last %.0f s: %s", self._log_interval_s, delta
+            )
+        self._logged = dataclasses.replace(self.stats)

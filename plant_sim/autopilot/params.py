@@ -1,0 +1,145 @@
+"""The autopilot's parameter table and the PARAM_* protocol logic (pure, no sockets).
+
+Names and units follow ArduCopter so ground stations recognise them. Values travel as
+PARAM_VALUE floats cast from their type (ArduPilot's MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST),
+which AUTOPILOT_VERSION advertises. Indices are stable: the order of :data:`PARAM_SPECS`.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, replace
+
+from plant_sim.autopilot.modes import ModeTimings
+
+__all__ = [
+    "PARAM_SPECS",
+    "ParamSpec",
+    "ParamTable",
+    "ParamType",
+    "timings_from_params",
+]
+
+
+class ParamType(enum.IntEnum):
+    """MAV_PARAM_TYPE."""
+
+    UINT8 = 1
+    INT8 = 2
+    UINT16 = 3
+    INT16 = 4
+    UINT32 = 5
+    INT32 = 6
+    REAL32 = 9
+
+
+_INT_RANGES = {
+    ParamType.UINT8: (0, 2**8 - 1),
+    ParamType.INT8: (-(2**7), 2**7 - 1),
+    ParamType.UINT16: (0, 2**16 - 1),
+    ParamType.INT16: (-(2**15), 2**15 - 1),
+    ParamType.UINT32: (0, 2**32 - 1),
+    ParamType.INT32: (-(2**31), 2**31 - 1),
+}
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: name (≤ 16 chars), type, default, bounds, read-only flag."""
+
+    name: str
+    type: ParamType
+    default: float
+    minimum: float = -math.inf
+    maximum: float = math.inf
+    read_only: bool = False
+
+
+#: The table, in index order. Units in the comments (ArduCopter's).
+PARAM_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("SYSID_THISMAV", ParamType.UINT8, 1, read_only=True),
+    ParamSpec("SYSID_MYGCS", ParamType.UINT8, 255, 1, 255),
+    ParamSpec("FRAME_CLASS", ParamType.INT8, 1, read_only=True),  # 1 = quad
+    ParamSpec("FRAME_TYPE", ParamType.INT8, 1, read_only=True),  # 1 = X
+    ParamSpec("ARMING_CHECK", ParamType.INT32, 1, 0, 2**31 - 1),  # bitmask, 0 = off
+    ParamSpec("DISARM_DELAY", ParamType.INT8, 10, 0, 127),  # s
+    ParamSpec("GUID_TIMEOUT", ParamType.REAL32, 3.0, 0.1, 5.0),  # s
+    ParamSpec("LAND_SPEED", ParamType.INT16, 50, 30, 200),  # cm/s
+    ParamSpec("RTL_ALT", ParamType.INT32, 1500, 200, 300000),  # cm
+    ParamSpec("WPNAV_SPEED_UP", ParamType.REAL32, 150.0, 10.0, 1000.0),  # cm/s
+    ParamSpec("ANGLE_MAX", ParamType.INT16, 1500, read_only=True),  # cdeg (paper: 15°)
+    ParamSpec("FS_GCS_ENABLE", ParamType.INT8, 0, 0, 7),
+    ParamSpec("BRD_SAFETY_DEFLT", ParamType.INT8, 0, read_only=True),
+    ParamSpec("SIM_SPEEDUP", ParamType.REAL32, 1.0, read_only=True),
+    ParamSpec("SIM_CAM_RATE", ParamType.REAL32, 30.0, read_only=True),  # Hz (sim time)
+)
+
+
+class ParamTable:
+    """Current values of :data:`PARAM_SPECS`; ``overrides`` replace defaults by name."""
+
+    def __init__(self, overrides: dict[str, float] | None = None) -> None:
+        self._specs = PARAM_SPECS
+        self._index = {s.name: i for i, s in enumerate(self._specs)}
+        self._values = [float(s.default) for s in self._specs]
+        for name, value in (overrides or {}).items():
+            self._values[self._lookup(name)] = self._coerce(self._specs[self._lookup(name)], value)
+
+    def __len__(self) -> int:
+        return len(self._specs)
+
+    def _lookup(self, name: str) -> int:
+        try:
+            return self._index[name]
+        except KeyError:
+            raise KeyError(f"unknown parameter {name!r}") from None
+
+    def index_of(self, name: str) -> int | None:
+        """Index of ``name`` or None."""
+        return self._index.get(name)
+
+    def entry(self, index: int) -> tuple[ParamSpec, float]:
+        """(spec, value) at ``index`` (IndexError if out of range)."""
+        if not 0 <= index < len(self._specs):
+            raise IndexError(f"parameter index {index} outside 0..{len(self._specs) - 1}")
+        return self._specs[index], self._values[index]
+
+    def value(self, name: str) -> float:
+        """Current value of ``name``."""
+        return self._values[self._lookup(name)]
+
+    def set(self, name: str, value: float) -> str | None:
+        """Set ``name``; returns a refusal reason (unknown, read-only, out of range) or None."""
+        index = self._index.get(name)
+        if index is None:
+            return f"Unknown parameter {name}"
+        spec = self._specs[index]
+        if spec.read_only:
+            return f"Param {name} is read-only"
+        if not math.isfinite(value):
+            return f"Param {name}: value not finite"
+        coerced = self._coerce(spec, value)
+        if not spec.minimum <= coerced <= spec.maximum:
+            return f"Param {name}: {value:g} outside [{spec.minimum:g}, {spec.maximum:g}]"
+        self._values[index] = coerced
+        return None
+
+    @staticmethod
+    def _coerce(spec: ParamSpec, value: float) -> float:
+        if spec.type is ParamType.REAL32:
+            return float(value)
+        lo, hi = _INT_RANGES[spec.type]
+        return float(min(hi, max(lo, round(value))))
+
+
+def timings_from_params(base: ModeTimings, table: ParamTable) -> ModeTimings:
+    """Mode timings with the values of the parameters that set them (SI units)."""
+    return replace(
+        base,
+        guided_velocity_timeout_s=table.value("GUID_TIMEOUT"),
+        disarm_delay_s=table.value("DISARM_DELAY") if table.value("DISARM_DELAY") > 0 else math.inf,
+        land_speed_mps=table.value("LAND_SPEED") / 100.0,
+        rtl_alt_m=table.value("RTL_ALT") / 100.0,
+        takeoff_climb_mps=table.value("WPNAV_SPEED_UP") / 100.0,
+    )

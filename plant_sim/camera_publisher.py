@@ -1,0 +1,117 @@
+"""Stereo frames over Zenoh: render at the camera rate of simulation time, stamp, publish.
+
+Each frame's ``capture_ns`` is the simulation time of the pose it was rendered at, the same
+clock as MAVLink ``time_boot_ms`` (DESIGN.md "One clock"). The session uses explicit
+endpoints (``tcp/127.0.0.1:7447``) with multicast scouting disabled, or a Zenoh config file
+for routers, TLS and access control (explicit endpoints given on the command line are then
+added to the file's).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from plant_sim.scenario import CameraConfig
+from plant_sim.stereo_camera import StereoCameraRenderer
+from plant_sim.world import World
+from protocols import stereo_frame
+
+__all__ = ["StereoPublisher", "ZenohSettings", "zenoh_config"]
+
+_log = logging.getLogger("plant_sim.camera")
+
+
+@dataclass(frozen=True)
+class ZenohSettings:
+    """Where the Zenoh session listens / connects; ``config_file`` is a Zenoh JSON5 file."""
+
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    config_file: Path | None = None
+    mode: str = "peer"
+
+
+def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
+    """Build the session config: file (if any), then mode, endpoints, scouting off."""
+    if settings.config_file is not None:
+        conf = zenoh.Config.from_file(str(settings.config_file))
+    else:
+        conf = zenoh.Config()
+        conf.insert_json5("mode", json.dumps(settings.mode))
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    if settings.listen:
+        conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+    if settings.connect:
+        conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    return conf
+
+
+class StereoPublisher:
+    """Renders and publishes stereo frames on ``key``; open with :meth:`open`."""
+
+    def __init__(
+        self,
+        settings: ZenohSettings,
+        key: str,
+        camera: CameraConfig,
+        world: World,
+    ) -> None:
+        self.settings = settings
+        self.key = key
+        self.camera = camera
+        self.world = world
+        self._renderer = StereoCameraRenderer(camera.model, camera.render)
+        self._intrinsics = camera.model.intrinsics
+        self._session: zenoh.Session | None = None
+        self._publisher = None
+        self.sequence = 0
+        self.publish_errors = 0
+
+    def open(self) -> None:
+        """Open the Zenoh session and declare the publisher."""
+        self._session = zenoh.open(zenoh_config(self.settings))
+        self._publisher = self._session.declare_publisher(
+            self.key,
+            congestion_control=zenoh.CongestionControl.DROP,
+            priority=zenoh.Priority.DATA_HIGH,
+        )
+
+    def warm_up(self) -> None:
+        """Render one frame so the JIT compiles before the first deadline."""
+        self._renderer.render(self.world, np.zeros(3), np.eye(3), noise_seed=0)
+
+    def publish(self, capture_time_s: float, pos_ned_m, R_ned_from_frd) -> None:
+        """Render the pair seen from the pose at ``capture_time_s`` and publish it."""
+        render = self._renderer.render(
+            self.world, pos_ned_m, R_ned_from_frd, noise_seed=self.sequence
+        )
+        frame = stereo_frame.StereoFrame(
+            sequence=self.sequence,
+            capture_ns=round(capture_time_s * 1e9),
+            intrinsics=self._intrinsics,
+            left=render.left,
+            right=render.right,
+        )
+        payload = stereo_frame.encode(frame)
+        self.sequence += 1
+        if self._publisher is None:
+            return
+        try:
+            self._publisher.put(payload)
+        except zenoh.ZError as exc:
+            self.publish_errors += 1
+            _log.warning("frame %d not published: %s", frame.sequence, exc)
+
+    def close(self) -> None:
+        if self._publisher is not None:
+            self._publisher.undeclare()
+            self._publisher = None
+        if self._session is not None:
+            self._session.close()
+            self._session = None

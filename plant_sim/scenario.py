@@ -1,0 +1,388 @@
+"""Scenario of a plant-sim run: world, start pose, geodetic anchor, camera, rates, failsafes.
+
+A scenario is a TOML (``tomllib``) or JSON file; every key is optional and defaults to the
+paper's §6 scenario (DESIGN.md): start NED (20, 0, −7) hovering in GUIDED facing the goal
+(0, 0, −7), one sphere of radius 1.5 m at (10, 0, −7), ground at z = 0. Unknown keys are an
+error that names the key (``camera.fps`` → "unknown key 'camera.fps'"). Example::
+
+    vehicle_id = "sim1"
+    goal_ned_m = [0.0, 0.0, -7.0]
+
+    [start]
+    pos_ned_m = [20.0, 0.0, -7.0]
+    yaw_deg = 180.0
+    airborne = true          # false: disarmed on the ground below pos_ned_m
+    mode = "GUIDED"
+
+    [origin]                 # geodetic position of the LOCAL_NED origin (flat earth)
+    lat_deg = 47.397742
+    lon_deg = 8.545594
+    alt_amsl_m = 488.0
+
+    [[obstacles]]
+    center_ned_m = [10.0, 0.0, -7.0]
+    radius_m = 1.5
+
+    [ground]
+    down_m = 0.0             # or: ground = false for none
+
+    [camera]
+    enabled = true
+    rate_hz = 30.0           # simulation time
+    width_px = 320
+    height_px = 240
+
+    [streams]                # default rates [Hz of simulation time]; 0 = off
+    LOCAL_POSITION_NED = 4.0
+
+    [failsafe]
+    guided_velocity_timeout_s = 3.0
+
+    [vehicle]                # plant_sim.params.QuadrotorParams overrides
+    [control]                # plant_sim.params.ControlParams overrides
+
+Pure: :func:`load_scenario` reads one file; :func:`scenario_from_dict` does the rest.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from plant_sim.autopilot.modes import FlightMode
+from plant_sim.params import ControlParams, QuadrotorParams, from_dict
+from plant_sim.stereo_camera import RenderParams
+from plant_sim.world import GroundPlane, Sphere, World, paper_world
+from protocols.camera import CameraModel
+from protocols.keys import validate_vehicle_id
+
+__all__ = [
+    "DEFAULT_STREAM_RATES_HZ",
+    "CameraConfig",
+    "FailsafeConfig",
+    "GeoOrigin",
+    "Scenario",
+    "ScenarioError",
+    "StartConfig",
+    "load_scenario",
+    "paper_scenario",
+    "scenario_from_dict",
+]
+
+#: Streams sent without any request, and their rates [Hz of simulation time]. HEARTBEAT is
+#: not here: it is always 1 Hz of wall time (DESIGN.md).
+DEFAULT_STREAM_RATES_HZ: dict[str, float] = {
+    "SYS_STATUS": 1.0,
+    "EXTENDED_SYS_STATE": 1.0,
+    "HOME_POSITION": 0.5,
+    "GPS_RAW_INT": 1.0,
+    "SYSTEM_TIME": 1.0,
+    "GLOBAL_POSITION_INT": 4.0,
+    "LOCAL_POSITION_NED": 4.0,
+    "ATTITUDE": 4.0,
+    "POSITION_TARGET_LOCAL_NED": 4.0,
+}
+
+
+class ScenarioError(ValueError):
+    """A scenario file or mapping is invalid; the message names the key."""
+
+
+@dataclass(frozen=True)
+class StartConfig:
+    """Initial state of the vehicle."""
+
+    pos_ned_m: tuple[float, float, float] = (20.0, 0.0, -7.0)  # LOCAL_NED [m]
+    yaw_deg: float = 180.0  # heading [deg], 180 = facing south, towards the paper's goal
+    airborne: bool = True  # True: armed, hovering at pos; False: disarmed on the ground below
+    mode: FlightMode = FlightMode.GUIDED
+
+
+@dataclass(frozen=True)
+class GeoOrigin:
+    """Geodetic position of the LOCAL_NED origin (flat-earth conversion around it)."""
+
+    lat_deg: float = 47.397742  # [deg] (PX4/ArduPilot SITL default site, Zurich)
+    lon_deg: float = 8.545594  # [deg]
+    alt_amsl_m: float = 488.0  # [m] above mean sea level
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Stereo camera: model (Table 1), frame rate and rendering."""
+
+    enabled: bool = True
+    rate_hz: float = 30.0  # frames per second of simulation time
+    model: CameraModel = field(default_factory=CameraModel)
+    render: RenderParams = field(default_factory=RenderParams)
+
+
+@dataclass(frozen=True)
+class FailsafeConfig:
+    """Autopilot timeouts and speeds (defaults: ArduCopter's parameter defaults)."""
+
+    guided_velocity_timeout_s: float = 3.0  # GUID_TIMEOUT: velocity targets expire [s sim]
+    disarm_delay_s: float = 10.0  # DISARM_DELAY: auto-disarm when landed and idle [s sim]
+    land_speed_mps: float = 0.5  # LAND_SPEED 50 cm/s
+    takeoff_climb_mps: float = 1.5  # climb rate of NAV_TAKEOFF [m/s]
+    rtl_alt_m: float = 15.0  # RTL_ALT 1500 cm: minimum return altitude above home [m]
+    land_detect_s: float = 1.0  # on the ground this long → landed [s sim]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Everything a plant-sim run needs besides the network settings."""
+
+    vehicle_id: str = "sim1"
+    start: StartConfig = field(default_factory=StartConfig)
+    goal_ned_m: tuple[float, float, float] | None = (0.0, 0.0, -7.0)  # for logs and verdicts
+    origin: GeoOrigin = field(default_factory=GeoOrigin)
+    world: World = field(default_factory=paper_world)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    stream_rates_hz: tuple[tuple[str, float], ...] = tuple(DEFAULT_STREAM_RATES_HZ.items())
+    failsafe: FailsafeConfig = field(default_factory=FailsafeConfig)
+    vehicle: QuadrotorParams = field(default_factory=QuadrotorParams)
+    control: ControlParams = field(default_factory=ControlParams)
+
+    @property
+    def ground_down_m(self) -> float | None:
+        """NED down coordinate of the ground, or None without ground."""
+        return None if self.world.ground is None else self.world.ground.down_m
+
+
+def paper_scenario() -> Scenario:
+    """The paper's §6 scenario with the defaults above."""
+    return Scenario()
+
+
+# ---- parsing -------------------------------------------------------------------------
+def _check_keys(mapping: Any, allowed: set[str], where: str) -> Mapping[str, Any]:
+    if not isinstance(mapping, Mapping):
+        raise ScenarioError(f"{where or 'scenario'} must be a table/object, got {mapping!r}")
+    for key in mapping:
+        if key not in allowed:
+            name = f"{where}.{key}" if where else key
+            raise ScenarioError(f"unknown key {name!r}; valid keys here: {sorted(allowed)}")
+    return mapping
+
+
+def _vec3(value: Any, where: str) -> tuple[float, float, float]:
+    try:
+        vec = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ScenarioError(f"{where} must be 3 numbers, got {value!r}") from None
+    if len(vec) != 3 or not all(math.isfinite(v) for v in vec):
+        raise ScenarioError(f"{where} must be 3 finite numbers, got {value!r}")
+    return vec  # type: ignore[return-value]
+
+
+def _number(value: Any, where: str, *, positive: bool = False, minimum: float | None = None):
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ScenarioError(f"{where} must be a finite number, got {value!r}")
+    if positive and value <= 0:
+        raise ScenarioError(f"{where} must be > 0, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise ScenarioError(f"{where} must be >= {minimum}, got {value!r}")
+    return float(value)
+
+
+def _bool(value: Any, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise ScenarioError(f"{where} must be true or false, got {value!r}")
+    return value
+
+
+def _dataclass_fields(cls) -> set[str]:
+    return set(cls.__dataclass_fields__)
+
+
+def _start(d: Any) -> StartConfig:
+    d = _check_keys(d, _dataclass_fields(StartConfig), "start")
+    kw: dict[str, Any] = {}
+    if "pos_ned_m" in d:
+        kw["pos_ned_m"] = _vec3(d["pos_ned_m"], "start.pos_ned_m")
+    if "yaw_deg" in d:
+        kw["yaw_deg"] = _number(d["yaw_deg"], "start.yaw_deg")
+    if "airborne" in d:
+        kw["airborne"] = _bool(d["airborne"], "start.airborne")
+    if "mode" in d:
+        try:
+            kw["mode"] = FlightMode[str(d["mode"]).upper()]
+        except KeyError:
+            raise ScenarioError(
+                f"start.mode {d['mode']!r} is not one of {[m.name for m in FlightMode]}"
+            ) from None
+    return StartConfig(**kw)
+
+
+def _origin(d: Any) -> GeoOrigin:
+    d = _check_keys(d, _dataclass_fields(GeoOrigin), "origin")
+    kw = {k: _number(v, f"origin.{k}") for k, v in d.items()}
+    if not -90.0 < kw.get("lat_deg", 0.0) < 90.0:
+        raise ScenarioError(f"origin.lat_deg must be in (-90, 90), got {kw['lat_deg']}")
+    if not -180.0 <= kw.get("lon_deg", 0.0) <= 180.0:
+        raise ScenarioError(f"origin.lon_deg must be in [-180, 180], got {kw['lon_deg']}")
+    return GeoOrigin(**kw)
+
+
+def _obstacles(items: Any) -> tuple[Sphere, ...]:
+    if not isinstance(items, list):
+        raise ScenarioError(f"obstacles must be a list of tables, got {items!r}")
+    spheres = []
+    for i, item in enumerate(items):
+        where = f"obstacles[{i}]"
+        item = _check_keys(item, {"center_ned_m", "radius_m", "texture_seed"}, where)
+        for required in ("center_ned_m", "radius_m"):
+            if required not in item:
+                raise ScenarioError(f"{where}.{required} is required")
+        spheres.append(
+            Sphere(
+                center_ned_m=_vec3(item["center_ned_m"], f"{where}.center_ned_m"),
+                radius_m=_number(item["radius_m"], f"{where}.radius_m", positive=True),
+                texture_seed=int(item.get("texture_seed", i)),
+            )
+        )
+    return tuple(spheres)
+
+
+def _ground(value: Any) -> GroundPlane | None:
+    if value is False:
+        return None
+    if value is True:
+        return GroundPlane()
+    d = _check_keys(value, {"down_m", "texture_seed"}, "ground")
+    return GroundPlane(
+        down_m=_number(d.get("down_m", 0.0), "ground.down_m"),
+        texture_seed=int(d.get("texture_seed", 1)),
+    )
+
+
+_CAMERA_MODEL_KEYS = _dataclass_fields(CameraModel)
+_RENDER_KEYS = _dataclass_fields(RenderParams)
+
+
+def _camera(d: Any) -> CameraConfig:
+    d = _check_keys(d, {"enabled", "rate_hz"} | _CAMERA_MODEL_KEYS | _RENDER_KEYS, "camera")
+    model_kw = {k: d[k] for k in _CAMERA_MODEL_KEYS if k in d}
+    render_kw = {k: d[k] for k in _RENDER_KEYS if k in d}
+    try:
+        model = CameraModel(**model_kw)
+        render = RenderParams(**render_kw)
+    except (TypeError, ValueError) as exc:
+        raise ScenarioError(f"camera: {exc}") from None
+    return CameraConfig(
+        enabled=_bool(d.get("enabled", True), "camera.enabled"),
+        rate_hz=_number(d.get("rate_hz", 30.0), "camera.rate_hz", positive=True),
+        model=model,
+        render=render,
+    )
+
+
+def _streams(d: Any) -> tuple[tuple[str, float], ...]:
+    d = _check_keys(d, set(DEFAULT_STREAM_RATES_HZ), "streams")
+    rates = dict(DEFAULT_STREAM_RATES_HZ)
+    for name, value in d.items():
+        rates[name] = _number(value, f"streams.{name}", minimum=0.0)
+    return tuple(rates.items())
+
+
+def _failsafe(d: Any) -> FailsafeConfig:
+    d = _check_keys(d, _dataclass_fields(FailsafeConfig), "failsafe")
+    return FailsafeConfig(**{k: _number(v, f"failsafe.{k}", positive=True) for k, v in d.items()})
+
+
+_TOP_KEYS = {
+    "vehicle_id",
+    "start",
+    "goal_ned_m",
+    "origin",
+    "obstacles",
+    "ground",
+    "camera",
+    "streams",
+    "failsafe",
+    "vehicle",
+    "control",
+}
+
+
+def scenario_from_dict(d: Mapping[str, Any]) -> Scenario:
+    """Build a :class:`Scenario` from a parsed file; missing keys keep the paper's values.
+
+    Raises
+    ------
+    ScenarioError
+        On an unknown key (named with its section) or an invalid value.
+    """
+    d = _check_keys(d, _TOP_KEYS, "")
+    kw: dict[str, Any] = {}
+    if "vehicle_id" in d:
+        try:
+            kw["vehicle_id"] = validate_vehicle_id(d["vehicle_id"])
+        except ValueError as exc:
+            raise ScenarioError(str(exc)) from None
+    if "start" in d:
+        kw["start"] = _start(d["start"])
+    if "goal_ned_m" in d:
+        goal = d["goal_ned_m"]
+        kw["goal_ned_m"] = None if goal is False else _vec3(goal, "goal_ned_m")
+    if "origin" in d:
+        kw["origin"] = _origin(d["origin"])
+    default_world = paper_world()
+    spheres = _obstacles(d["obstacles"]) if "obstacles" in d else default_world.spheres
+    ground = _ground(d["ground"]) if "ground" in d else default_world.ground
+    kw["world"] = World(spheres=spheres, ground=ground)
+    if "camera" in d:
+        kw["camera"] = _camera(d["camera"])
+    if "streams" in d:
+        kw["stream_rates_hz"] = _streams(d["streams"])
+    if "failsafe" in d:
+        kw["failsafe"] = _failsafe(d["failsafe"])
+    for section, cls in (("vehicle", QuadrotorParams), ("control", ControlParams)):
+        if section in d:
+            try:
+                kw[section] = from_dict(cls, _check_keys(d[section], set(d[section]), section))
+            except (TypeError, ValueError) as exc:
+                raise ScenarioError(f"{section}: {exc}") from None
+    scenario = Scenario(**kw)
+    ground_down = scenario.ground_down_m
+    if ground_down is not None and scenario.start.pos_ned_m[2] > ground_down:
+        raise ScenarioError(
+            f"start.pos_ned_m {scenario.start.pos_ned_m} is below the ground (down_m = "
+            f"{ground_down})"
+        )
+    if not scenario.start.airborne and ground_down is None:
+        raise ScenarioError("start.airborne = false needs a ground")
+    return scenario
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read a ``.toml`` or ``.json`` scenario file.
+
+    Raises
+    ------
+    ScenarioError
+        If the file cannot be parsed or holds an invalid scenario (the message names the
+        file and the key).
+    """
+    path = Path(path)
+    try:
+        text = path.read_bytes()
+    except OSError as exc:
+        raise ScenarioError(f"cannot read scenario {path}: {exc}") from None
+    try:
+        if path.suffix.lower() == ".json":
+            data = json.loads(text)
+        else:
+            data = tomllib.loads(text.decode("utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"cannot parse scenario {path}: {exc}") from None
+    try:
+        return scenario_from_dict(data)
+    except ScenarioError as exc:
+        raise ScenarioError(f"{path}: {exc}") from None

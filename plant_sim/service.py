@@ -1,0 +1,520 @@
+"""The plant-sim process: physics, autopilot, MAVLink link, camera and logs in one loop.
+
+One thread. Each pass: send the wall-clock heartbeat; advance the physics towards the
+simulation time the :class:`~plant_sim.clock.Pacer` allows, stopping at every autopilot
+tick (default 50 Hz of simulation time) and camera frame; then wait on the sockets until
+the next event is due. Incoming messages are queued and executed at the next autopilot
+tick, as a real autopilot's scheduler does, so a command takes effect at the same
+simulation time at any ``--speedup`` (TIMESYNC is answered at once). Telemetry samples
+are taken at ticks, stamped with simulation time.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from plant_sim.autopilot import commands as cmds
+from plant_sim.autopilot.link import EndpointSpec, MavlinkLink, SigningKey
+from plant_sim.autopilot.modes import FlightModeMachine, GuidedTarget, Kinematics, ModeTimings
+from plant_sim.autopilot.params import ParamTable, timings_from_params
+from plant_sim.autopilot.setpoints import SetpointError, VehiclePose, decode_position_target
+from plant_sim.autopilot.telemetry import (
+    MESSAGE_IDS,
+    StreamScheduler,
+    TelemetryBuilder,
+    VehicleIdentity,
+)
+from plant_sim.camera_publisher import StereoPublisher, ZenohSettings
+from plant_sim.clock import Pacer
+from plant_sim.scenario import Scenario
+from plant_sim.tlog import TlogWriter
+from plant_sim.truth_log import TruthLogWriter
+from plant_sim.vehicle import Quadrotor, VehicleState
+from protocols.keys import stereo_key
+
+__all__ = ["PlantConfig", "PlantService"]
+
+_log = logging.getLogger("plant_sim")
+
+_KNOWN_MSG_IDS = frozenset(MESSAGE_IDS.values())
+_NAME_BY_ID = {v: k for k, v in MESSAGE_IDS.items()}
+_SEVERITY_WARNING = mavlink.MAV_SEVERITY_WARNING
+_SEVERITY_INFO = mavlink.MAV_SEVERITY_INFO
+# messages handled at once (not queued for the next tick)
+_IMMEDIATE = frozenset({"TIMESYNC", "HEARTBEAT"})
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """Everything one plant-sim run needs (built from the CLI by ``__main__``)."""
+
+    scenario: Scenario
+    mavlink: tuple[EndpointSpec, ...]
+    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    speedup: float = 1.0  # simulation seconds per wall second; inf = as fast as possible
+    signing_key: SigningKey | None = None
+    log_dir: Path | None = None  # .tlog and truth CSV go here; None = no logs
+    autopilot_rate_hz: float = 50.0  # mode logic, command execution, telemetry sampling
+    truth_rate_hz: float = 50.0  # ground-truth rows per simulation second (≤ autopilot rate)
+    duration_s: float | None = None  # stop after this much simulation time
+    heartbeat_period_s: float = 1.0  # wall time
+
+    def __post_init__(self) -> None:
+        if not self.mavlink:
+            raise ValueError("at least one --mavlink endpoint is needed")
+        if not self.speedup > 0:
+            raise ValueError(f"speedup must be > 0, got {self.speedup}")
+        if not self.autopilot_rate_hz > 0 or not self.truth_rate_hz > 0:
+            raise ValueError("autopilot_rate_hz and truth_rate_hz must be > 0")
+
+
+class PlantService:
+    """Owns the plant's parts; :meth:`open`, :meth:`run`, :meth:`close`."""
+
+    def __init__(self, config: PlantConfig) -> None:
+        self.config = config
+        sc = config.scenario
+        start = sc.start
+        yaw_rad = math.radians(start.yaw_deg)
+        ground = sc.ground_down_m
+        pos = start.pos_ned_m
+        if not start.airborne:
+            pos = (pos[0], pos[1], ground if ground is not None else pos[2])
+        self.quad = Quadrotor(
+            sc.vehicle,
+            sc.control,
+            pos_ned_m=pos,
+            yaw_rad=yaw_rad,
+            ground_down_m=ground,
+            armed=start.airborne,
+        )
+        fs = sc.failsafe
+        self.params = ParamTable(
+            {
+                "GUID_TIMEOUT": fs.guided_velocity_timeout_s,
+                "DISARM_DELAY": fs.disarm_delay_s,
+                "LAND_SPEED": fs.land_speed_mps * 100.0,
+                "RTL_ALT": fs.rtl_alt_m * 100.0,
+                "WPNAV_SPEED_UP": fs.takeoff_climb_mps * 100.0,
+                "ANGLE_MAX": sc.control.max_tilt_deg * 100.0,
+                "SIM_SPEEDUP": config.speedup if math.isfinite(config.speedup) else 0.0,
+                "SIM_CAM_RATE": sc.camera.rate_hz if sc.camera.enabled else 0.0,
+            }
+        )
+        self._base_timings = ModeTimings(land_detect_s=fs.land_detect_s)
+        home = (pos[0], pos[1], ground if ground is not None else 0.0)
+        kin = self._kinematics(self.quad.snapshot())
+        self.machine = FlightModeMachine(
+            timings_from_params(self._base_timings, self.params),
+            home_ned_m=home,
+            ground_down_m=ground,
+            mode=start.mode,
+            armed=start.airborne,
+            kin=kin,
+        )
+        self._applied_setpoint = None
+        self._apply_machine()
+        self.telemetry = TelemetryBuilder(
+            VehicleIdentity(sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.alt_amsl_m)
+        )
+        self.scheduler = StreamScheduler(dict(sc.stream_rates_hz), self.quad.time_s)
+        self.pacer = Pacer(config.speedup)
+        self._tlog: TlogWriter | None = None
+        self._truth: TruthLogWriter | None = None
+        self.link = MavlinkLink(
+            list(config.mavlink),
+            signing_key=config.signing_key,
+            on_send=self._tlog_write,
+            on_receive=self._tlog_write,
+        )
+        self.publisher: StereoPublisher | None = None
+        if sc.camera.enabled:
+            self.publisher = StereoPublisher(
+                config.zenoh, stereo_key(sc.vehicle_id), sc.camera, sc.world
+            )
+        self._tick = 0
+        self._tick_dt_s = 1.0 / config.autopilot_rate_hz
+        self._truth_every = max(1, round(config.autopilot_rate_hz / config.truth_rate_hz))
+        self._frame = 0
+        self._frame_dt_s = 1.0 / sc.camera.rate_hz
+        self._inbox: list = []
+        self._last_snapshot: VehicleState | None = None
+        self._tilt_sat_prev = False
+        self._tilt_sat_last_text_s = -math.inf
+        self._refusal_last_text: dict[str, float] = {}
+        self.counters = {"commands": 0, "setpoints": 0, "setpoints_refused": 0, "foreign": 0}
+        self._wall_start = time.monotonic()
+        self._run_wall_start: float | None = None
+        self._run_sim_start = 0.0
+
+    # ---- lifecycle -----------------------------------------------------------------
+    def open(self) -> None:
+        """Bind sockets, open Zenoh and the logs; compile the JIT kernels."""
+        log_dir = self.config.log_dir
+        if log_dir is not None:
+            log_dir.mkdir(parents=True, exist_ok=True)
+            self._tlog = TlogWriter(log_dir / "plant_sim.tlog")
+            self._truth = TruthLogWriter(
+                log_dir / "truth.csv",
+                self.config.scenario.world,
+                self.config.scenario.vehicle.body_radius_m,
+            )
+        self.link.open()
+        if self.publisher is not None:
+            self.publisher.warm_up()
+            self.publisher.open()
+
+    def readiness_line(self) -> str:
+        """``PLANT_SIM READY mavlink=URL[,URL] zenoh=ENDPOINTS|off key=KEY speedup=N``."""
+        zenoh_desc = "off"
+        key = "-"
+        if self.publisher is not None:
+            z = self.config.zenoh
+            eps = [f"listen:{e}" for e in z.listen] + [f"connect:{e}" for e in z.connect]
+            zenoh_desc = ",".join(eps) if eps else "config"
+            key = self.publisher.key
+        return (
+            f"PLANT_SIM READY mavlink={','.join(self.link.bound_urls)} zenoh={zenoh_desc} "
+            f"key={key} speedup={self.config.speedup:g}"
+        )
+
+    def close(self) -> dict:
+        """Close sockets and sessions, flush logs; returns the run's statistics."""
+        stats = self.stats()
+        if self.publisher is not None:
+            self.publisher.close()
+        self.link.close()
+        if self._truth is not None:
+            self._truth.close()
+        if self._tlog is not None:
+            self._tlog.close()
+        return stats
+
+    def stats(self) -> dict:
+        now = time.monotonic()
+        run_wall = now - (self._run_wall_start if self._run_wall_start is not None else now)
+        run_sim = self.quad.time_s - self._run_sim_start
+        return {
+            "sim_time_s": round(self.quad.time_s, 4),
+            "wall_time_s": round(now - self._wall_start, 3),  # including start-up
+            "run_wall_time_s": round(run_wall, 3),  # the main loop only
+            "real_time_factor": round(run_sim / run_wall, 2) if run_wall > 0 else None,
+            "frames_published": self.publisher.sequence if self.publisher else 0,
+            "pace_slips": self.pacer.stats.slips,
+            "mavlink_sent": self.link.sent_frames,
+            "link": self.link.stats.as_dict(),
+            "min_clearance_m": None
+            if self._truth is None or not math.isfinite(self._truth.min_clearance_m)
+            else round(self._truth.min_clearance_m, 4),
+            **self.counters,
+        }
+
+    # ---- main loop -----------------------------------------------------------------
+    def run(self, should_stop: Callable[[], bool]) -> None:
+        """Run until ``should_stop()`` or the configured duration."""
+        link, pacer, quad = self.link, self.pacer, self.quad
+        now = time.monotonic()
+        self._run_wall_start, self._run_sim_start = now, quad.time_s
+        pacer.start(now, quad.time_s)
+        next_heartbeat = now
+        duration = self.config.duration_s
+        while not should_stop():
+            now = time.monotonic()
+            if now >= next_heartbeat:
+                link.send(self.telemetry.heartbeat(self.machine))
+                next_heartbeat += self.config.heartbeat_period_s
+                if next_heartbeat < now:
+                    next_heartbeat = now + self.config.heartbeat_period_s
+            target = pacer.target_sim_s(now, quad.time_s)
+            if duration is not None:
+                target = min(target, duration)
+            budget_end = now + 0.01  # serve the sockets at least every 10 ms of wall time
+            while quad.time_s < target - 1e-9:
+                quad.run_until(min(self._next_event_s(), target))
+                self._events()
+                if time.monotonic() > budget_end:
+                    break
+            if duration is not None and quad.time_s >= duration - 1e-9:
+                break
+            wake = min(pacer.wall_at(self._next_event_s()), next_heartbeat)
+            timeout = min(0.05, max(0.0, wake - time.monotonic()))
+            link.wait(timeout)
+            self._receive()
+
+    def _next_event_s(self) -> float:
+        t = self._tick * self._tick_dt_s
+        if self.publisher is not None:
+            t = min(t, self._frame * self._frame_dt_s)
+        return t
+
+    # ---- events at simulation times ------------------------------------------------
+    def _events(self) -> None:
+        t = self.quad.time_s
+        snap = None
+        if t >= self._tick * self._tick_dt_s - 1e-9:
+            snap = self.quad.snapshot()
+            self._on_tick(snap)
+            self._tick += 1
+        if self.publisher is not None and t >= self._frame * self._frame_dt_s - 1e-9:
+            snap = snap if snap is not None else self.quad.snapshot()
+            self.publisher.publish(snap.time_s, snap.pos_ned_m, snap.R_ned_from_frd)
+            self._frame += 1
+
+    def _on_tick(self, snap: VehicleState) -> None:
+        self._last_snapshot = snap
+        kin = self._kinematics(snap)
+        inbox, self._inbox = self._inbox, []
+        for msg in inbox:
+            self._dispatch(msg, kin, snap)
+        for notice in self.machine.update(kin):
+            self._statustext(notice, _SEVERITY_INFO)
+        self._apply_machine()
+        self._tilt_notice(snap)
+        wall_unix = time.time()
+        for name in self.scheduler.due(snap.time_s):
+            self.link.send(self._build(name, snap, wall_unix))
+        if self._truth is not None and self._tick % self._truth_every == 0:
+            self._truth.write(snap, self.machine.mode.name)
+
+    def _build(self, name: str, snap: VehicleState, wall_unix: float):
+        return self.telemetry.build(
+            name,
+            snap,
+            self.machine,
+            wall_unix_s=wall_unix,
+            comm_errors=self.link.stats.dropped,
+            signing_refused=self.link.stats.signing_refused,
+        )
+
+    def _tilt_notice(self, snap: VehicleState) -> None:
+        sat = snap.tilt_saturated
+        if sat and not self._tilt_sat_prev and snap.time_s - self._tilt_sat_last_text_s >= 1.0:
+            self._tilt_sat_last_text_s = snap.time_s
+            limit = self.config.scenario.control.max_tilt_deg
+            self._statustext(f"Tilt limit {limit:g} deg saturated", _SEVERITY_INFO)
+        self._tilt_sat_prev = sat
+
+    # ---- helpers -------------------------------------------------------------------
+    @staticmethod
+    def _kinematics(snap: VehicleState) -> Kinematics:
+        p, v = snap.pos_ned_m, snap.vel_ned_mps
+        return Kinematics(
+            time_s=snap.time_s,
+            pos_ned_m=(float(p[0]), float(p[1]), float(p[2])),
+            vel_ned_mps=(float(v[0]), float(v[1]), float(v[2])),
+            yaw_rad=snap.yaw_rad,
+            on_ground=snap.on_ground,
+        )
+
+    def _apply_machine(self) -> None:
+        m = self.machine
+        if m.armed != self.quad.armed:
+            self.quad.set_armed(m.armed)
+        if m.setpoint is not self._applied_setpoint:
+            self.quad.set_setpoint(m.setpoint)
+            self._applied_setpoint = m.setpoint
+
+    def _tlog_write(self, frame: bytes) -> None:
+        if self._tlog is not None:
+            self._tlog.write(frame)
+
+    def _statustext(self, text: str, severity: int = _SEVERITY_WARNING) -> None:
+        _log.info("STATUSTEXT: %s", text)
+        self.link.send(
+            mavlink.MAVLink_statustext_message(severity, text[:50].encode("ascii", "replace"))
+        )
+
+    def _refusal(self, key: str, text: str, sim_s: float) -> None:
+        """STATUSTEXT for a repeated refusal at most once per second of simulation time."""
+        if sim_s - self._refusal_last_text.get(key, -math.inf) >= 1.0:
+            self._refusal_last_text[key] = sim_s
+            self._statustext(text)
+        else:
+            _log.debug("refused (%s): %s", key, text)
+
+    # ---- input ---------------------------------------------------------------------
+    def _receive(self) -> None:
+        for msg in self.link.poll():
+            if not self._addressed_to_us(msg):
+                self.counters["foreign"] += 1
+                continue
+            if msg.get_type() in _IMMEDIATE:
+                self._dispatch(msg, None, None)
+            else:
+                self._inbox.append(msg)
+
+    def _addressed_to_us(self, msg) -> bool:
+        sysid = getattr(msg, "target_system", 0)
+        if sysid not in (0, self.link.system_id):
+            return False
+        compid = getattr(msg, "target_component", 0)
+        return compid in (0, self.link.component_id)
+
+    def _dispatch(self, msg, kin: Kinematics | None, snap: VehicleState | None) -> None:
+        mtype = msg.get_type()
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if mtype == "TIMESYNC":
+            if msg.tc1 == 0:
+                now_ns = round(self.quad.time_s * 1e9)
+                self.link.send(mavlink.MAVLink_timesync_message(now_ns, msg.ts1))
+            return
+        if mtype == "HEARTBEAT":
+            return
+        assert kin is not None and snap is not None
+        if mtype in ("COMMAND_LONG", "COMMAND_INT"):
+            self._command(msg, kin, snap, src)
+        elif mtype == "SET_MODE":
+            outcome = cmds.handle_set_mode(msg.base_mode, msg.custom_mode, self.machine, kin)
+            self._ack(mavlink.MAVLINK_MSG_ID_SET_MODE, outcome, src, snap)
+        elif mtype == "SET_POSITION_TARGET_LOCAL_NED":
+            self._position_target(msg, kin)
+        elif mtype == "SET_POSITION_TARGET_GLOBAL_INT":
+            self.counters["setpoints_refused"] += 1
+            self._refusal("global", "SET_POSITION_TARGET_GLOBAL_INT unsupported", kin.time_s)
+        elif mtype == "PARAM_REQUEST_LIST":
+            for i in range(len(self.params)):
+                self._param_value(i)
+        elif mtype == "PARAM_REQUEST_READ":
+            index = msg.param_index
+            if index < 0:
+                index = self.params.index_of(_param_name(msg.param_id))
+            if index is None or not 0 <= index < len(self.params):
+                self._statustext(f"Unknown parameter {_param_name(msg.param_id)}")
+            else:
+                self._param_value(index)
+        elif mtype == "PARAM_SET":
+            self._param_set(msg)
+        elif mtype == "MISSION_REQUEST_LIST":
+            self.link.send(
+                mavlink.MAVLink_mission_count_message(src[0], src[1], 0, msg.mission_type)
+            )
+        elif mtype == "MISSION_CLEAR_ALL":
+            self.link.send(
+                mavlink.MAVLink_mission_ack_message(
+                    src[0], src[1], mavlink.MAV_MISSION_ACCEPTED, msg.mission_type
+                )
+            )
+        elif mtype == "MISSION_COUNT":
+            ok = msg.count == 0
+            if not ok:
+                self._statustext("Missions are not supported")
+            self.link.send(
+                mavlink.MAVLink_mission_ack_message(
+                    src[0],
+                    src[1],
+                    mavlink.MAV_MISSION_ACCEPTED if ok else mavlink.MAV_MISSION_UNSUPPORTED,
+                    msg.mission_type,
+                )
+            )
+        elif mtype == "REQUEST_DATA_STREAM":
+            self.scheduler.request_data_stream(
+                msg.req_stream_id, float(msg.req_message_rate), bool(msg.start_stop), kin.time_s
+            )
+
+    def _command(self, msg, kin: Kinematics, snap: VehicleState, src) -> None:
+        self.counters["commands"] += 1
+        if msg.get_type() == "COMMAND_INT":
+            params = (
+                msg.param1,
+                msg.param2,
+                msg.param3,
+                msg.param4,
+                float(msg.x),
+                float(msg.y),
+                msg.z,
+            )
+        else:
+            params = (
+                msg.param1,
+                msg.param2,
+                msg.param3,
+                msg.param4,
+                msg.param5,
+                msg.param6,
+                msg.param7,
+            )
+        outcome = cmds.handle_command(
+            msg.command,
+            params,
+            self.machine,
+            kin,
+            arming_checks=self.params.value("ARMING_CHECK") != 0,
+            known_message_ids=_KNOWN_MSG_IDS,
+        )
+        self._ack(msg.command, outcome, src, snap)
+        if outcome.set_interval is not None:
+            msg_id, interval_us = outcome.set_interval
+            self.scheduler.set_interval_us(msg_id, interval_us, kin.time_s)
+        if outcome.send_message_id is not None:
+            name = _NAME_BY_ID[outcome.send_message_id]
+            self.link.send(self._build(name, snap, time.time()))
+        self._apply_machine()
+
+    def _ack(self, command: int, outcome: cmds.CommandOutcome, src, snap: VehicleState) -> None:
+        if outcome.text:
+            self._statustext(outcome.text)
+        if outcome.result is cmds.MavResult.UNSUPPORTED:
+            _log.info("command %d from %s unsupported", command, src)
+        self.link.send(
+            mavlink.MAVLink_command_ack_message(command, int(outcome.result), 0, 0, src[0], src[1])
+        )
+
+    def _position_target(self, msg, kin: Kinematics) -> None:
+        self.counters["setpoints"] += 1
+        try:
+            target: GuidedTarget = decode_position_target(
+                msg.type_mask,
+                msg.coordinate_frame,
+                (msg.x, msg.y, msg.z),
+                (msg.vx, msg.vy, msg.vz),
+                msg.yaw,
+                msg.yaw_rate,
+                VehiclePose(kin.pos_ned_m, kin.yaw_rad),
+            )
+        except SetpointError as exc:
+            self.counters["setpoints_refused"] += 1
+            self._refusal("decode", f"Target refused: {exc}", kin.time_s)
+            return
+        reason = self.machine.guided_target(target, kin)
+        if reason is not None:
+            self.counters["setpoints_refused"] += 1
+            self._refusal("guided", reason, kin.time_s)
+
+    def _param_value(self, index: int) -> None:
+        spec, value = self.params.entry(index)
+        self.link.send(
+            mavlink.MAVLink_param_value_message(
+                spec.name.encode("ascii"), value, int(spec.type), len(self.params), index
+            )
+        )
+
+    def _param_set(self, msg) -> None:
+        name = _param_name(msg.param_id)
+        reason = self.params.set(name, float(msg.param_value))
+        if reason is not None:
+            self._statustext(reason)
+        index = self.params.index_of(name)
+        if index is not None:
+            self._param_value(index)  # echo: the new value, or the unchanged one if refused
+        if reason is None:
+            self.machine.timings = timings_from_params(self._base_timings, self.params)
+            _log.info("param %s set to %g", name, self.params.value(name))
+
+
+def _param_name(param_id) -> str:
+    if isinstance(param_id, bytes):
+        param_id = param_id.decode("ascii", "replace")
+    return param_id.rstrip("\x00")
+
+
+def stats_line(stats: dict) -> str:
+    """``PLANT_SIM STATS {json}`` printed at exit."""
+    return "PLANT_SIM STATS " + json.dumps(stats, sort_keys=True)

@@ -1,0 +1,121 @@
+"""Ground-truth time history of a run (CSV): pose, obstacle clearance, controller saturation.
+
+One row per sample of simulation time. Columns (NED/FRD, SI units, MAVLink 3-2-1 angles)::
+
+    time_s, pos_n_m, pos_e_m, pos_d_m, vel_n_mps, vel_e_mps, vel_d_mps,
+    roll_rad, pitch_rad, yaw_rad, roll_cmd_rad, pitch_cmd_rad, yaw_cmd_rad,
+    tilt_saturated, rotor_saturated, on_ground, armed, mode,
+    nearest_obstacle, surface_distance_m, clearance_m
+
+``surface_distance_m`` is the distance from the vehicle's centre to the nearest obstacle
+surface (negative inside); ``clearance_m`` subtracts the vehicle radius (a collision when
+< 0); both empty without obstacles. Verdicts read this file, never telemetry.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+from plant_sim.vehicle import VehicleState
+from plant_sim.world import World
+
+__all__ = ["COLUMNS", "TruthLogWriter", "nearest_surface"]
+
+COLUMNS = (
+    "time_s",
+    "pos_n_m",
+    "pos_e_m",
+    "pos_d_m",
+    "vel_n_mps",
+    "vel_e_mps",
+    "vel_d_mps",
+    "roll_rad",
+    "pitch_rad",
+    "yaw_rad",
+    "roll_cmd_rad",
+    "pitch_cmd_rad",
+    "yaw_cmd_rad",
+    "tilt_saturated",
+    "rotor_saturated",
+    "on_ground",
+    "armed",
+    "mode",
+    "nearest_obstacle",
+    "surface_distance_m",
+    "clearance_m",
+)
+
+
+def nearest_surface(world: World, pos_ned_m) -> tuple[int, float]:
+    """(index, distance [m]) of the nearest sphere surface; (-1, inf) without spheres."""
+    best, best_d = -1, math.inf
+    p = np.asarray(pos_ned_m, dtype=float)
+    for i, sphere in enumerate(world.spheres):
+        c = sphere.center_ned_m
+        d = (
+            math.sqrt((p[0] - c[0]) ** 2 + (p[1] - c[1]) ** 2 + (p[2] - c[2]) ** 2)
+            - sphere.radius_m
+        )
+        if d < best_d:
+            best, best_d = i, d
+    return best, best_d
+
+
+class TruthLogWriter:
+    """Writes :data:`COLUMNS` rows; :meth:`close` flushes. Tracks the minimum clearance."""
+
+    def __init__(self, path: str | Path, world: World, body_radius_m: float) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(self.path, "w", newline="")  # noqa: SIM115 (closed in close())
+        self._writer = csv.writer(self._file)
+        self._writer.writerow(COLUMNS)
+        self._world = world
+        self._body_radius_m = body_radius_m
+        self.rows = 0
+        self.min_clearance_m = math.inf
+
+    def write(self, s: VehicleState, mode_name: str) -> None:
+        idx, dist = nearest_surface(self._world, s.pos_ned_m)
+        clearance = dist - self._body_radius_m
+        if idx >= 0:
+            self.min_clearance_m = min(self.min_clearance_m, clearance)
+        p, v = s.pos_ned_m, s.vel_ned_mps
+        self._writer.writerow(
+            (
+                f"{s.time_s:.4f}",
+                f"{p[0]:.4f}",
+                f"{p[1]:.4f}",
+                f"{p[2]:.4f}",
+                f"{v[0]:.4f}",
+                f"{v[1]:.4f}",
+                f"{v[2]:.4f}",
+                f"{s.roll_rad:.5f}",
+                f"{s.pitch_rad:.5f}",
+                f"{s.yaw_rad:.5f}",
+                f"{s.roll_cmd_rad:.5f}",
+                f"{s.pitch_cmd_rad:.5f}",
+                f"{s.yaw_cmd_rad:.5f}",
+                int(s.tilt_saturated),
+                int(s.rotor_saturated),
+                int(s.on_ground),
+                int(s.armed),
+                mode_name,
+                idx if idx >= 0 else "",
+                f"{dist:.4f}" if idx >= 0 else "",
+                f"{clearance:.4f}" if idx >= 0 else "",
+            )
+        )
+        self.rows += 1
+
+    def flush(self) -> None:
+        if not self._file.closed:
+            self._file.flush()
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.close()
