@@ -112,6 +112,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--truth-rate-hz", type=float, default=50.0, help="truth-log rows per sim second"
     )
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    p.add_argument(
+        "--ready-file",
+        type=Path,
+        help="also write the readiness line to this file (removed at exit): a healthcheck",
+    )
     return p
 
 
@@ -169,8 +174,12 @@ def config_from_args(args: argparse.Namespace):
     )
 
 
-def run(config) -> int:
-    """Open the plant, print the readiness line, run until stopped, close, print stats."""
+def run(config, ready_file: Path | None = None) -> int:
+    """Open the plant, print the readiness line, run until stopped, close, print stats.
+
+    With ``ready_file`` the readiness line is also written there once every socket is
+    bound, and the file is removed at exit (container healthchecks test for it).
+    """
     from plant_sim.service import PlantService, stats_line
 
     stop = threading.Event()
@@ -183,9 +192,16 @@ def run(config) -> int:
     service = PlantService(config)
     try:
         service.open()
-        print(service.readiness_line(), flush=True)
+        line = service.readiness_line()
+        if ready_file is not None:  # complete before anyone sees the stdout line
+            partial = ready_file.with_name(ready_file.name + ".partial")
+            partial.write_text(line + "\n", encoding="utf-8")
+            partial.replace(ready_file)
+        print(line, flush=True)
         service.run(stop.is_set)
     finally:
+        if ready_file is not None:
+            ready_file.unlink(missing_ok=True)
         stats = service.close()
         for s, handler in previous.items():
             signal.signal(s, handler)
@@ -208,7 +224,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"plant-sim: configuration error: {exc}", file=sys.stderr)
         return 2
     try:
-        return run(config)
+        return run(config, args.ready_file)
     except OSError as exc:
         print(f"plant-sim: {exc}", file=sys.stderr)
         return 1

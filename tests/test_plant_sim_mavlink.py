@@ -361,3 +361,13 @@ def test_mavproxy_connects_fetches_params_and_reports_mode(plant_factory, tmp_pa
         proc.wait(timeout=10)
         proc.stdout.close()
     assert seen == {"params", "mode"}, "\n".join(lines)
+
+
+def test_ready_file_holds_the_readiness_line_while_running(plant_factory, tmp_path):
+    """Container healthchecks test for the ready file; it goes away at a clean stop."""
+    ready = tmp_path / "plant.ready"
+    plant = plant_factory("--no-camera", "--ready-file", str(ready), log_dir=False)
+    assert ready.read_text(encoding="utf-8").strip() == plant.ready.group(0)
+    stats = plant.stop()
+    assert stats is not None, plant.logs()
+    assert not ready.exists()
