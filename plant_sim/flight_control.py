@@ -61,17 +61,38 @@ def _wrap_pi(angle_rad: float) -> float:
 def mix(
     total_n: float, tau_x: float, tau_y: float, tau_z: float, k: PhysicsConstants, out: np.ndarray
 ) -> bool:
-    """Invert Eq. (14) into rotor thrusts ``out[0:4]``, clamped; True if any was clamped."""
+    """Invert Eq. (14) into rotor thrusts ``out[0:4]`` within the rotor limits.
+
+    Yaw torque has the lowest priority, as in ArduCopter's mixer: when the exact inverse
+    would push a rotor past a limit, the yaw part is scaled down until every rotor fits;
+    only if thrust, roll and pitch alone do not fit are the rotors clamped. Returns True
+    when anything was reduced or clamped. (A 1 rad heading error asks for ~2 N of
+    differential thrust per rotor; a plain clamp would then spend the roll, pitch and
+    thrust authority on yaw and the vehicle would sag.)
+    """
     base = 0.25 * total_n
     rx = tau_x / (2.0 * k.d)
     ry = tau_y / (2.0 * k.d)
     rz = tau_z / (4.0 * k.c)
-    out[0] = base - ry + rz
-    out[1] = base + rx - rz
-    out[2] = base + ry + rz
-    out[3] = base - rx - rz
+    out[0] = base - ry
+    out[1] = base + rx
+    out[2] = base + ry
+    out[3] = base - rx
     saturated = False
+    yaw_scale = 1.0
     for i in range(4):
+        if out[i] > k.f_max or out[i] < k.f_min:
+            yaw_scale = 0.0  # no room at all: clamp below
+            break
+        yaw_i = rz if i % 2 == 0 else -rz  # rotors 1, 3 (+), 2, 4 (-)
+        if out[i] + yaw_i > k.f_max:
+            yaw_scale = min(yaw_scale, (k.f_max - out[i]) / yaw_i)
+        elif out[i] + yaw_i < k.f_min:
+            yaw_scale = min(yaw_scale, (k.f_min - out[i]) / yaw_i)
+    if yaw_scale < 1.0:
+        saturated = True
+    for i in range(4):
+        out[i] += yaw_scale * (rz if i % 2 == 0 else -rz)
         if out[i] > k.f_max:
             out[i] = k.f_max
             saturated = True

@@ -125,3 +125,18 @@ def test_mixer_clamps_to_rotor_limits():
     assert mix(4 * p.rotor_thrust_max_n, 1.0, 0.0, 0.0, k, out)
     assert np.all(out[:4] <= p.rotor_thrust_max_n)
     assert np.all(out[:4] >= p.rotor_thrust_min_n)
+
+
+def test_mixer_gives_up_yaw_before_thrust_roll_and_pitch():
+    """A yaw demand beyond the rotors' reach is scaled down; the rest stays exact."""
+    p = QuadrotorParams()
+    k = physics_constants(p)
+    out = np.zeros(10)
+    total, tau_x, tau_y, tau_z = p.hover_thrust_n, 0.02, -0.03, 0.2  # 0.2 N·m: ~3 N/rotor
+    assert mix(total, tau_x, tau_y, tau_z, k, out)
+    got_total, got_x, got_y, got_z = rotor_wrench(*out[:4], k)
+    np.testing.assert_allclose((got_total, got_x, got_y), (total, tau_x, tau_y), atol=1e-12)
+    assert 0.0 < got_z < tau_z
+    limits = (p.rotor_thrust_min_n, p.rotor_thrust_max_n)
+    assert np.any(np.isclose(out[:4], limits[0]) | np.isclose(out[:4], limits[1]))
+    assert np.all((out[:4] >= limits[0] - 1e-12) & (out[:4] <= limits[1] + 1e-12))
