@@ -1,0 +1,600 @@
+"""``python -m companion.camera`` / ``stereo-camera``: publish real or recorded stereo frames.
+
+Reads pairs from two V4L2 cameras (``v4l2``), one side-by-side UVC camera (``sbs``) or a
+folder of recorded pairs (``replay``), rectifies them with an OpenCV stereo calibration
+(:mod:`companion.camera.calibration`) and publishes them as
+:mod:`protocols.stereo_frame` MONO8 frames on ``stereo_avoid/<vehicle_id>/stereo``: a
+drop-in replacement for plant-sim's synthetic camera. Examples::
+
+    stereo-camera v4l2 0 2 --calibration stereo.yml --size 640x480 --fps 30
+    stereo-camera sbs /dev/video0 --calibration intrinsics.yml --calibration extrinsics.yml \\
+        --size 640x480 --output-size 320x240
+    stereo-camera replay recording/ --rate 10 --zenoh-connect tcp/192.168.1.5:7447
+
+Once the source delivers and the Zenoh publisher is declared it prints one line on stdout::
+
+    STEREO_CAMERA READY key=stereo_avoid/sim1/stereo source=replay:rec size=320x240
+        rectify=none zenoh=listen:tcp/127.0.0.1:7447
+
+and at exit (end of a replay, ``--max-frames``, SIGINT or SIGTERM) ``STEREO_CAMERA STATS
+{json}``. Capture times are ``time.monotonic_ns()`` at grab for cameras and the recorded
+timestamps mapped onto the monotonic clock at replay start for replays
+(:mod:`companion.camera.sources`). Exit status: 0 on a clean stop, 1 on a camera, file or
+transport error, 2 on a bad configuration or calibration; errors are one line on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import enum
+import json
+import logging
+import math
+import os
+import re
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, TextIO
+
+if TYPE_CHECKING:  # numpy & co. load inside main(), after OPENBLAS_NUM_THREADS is set
+    from protocols.camera import StereoIntrinsics
+
+__all__ = [
+    "CameraConfig",
+    "SourceConfig",
+    "SourceKind",
+    "ZenohSettings",
+    "build_parser",
+    "config_from_args",
+    "main",
+    "make_source",
+    "run",
+]
+
+_log = logging.getLogger("companion.camera")
+_PROG = "stereo-camera"
+_DEFAULT_LISTEN = "tcp/127.0.0.1:7447"  # where plant-sim listens; the companion connects here
+_FLUSH_S = 0.2  # after the last frame of a finite source, before closing the session
+_RUST_LOCATION = re.compile(r" at /\S+\.rs:\d+\.?")  # zenoh appends its source location
+
+
+class SourceKind(enum.Enum):
+    """Where frames come from."""
+
+    V4L2_PAIR = "v4l2"  # two cameras
+    SIDE_BY_SIDE = "sbs"  # one camera, [left | right] in one frame
+    REPLAY = "replay"  # folder of recorded pairs
+
+
+@dataclass(frozen=True)
+class SourceConfig:
+    """Frame source settings.
+
+    Attributes
+    ----------
+    kind : SourceKind
+    devices : tuple of str
+        ``(left, right)`` for V4L2_PAIR, ``(device,)`` for SIDE_BY_SIDE (index, /dev/videoN,
+        or anything ``cv2.VideoCapture`` opens).
+    folder : Path or None
+        Recording for REPLAY.
+    size_px : (int, int) or None
+        Requested per-eye ``(width, height)`` of live cameras.
+    fps : float or None
+        Requested camera rate [Hz].
+    fourcc : str or None
+        Requested camera pixel format (e.g. MJPG).
+    rate_hz : float or None
+        Replay rate [Hz]; None = recorded timestamps.
+    """
+
+    kind: SourceKind
+    devices: tuple[str, ...] = ()
+    folder: Path | None = None
+    size_px: tuple[int, int] | None = None
+    fps: float | None = None
+    fourcc: str | None = None
+    rate_hz: float | None = None
+
+
+@dataclass(frozen=True)
+class ZenohSettings:
+    """Zenoh session: explicit endpoints, multicast scouting off, or a JSON5 config file."""
+
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    config_file: Path | None = None
+    mode: str = "peer"
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Everything ``run`` needs (built from the command line by :func:`config_from_args`).
+
+    Attributes
+    ----------
+    source : SourceConfig
+    vehicle_id : str
+        Key chunk of ``stereo_avoid/<vehicle_id>/stereo``.
+    zenoh : ZenohSettings
+    calibration_files : tuple of Path
+        OpenCV stereo calibration file(s); empty if the input is already rectified.
+    calibration_units : str or None
+        Unit of the calibration's ``T`` (m, cm, mm); None = the file's or metres.
+    intrinsics : StereoIntrinsics or None
+        Intrinsics of an already rectified input (no remap).
+    alpha : float
+        ``cv2.stereoRectify`` free scaling (0 = valid pixels only).
+    output_size_px : (int, int) or None
+        Rectified ``(width, height)``; default the input size.
+    wait_subscriber_s : float
+        How long to wait for a matching subscriber before the first frame [s] (inf = until
+        one appears or a signal; 0 = do not wait).
+    max_frames : int or None
+        Stop after publishing this many frames.
+    """
+
+    source: SourceConfig
+    vehicle_id: str = "sim1"
+    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    calibration_files: tuple[Path, ...] = ()
+    calibration_units: str | None = None
+    intrinsics: StereoIntrinsics | None = None
+    alpha: float = 0.0
+    output_size_px: tuple[int, int] | None = None
+    wait_subscriber_s: float = 0.0
+    max_frames: int | None = None
+
+
+# --------------------------------------------------------------------------- command line
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must be WIDTHxHEIGHT, got {text!r}") from None
+    if not (1 <= w <= 8192 and 1 <= h <= 8192):
+        raise argparse.ArgumentTypeError(f"size must be within 1..8192 each, got {text!r}")
+    return w, h
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0 or math.isnan(value):
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return value
+
+
+def _seconds(text: str) -> float:
+    if text.lower() in ("inf", "forever"):
+        return math.inf
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds or 'inf', got {text!r}") from None
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return value
+
+
+def _common_options() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(add_help=False)
+    g = p.add_argument_group("calibration and rectification")
+    g.add_argument(
+        "--calibration",
+        action="append",
+        default=[],
+        type=Path,
+        metavar="FILE",
+        help="OpenCV stereo calibration (YAML/XML/JSON with K1 D1 K2 D2 R T [image size]); "
+        "repeatable, e.g. intrinsics.yml + extrinsics.yml",
+    )
+    g.add_argument(
+        "--calibration-units",
+        choices=["m", "cm", "mm"],
+        help="unit of T in the calibration (default: the file's 'units' entry, else m)",
+    )
+    g.add_argument(
+        "--intrinsics",
+        metavar="FX,FY,CX,CY,BASELINE_M",
+        help="the input is already rectified: its intrinsics (no remap)",
+    )
+    g.add_argument(
+        "--alpha",
+        type=float,
+        default=0.0,
+        help="stereoRectify free scaling: 0 valid pixels only (default), 1 all pixels",
+    )
+    g.add_argument("--output-size", type=_size, metavar="WxH", help="rectified size per eye")
+    z = p.add_argument_group("zenoh")
+    z.add_argument(
+        "--zenoh-listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help=f"listen endpoint, repeatable (default {_DEFAULT_LISTEN} when none is given)",
+    )
+    z.add_argument(
+        "--zenoh-connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to connect to (router or companion), repeatable",
+    )
+    z.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 config file (routers, TLS, ACL)")
+    z.add_argument("--vehicle-id", default="sim1", help="key chunk (default sim1)")
+    o = p.add_argument_group("run")
+    o.add_argument(
+        "--wait-subscriber",
+        type=_seconds,
+        metavar="S",
+        help="wait up to S seconds ('inf') for a subscriber before the first frame "
+        "(default: inf for replay, 0 for cameras)",
+    )
+    o.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
+    o.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    return p
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = _common_options()
+    p = argparse.ArgumentParser(
+        prog=_PROG,
+        description="Publish rectified stereo frames (MONO8) over Zenoh from cameras or a "
+        "recording.",
+    )
+    sub = p.add_subparsers(dest="kind", required=True, metavar="{v4l2,sbs,replay}")
+    cam = argparse.ArgumentParser(add_help=False)
+    cam.add_argument("--size", type=_size, metavar="WxH", help="requested size of each eye")
+    cam.add_argument("--fps", type=_positive, help="requested camera rate [Hz]")
+    cam.add_argument("--fourcc", help="requested pixel format, e.g. MJPG or YUYV")
+    v = sub.add_parser(
+        "v4l2", parents=[cam, common], help="two cameras (index or /dev/videoN each)"
+    )
+    v.add_argument("left", help="left (reference) camera: index or /dev/videoN")
+    v.add_argument("right", help="right camera: index or /dev/videoN")
+    s = sub.add_parser("sbs", parents=[cam, common], help="one side-by-side stereo camera")
+    s.add_argument("device", help="index or /dev/videoN")
+    r = sub.add_parser("replay", parents=[common], help="folder of recorded pairs")
+    r.add_argument("folder", type=Path, help="recording (manifest.json or left_*/right_* files)")
+    r.add_argument("--rate", type=_positive, metavar="HZ", help="replay rate (default: recorded)")
+    return p
+
+
+def _parse_intrinsics(text: str) -> StereoIntrinsics:
+    from protocols.camera import StereoIntrinsics
+
+    try:
+        fx, fy, cx, cy, baseline = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--intrinsics must be FX,FY,CX,CY,BASELINE_M, got {text!r}") from None
+    # width/height are placeholders, replaced by the source's size once it is open
+    return StereoIntrinsics(1, 1, fx, fy, cx, cy, baseline)
+
+
+def config_from_args(args: argparse.Namespace) -> CameraConfig:
+    """The one place CLI flags become a :class:`CameraConfig` (raises ValueError if invalid)."""
+    from protocols.keys import validate_vehicle_id
+
+    kind = SourceKind(args.kind)
+    if kind is SourceKind.REPLAY:
+        source = SourceConfig(kind, folder=args.folder, rate_hz=args.rate)
+    else:
+        devices = (args.left, args.right) if kind is SourceKind.V4L2_PAIR else (args.device,)
+        if args.fourcc is not None and len(args.fourcc) != 4:
+            raise ValueError(f"--fourcc must be 4 characters, got {args.fourcc!r}")
+        source = SourceConfig(
+            kind, devices=devices, size_px=args.size, fps=args.fps, fourcc=args.fourcc
+        )
+    if args.calibration and args.intrinsics:
+        raise ValueError("give --calibration (raw input) or --intrinsics (rectified), not both")
+    if kind is not SourceKind.REPLAY and not (args.calibration or args.intrinsics):
+        raise ValueError("cameras need --calibration FILE (or --intrinsics if pre-rectified)")
+    if args.output_size is not None and not args.calibration:
+        raise ValueError("--output-size needs --calibration (it rescales the rectification)")
+    if not (args.alpha == -1.0 or 0.0 <= args.alpha <= 1.0):
+        raise ValueError(f"--alpha must be -1 or in [0, 1], got {args.alpha}")
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
+    intrinsics = _parse_intrinsics(args.intrinsics) if args.intrinsics else None
+    listen = tuple(args.zenoh_listen)
+    if not listen and not args.zenoh_connect and args.zenoh_config is None:
+        listen = (_DEFAULT_LISTEN,)
+    if args.zenoh_config is not None and not args.zenoh_config.is_file():
+        raise ValueError(f"--zenoh-config {args.zenoh_config} does not exist")
+    wait = args.wait_subscriber
+    if wait is None:
+        wait = math.inf if kind is SourceKind.REPLAY else 0.0
+    return CameraConfig(
+        source=source,
+        vehicle_id=validate_vehicle_id(args.vehicle_id),
+        zenoh=ZenohSettings(
+            listen=listen, connect=tuple(args.zenoh_connect), config_file=args.zenoh_config
+        ),
+        calibration_files=tuple(args.calibration),
+        calibration_units=args.calibration_units,
+        intrinsics=intrinsics,
+        alpha=args.alpha,
+        output_size_px=args.output_size,
+        wait_subscriber_s=wait,
+        max_frames=args.max_frames,
+    )
+
+
+# --------------------------------------------------------------------------- running
+
+
+def make_source(config: SourceConfig):
+    """The :class:`~companion.camera.sources.StereoSource` for ``config`` (not yet open)."""
+    from companion.camera import sources
+
+    if config.kind is SourceKind.V4L2_PAIR:
+        left, right = config.devices
+        return sources.V4L2PairCamera(left, right, config.size_px, config.fps, config.fourcc)
+    if config.kind is SourceKind.SIDE_BY_SIDE:
+        return sources.SideBySideCamera(
+            config.devices[0], config.size_px, config.fps, config.fourcc
+        )
+    return sources.FolderReplay(config.folder, config.rate_hz)
+
+
+def _zenoh_config(settings: ZenohSettings):
+    import zenoh
+
+    if settings.config_file is not None:
+        conf = zenoh.Config.from_file(str(settings.config_file))
+    else:
+        conf = zenoh.Config()
+        conf.insert_json5("mode", json.dumps(settings.mode))
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    if settings.listen:
+        conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+    if settings.connect:
+        conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    return conf
+
+
+def _geometry(config: CameraConfig, source, calibration):
+    """(intrinsics, rectify function or None) for the open ``source``."""
+    import dataclasses
+
+    from companion.camera.calibration import Rectifier
+
+    size = source.size_px
+    if calibration is not None and getattr(source, "intrinsics", None) is not None:
+        raise ValueError(
+            f"{source.description}: the manifest's intrinsics say the pairs are already "
+            "rectified; drop --calibration or the manifest's 'intrinsics'"
+        )
+    if calibration is not None:
+        rectifier = Rectifier(calibration, size, config.alpha, config.output_size_px)
+        return rectifier.intrinsics, rectifier.rectify, "calibration"
+    intrinsics = config.intrinsics
+    origin = "intrinsics"
+    if intrinsics is None:
+        intrinsics = getattr(source, "intrinsics", None)
+        origin = "manifest"
+        if intrinsics is None:
+            raise ValueError(
+                f"{source.description}: no intrinsics: give --calibration FILE (raw pairs) or "
+                "--intrinsics / manifest.json 'intrinsics' (rectified pairs)"
+            )
+        if (intrinsics.width_px, intrinsics.height_px) != size:
+            raise ValueError(
+                f"manifest intrinsics are {intrinsics.width_px}x{intrinsics.height_px} but the "
+                f"images are {size[0]}x{size[1]}"
+            )
+    else:
+        intrinsics = dataclasses.replace(intrinsics, width_px=size[0], height_px=size[1])
+    return intrinsics, None, origin
+
+
+@dataclass
+class _Stats:
+    frames: int = 0
+    publish_errors: int = 0
+    first_ns: int | None = None
+    last_ns: int | None = None
+    lag_sum_ms: float = 0.0
+    max_lag_ms: float = 0.0
+    stopped_by: str = "end"
+
+    def as_dict(self) -> dict:
+        span_s = 0.0
+        if self.first_ns is not None and self.last_ns is not None:
+            span_s = (self.last_ns - self.first_ns) / 1e9
+        rate = (self.frames - 1) / span_s if self.frames > 1 and span_s > 0 else 0.0
+        return {
+            "frames": self.frames,
+            "publish_errors": self.publish_errors,
+            "span_s": round(span_s, 3),
+            "rate_hz": round(rate, 2),
+            "mean_lag_ms": round(self.lag_sum_ms / self.frames, 3) if self.frames else 0.0,
+            "max_lag_ms": round(self.max_lag_ms, 3),
+            "stopped_by": self.stopped_by,
+        }
+
+
+def _wait_for_subscriber(publisher, timeout_s: float, stop: threading.Event, key: str) -> None:
+    if timeout_s <= 0:
+        return
+    deadline = time.monotonic() + timeout_s
+    logged = False
+    while not stop.is_set() and not publisher.matching_status.matching:
+        if not logged:
+            _log.info("waiting for a subscriber on %s", key)
+            logged = True
+        if time.monotonic() >= deadline:
+            _log.warning("no subscriber after %.1f s: publishing anyway", timeout_s)
+            return
+        stop.wait(0.01)
+
+
+def run(
+    config: CameraConfig,
+    stop: threading.Event | None = None,
+    out: TextIO | None = None,
+    clock: Callable[[], int] = time.monotonic_ns,
+) -> dict:
+    """Open the source and the publisher, print READY, publish until done; return the stats.
+
+    Raises
+    ------
+    companion.camera.sources.SourceError
+        The source cannot deliver.
+    companion.camera.calibration.CalibrationError, ValueError
+        Bad calibration or intrinsics.
+    zenoh.ZError
+        The session cannot be opened.
+    """
+    import zenoh
+
+    from companion.camera.calibration import load_calibration
+    from protocols import stereo_frame
+    from protocols.keys import stereo_key
+
+    stop = stop if stop is not None else threading.Event()
+    out = out if out is not None else sys.stdout
+    calibration = None
+    if config.calibration_files:
+        calibration = load_calibration(config.calibration_files, config.calibration_units)
+    key = stereo_key(config.vehicle_id)
+    try:
+        zenoh_conf = _zenoh_config(config.zenoh)
+    except zenoh.ZError as exc:
+        raise ValueError(f"zenoh config: {exc}") from None
+    live = config.source.kind is not SourceKind.REPLAY
+    stats = _Stats()
+    source = make_source(config.source)
+    source.open()
+    try:
+        intrinsics, rectify, origin = _geometry(config, source, calibration)
+        with zenoh.open(zenoh_conf) as session:
+            publisher = session.declare_publisher(
+                key,
+                # live: the newest frame matters; replay: deliver every recorded pair
+                congestion_control=(
+                    zenoh.CongestionControl.DROP if live else zenoh.CongestionControl.BLOCK
+                ),
+                priority=zenoh.Priority.DATA_HIGH,
+            )
+            z = config.zenoh
+            eps = [f"listen:{e}" for e in z.listen] + [f"connect:{e}" for e in z.connect]
+            print(
+                f"STEREO_CAMERA READY key={key} source={source.description} "
+                f"size={intrinsics.width_px}x{intrinsics.height_px} rectify={origin} "
+                f"zenoh={','.join(eps) or 'config'}",
+                file=out,
+                flush=True,
+            )
+            _wait_for_subscriber(publisher, config.wait_subscriber_s, stop, key)
+            stats.stopped_by = "signal"
+            while not stop.is_set():
+                pair = source.read()
+                if pair is None:
+                    stats.stopped_by = "end"
+                    stop.wait(_FLUSH_S)
+                    break
+                delay_ns = pair.capture_ns - clock()
+                if delay_ns > 0 and stop.wait(delay_ns / 1e9):
+                    break
+                left, right = (
+                    (pair.left, pair.right) if rectify is None else rectify(pair.left, pair.right)
+                )
+                payload = stereo_frame.encode(
+                    stereo_frame.StereoFrame(
+                        sequence=stats.frames,
+                        capture_ns=pair.capture_ns,
+                        intrinsics=intrinsics,
+                        left=left,
+                        right=right,
+                    )
+                )
+                try:
+                    publisher.put(payload)
+                except zenoh.ZError as exc:
+                    stats.publish_errors += 1
+                    _log.warning("frame %d not published: %s", stats.frames, exc)
+                now = clock()
+                lag_ms = (now - pair.capture_ns) / 1e6
+                stats.lag_sum_ms += lag_ms
+                stats.max_lag_ms = max(stats.max_lag_ms, lag_ms)
+                stats.first_ns = stats.first_ns if stats.first_ns is not None else now
+                stats.last_ns = now
+                stats.frames += 1
+                if config.max_frames is not None and stats.frames >= config.max_frames:
+                    stats.stopped_by = "max_frames"
+                    stop.wait(_FLUSH_S)
+                    break
+            publisher.undeclare()
+    finally:
+        source.close()
+    return stats.as_dict()
+
+
+def _one_line(exc: BaseException) -> str:
+    text = _RUST_LOCATION.sub("", " ".join(str(exc).split()))
+    return text or type(exc).__name__
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Console entry point (``stereo-camera``); returns the exit status."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=getattr(logging, args.log_level),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    import cv2
+    import zenoh
+
+    from companion.camera.calibration import CalibrationError
+    from companion.camera.sources import SourceError
+
+    if args.log_level != "DEBUG":  # OpenCV's own multi-line warnings would bury our one line
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    try:
+        config = config_from_args(args)
+    except (ValueError, OSError) as exc:
+        print(f"{_PROG}: configuration error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+
+    def _on_signal(signum, _frame) -> None:
+        _log.info("signal %d: stopping", signum)
+        stop.set()
+
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        stats = run(config, stop)
+    except (CalibrationError, ValueError) as exc:
+        print(f"{_PROG}: configuration error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except SourceError as exc:
+        print(f"{_PROG}: camera error: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    except zenoh.ZError as exc:
+        print(f"{_PROG}: zenoh error: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"{_PROG}: error: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    print(f"STEREO_CAMERA STATS {json.dumps(stats)}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
