@@ -10,6 +10,9 @@ Subcommands
     seed of every failure so it can be replayed with ``stereo-avoid replay SEED``.
 ``stereo-avoid replay SEED [--out DIR] [--json]``
     One random scene, with figures, exactly as Monte Carlo flew it.
+``stereo-avoid sil [--scenario FILE] [--speedup N] [--out DIR] [--json]``
+    plant-sim and the companion as two processes over MAVLink and Zenoh on loopback;
+    the same verdict and figures, from plant-sim's ground-truth log.
 
 Exit status: 0 when every run reached its goal without collision, 1 otherwise, 2 on a
 usage error.
@@ -118,6 +121,11 @@ def _parser() -> argparse.ArgumentParser:
     replay.add_argument("seed", type=int)
     replay.add_argument("--out", type=Path, default=None, help="output folder")
     replay.add_argument("--json", action="store_true", help="print the verdict as JSON")
+    sil = sub.add_parser("sil", help="plant-sim + companion as processes on loopback")
+    sil.add_argument("--scenario", type=Path, default=None, help="plant-sim scenario file")
+    sil.add_argument("--speedup", type=float, default=4.0, help="simulation speed-up")
+    sil.add_argument("--out", type=Path, default=Path("runs/sil"), help="output folder")
+    sil.add_argument("--json", action="store_true", help="print the verdict as JSON")
     return parser
 
 
@@ -126,6 +134,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.command == "paper":
         return _fly_and_report(paper_scene(), args.out, args.json)
+    if args.command == "sil":
+        from plant_sim.lockstep.sil_report import fly_sil_and_report
+
+        return fly_sil_and_report(args.scenario, args.speedup, args.out, args.json)
     if args.command == "replay":
         out = args.out or Path(f"runs/replay-{args.seed}")
         return _fly_and_report(random_scene(args.seed), out, args.json)

@@ -1,0 +1,77 @@
+"""``python -m companion`` / ``companion``: the onboard avoidance service.
+
+Parses the command line (and ``--config`` file) into a
+:class:`~companion.config.CompanionConfig` in one place and runs :func:`run`. Once MAVLink
+and Zenoh are open it prints one readiness line on stdout (one line; wrapped here)::
+
+    COMPANION READY mavlink=udpout:127.0.0.1:14550 zenoh=connect:tcp/127.0.0.1:7447
+        key=stereo_avoid/sim1/stereo status=stereo_avoid/sim1/companion/status
+        sysid=1 compid=196 signing=off
+
+then ``COMPANION EVENT <name> {json}`` lines (link up/lost, autopilot, phase, hold, resume,
+signing refusals) and at exit (SIGINT, SIGTERM) ``COMPANION STATS {json}``. Exit status 0
+on a clean stop, 2 on a configuration error, 1 if a socket cannot be opened.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+
+__all__ = ["main", "run"]
+
+
+def run(config) -> int:
+    """Open the service, print the readiness line, run until SIGINT/SIGTERM, print stats."""
+    from companion.service import CompanionService
+
+    stop = threading.Event()
+
+    def _on_signal(signum, _frame) -> None:
+        logging.getLogger("companion").info("signal %d: stopping", signum)
+        stop.set()
+
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    service = CompanionService(config)
+    try:
+        service.open()
+        print(service.readiness_line(), flush=True)
+        service.run(stop.is_set)
+    finally:
+        stats = service.close()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    print("COMPANION STATS " + json.dumps(stats, sort_keys=True), flush=True)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Console entry point (``companion``)."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from companion.config import ConfigError, build_parser, config_from_args
+
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=getattr(logging, args.log_level),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        config = config_from_args(args)
+    except ConfigError as exc:
+        print(f"companion: configuration error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return run(config)
+    except OSError as exc:
+        print(f"companion: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,469 @@
+"""Companion configuration: CLI flags and a TOML/JSON file become one frozen config here.
+
+The file (TOML via ``tomllib``, or JSON) has top-level keys and sections; every key is
+optional, and an unknown key anywhere is an error that names it (``link.rate`` →
+"unknown key 'link.rate'")::
+
+    vehicle_id = "sim1"
+    goal_ned_m = [0.0, 0.0, -7.0]        # or: waypoints_ned_m = [[...], [...]]
+    goal_tolerance_m = 0.5
+
+    [mavlink]
+    url = "udpout:127.0.0.1:14550"       # pymavlink style: udpin:, udpout:, tcp:, /dev/tty..
+    baud = 921600
+    system_id = 1
+    component_id = 196                   # MAV_COMP_ID_OBSTACLE_AVOIDANCE
+    signing_key = "..."                  # 64 hex digits or a passphrase (SHA-256)
+    takeoff_alt_m = 0.0                  # > 0: arm and take off (SIL runs)
+    request_mode = true                  # ask for GUIDED / OFFBOARD ourselves
+    telemetry_rate_hz = 50.0             # LOCAL_POSITION_NED and ATTITUDE
+    frame_clock = "autopilot"            # or "host": frames stamped with this host's clock
+
+    [zenoh]
+    listen = []
+    connect = ["tcp/127.0.0.1:7447"]     # default when neither endpoints nor a file is given
+    config_file = "zenoh.json5"
+
+    [failsafe]
+    frame_timeout_s = 0.3                # frame clock (simulation time in the SIL)
+    telemetry_timeout_s = 0.3
+    link_timeout_s = 1.5                 # wall time without any message → link lost
+
+    [perception]                         # companion.perception.PerceptionConfig fields
+    [guidance]                           # companion.guidance.GuidanceConfig fields
+
+CLI flags override the file (:func:`config_from_args`, the only place flags become config).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from companion.clock_model import FrameClock
+from companion.guidance import GuidanceConfig
+from companion.perception import PerceptionConfig
+from protocols.keys import validate_vehicle_id
+
+__all__ = [
+    "CompanionConfig",
+    "ConfigError",
+    "FailsafeConfig",
+    "FrameClock",
+    "LinkConfig",
+    "SigningKey",
+    "ZenohConfig",
+    "build_parser",
+    "config_from_args",
+    "config_from_dict",
+    "load_file",
+]
+
+SIGNING_KEY_ENV = "STEREO_AVOID_SIGNING_KEY"
+
+
+class ConfigError(ValueError):
+    """The configuration is invalid; the message names the key or flag."""
+
+
+class SigningKey:
+    """A 32-byte MAVLink 2 signing key; its ``repr`` never shows the secret."""
+
+    __slots__ = ("_secret",)
+
+    def __init__(self, secret: bytes) -> None:
+        if len(secret) != 32:
+            raise ConfigError(f"a signing key has 32 bytes, got {len(secret)}")
+        self._secret = bytes(secret)
+
+    @classmethod
+    def from_text(cls, text: str) -> SigningKey:
+        """64 hex digits → those bytes; anything else → SHA-256 of the UTF-8 passphrase."""
+        text = text.strip()
+        if not text:
+            raise ConfigError("empty signing key")
+        if len(text) == 64:
+            try:
+                return cls(bytes.fromhex(text))
+            except ValueError:
+                pass
+        return cls(hashlib.sha256(text.encode("utf-8")).digest())
+
+    @property
+    def secret(self) -> bytes:
+        return self._secret
+
+    def __repr__(self) -> str:
+        return "SigningKey(<redacted>)"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, SigningKey) and other._secret == self._secret
+
+    def __hash__(self) -> int:
+        return hash(self._secret)
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """MAVLink link to the autopilot."""
+
+    url: str = "udpout:127.0.0.1:14550"  # pymavlink connection string
+    baud: int = 921600  # serial only [bit/s]
+    system_id: int = 1  # our MAVLink system id (the vehicle's)
+    component_id: int = 196  # MAV_COMP_ID_OBSTACLE_AVOIDANCE
+    target_system: int = 1  # the autopilot
+    target_component: int = 1
+    signing_key: SigningKey | None = None
+    takeoff_alt_m: float = 0.0  # > 0: arm, GUIDED, take off to this height [m]
+    request_mode: bool = True  # request GUIDED / OFFBOARD ourselves at start
+    telemetry_rate_hz: float = 50.0  # LOCAL_POSITION_NED and ATTITUDE [Hz]
+    frame_clock: FrameClock = FrameClock.AUTOPILOT
+    heartbeat_period_s: float = 1.0  # wall time
+    timesync_period_s: float = 0.2  # wall time
+    ardupilot_setpoint_period_s: float = 0.5  # periodic re-send on ArduPilot [s wall]
+    px4_setpoint_rate_hz: float = 20.0  # continuous stream on PX4 [Hz wall], must be > 2
+    px4_prestream_s: float = 1.2  # stream this long before requesting OFFBOARD [s wall]
+    obstacle_distance: bool = False  # also send OBSTACLE_DISTANCE
+
+    def __post_init__(self) -> None:
+        if not self.url:
+            raise ConfigError("mavlink.url is empty")
+        for name in ("system_id", "target_system"):
+            if not 1 <= getattr(self, name) <= 255:
+                raise ConfigError(f"mavlink.{name} must be 1..255")
+        for name in ("component_id", "target_component"):
+            if not 0 <= getattr(self, name) <= 255:
+                raise ConfigError(f"mavlink.{name} must be 0..255")
+        if not (math.isfinite(self.takeoff_alt_m) and self.takeoff_alt_m >= 0):
+            raise ConfigError("mavlink.takeoff_alt_m must be >= 0")
+        if self.takeoff_alt_m > 0:
+            raise ConfigError(
+                "mavlink.takeoff_alt_m / --takeoff-alt: arm-and-take-off is not implemented "
+                "yet; start the vehicle airborne (plant-sim's default) in GUIDED"
+            )
+        if not self.px4_setpoint_rate_hz > 2.0:
+            raise ConfigError("mavlink.px4_setpoint_rate_hz must be > 2 (PX4 offboard)")
+        for name in (
+            "telemetry_rate_hz",
+            "heartbeat_period_s",
+            "timesync_period_s",
+            "ardupilot_setpoint_period_s",
+            "px4_prestream_s",
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"mavlink.{name} must be finite and > 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class ZenohConfig:
+    """Zenoh session: explicit endpoints (multicast scouting off) or a config file."""
+
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    config_file: Path | None = None
+    mode: str = "peer"
+
+
+@dataclass(frozen=True)
+class FailsafeConfig:
+    """When to stop steering and hold (frame clock = simulation time in the SIL)."""
+
+    frame_timeout_s: float = 0.3  # newest frame older than this → hold
+    telemetry_timeout_s: float = 0.3  # newest pose older than this → hold
+    link_timeout_s: float = 1.5  # wall time without any autopilot message → link lost
+    max_pose_extrapolation_s: float = 0.05  # frames newer than the newest pose by ≤ this
+    pose_history_s: float = 2.0  # how far back poses are kept
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"failsafe.{f.name} must be finite and > 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class CompanionConfig:
+    """Everything one companion process needs."""
+
+    vehicle_id: str = "sim1"
+    waypoints_ned_m: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, -7.0),)
+    goal_tolerance_m: float = 0.5  # a waypoint is reached within this distance [m]
+    link: LinkConfig = field(default_factory=LinkConfig)
+    zenoh: ZenohConfig = field(default_factory=ZenohConfig)
+    failsafe: FailsafeConfig = field(default_factory=FailsafeConfig)
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
+    guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
+    status_log_period_s: float = 1.0  # progress log line period [s wall]
+
+    def __post_init__(self) -> None:
+        try:
+            validate_vehicle_id(self.vehicle_id)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        if not self.waypoints_ned_m:
+            raise ConfigError("at least one waypoint (goal_ned_m) is needed")
+        if not self.goal_tolerance_m > 0:
+            raise ConfigError("goal_tolerance_m must be > 0")
+
+
+# ---- dict → config -------------------------------------------------------------------
+
+_TOP_KEYS = {
+    "vehicle_id",
+    "goal_ned_m",
+    "waypoints_ned_m",
+    "goal_tolerance_m",
+    "status_log_period_s",
+    "mavlink",
+    "zenoh",
+    "failsafe",
+    "perception",
+    "guidance",
+}
+
+
+def _check_keys(d: Any, allowed: set[str], where: str) -> Mapping[str, Any]:
+    if not isinstance(d, Mapping):
+        raise ConfigError(f"{where or 'config'} must be a table/object")
+    for key in d:
+        if key not in allowed:
+            name = f"{where}.{key}" if where else key
+            raise ConfigError(f"unknown key '{name}' (valid: {sorted(allowed)})")
+    return d
+
+
+def _vec3(value: Any, where: str) -> tuple[float, float, float]:
+    try:
+        out = tuple(float(x) for x in value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where} must be 3 numbers, got {value!r}") from None
+    if len(out) != 3 or not all(math.isfinite(x) for x in out):
+        raise ConfigError(f"{where} must be 3 finite numbers, got {value!r}")
+    return out  # type: ignore[return-value]
+
+
+def _section(cls, d: Any, where: str, convert: dict[str, Any] | None = None):
+    names = {f.name for f in dataclasses.fields(cls)}
+    d = _check_keys(d, names, where)
+    kw = dict(d)
+    for key, fn in (convert or {}).items():
+        if key in kw and kw[key] is not None:
+            kw[key] = fn(kw[key])
+    try:
+        return cls(**kw)
+    except TypeError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+def _frame_clock(value: Any) -> FrameClock:
+    try:
+        return FrameClock(str(value).lower())
+    except ValueError:
+        raise ConfigError(
+            f"mavlink.frame_clock must be one of {[c.value for c in FrameClock]}, got {value!r}"
+        ) from None
+
+
+def config_from_dict(d: Mapping[str, Any]) -> CompanionConfig:
+    """Build a :class:`CompanionConfig` from a parsed file (unknown keys are an error)."""
+    d = _check_keys(d, _TOP_KEYS, "")
+    kw: dict[str, Any] = {}
+    for key in ("vehicle_id", "goal_tolerance_m", "status_log_period_s"):
+        if key in d:
+            kw[key] = d[key]
+    if "goal_ned_m" in d and "waypoints_ned_m" in d:
+        raise ConfigError("give goal_ned_m or waypoints_ned_m, not both")
+    if "goal_ned_m" in d:
+        kw["waypoints_ned_m"] = (_vec3(d["goal_ned_m"], "goal_ned_m"),)
+    if "waypoints_ned_m" in d:
+        kw["waypoints_ned_m"] = tuple(
+            _vec3(w, f"waypoints_ned_m[{i}]") for i, w in enumerate(d["waypoints_ned_m"])
+        )
+    if "mavlink" in d:
+        kw["link"] = _section(
+            LinkConfig,
+            d["mavlink"],
+            "mavlink",
+            {"signing_key": SigningKey.from_text, "frame_clock": _frame_clock},
+        )
+    if "zenoh" in d:
+        kw["zenoh"] = _section(
+            ZenohConfig,
+            d["zenoh"],
+            "zenoh",
+            {"listen": tuple, "connect": tuple, "config_file": Path},
+        )
+    if "failsafe" in d:
+        kw["failsafe"] = _section(FailsafeConfig, d["failsafe"], "failsafe")
+    try:
+        if "perception" in d:
+            kw["perception"] = PerceptionConfig.from_dict(dict(d["perception"]))
+        if "guidance" in d:
+            kw["guidance"] = GuidanceConfig.from_dict(dict(d["guidance"]))
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(str(exc)) from None
+    return CompanionConfig(**kw)
+
+
+def load_file(path: str | Path) -> dict[str, Any]:
+    """Parse a ``.toml`` or ``.json`` config file into a dict."""
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".json":
+            data = json.loads(path.read_text(encoding="utf-8"))
+        else:
+            with path.open("rb") as fh:
+                data = tomllib.load(fh)
+    except (OSError, ValueError) as exc:  # tomllib.TOMLDecodeError is a ValueError
+        raise ConfigError(f"cannot read config file {path}: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {path}: top level must be a table/object")
+    return data
+
+
+# ---- CLI → config --------------------------------------------------------------------
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="companion",
+        description="Stereo-vision obstacle avoidance companion for any MAVLink autopilot.",
+    )
+    p.add_argument("--config", type=Path, help="config file (.toml or .json)")
+    p.add_argument("--mavlink", metavar="URL", help="pymavlink URL, e.g. udpout:127.0.0.1:14550")
+    p.add_argument("--baud", type=int, help="serial baud rate")
+    p.add_argument("--system-id", type=int, help="our MAVLink system id (default 1)")
+    p.add_argument("--component-id", type=int, help="our MAVLink component id (default 196)")
+    p.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT")
+    p.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT")
+    p.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 config file")
+    p.add_argument("--vehicle-id", help="vehicle id of the Zenoh keys")
+    p.add_argument(
+        "--goal",
+        type=float,
+        nargs=3,
+        metavar=("N", "E", "D"),
+        help="goal in LOCAL_NED [m] (default 0 0 -7)",
+    )
+    p.add_argument(
+        "--waypoint",
+        type=float,
+        nargs=3,
+        action="append",
+        metavar=("N", "E", "D"),
+        help="waypoint in LOCAL_NED [m], repeatable (instead of --goal)",
+    )
+    p.add_argument("--threshold-m", type=float, help="obstacle detection range [m]")
+    p.add_argument("--safety-margin-m", type=float, help="boundary inflation margin [m]")
+    p.add_argument(
+        "--signing-key",
+        metavar="HEX|PASSPHRASE",
+        help=f"MAVLink 2 signing key (prefer --signing-key-file or ${SIGNING_KEY_ENV})",
+    )
+    p.add_argument("--signing-key-file", type=Path, help="file holding the signing key")
+    p.add_argument("--takeoff-alt", type=float, metavar="M", help="arm and take off to M metres")
+    p.add_argument("--no-request-mode", action="store_true", help="never request GUIDED/OFFBOARD")
+    p.add_argument("--frame-clock", choices=[c.value for c in FrameClock])
+    p.add_argument("--telemetry-rate-hz", type=float)
+    p.add_argument("--frame-timeout-s", type=float, help="hold if frames are older [s]")
+    p.add_argument("--telemetry-timeout-s", type=float, help="hold if poses are older [s]")
+    p.add_argument("--obstacle-distance", action="store_true", help="send OBSTACLE_DISTANCE")
+    p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    return p
+
+
+def _merge(base: dict[str, Any], section: str, values: dict[str, Any]) -> None:
+    values = {k: v for k, v in values.items() if v is not None}
+    if values:
+        sub = dict(base.get(section, {}))
+        sub.update(values)
+        base[section] = sub
+
+
+def config_from_args(
+    args: argparse.Namespace, environ: Mapping[str, str] | None = None
+) -> CompanionConfig:
+    """The one place CLI flags (over an optional file) become a :class:`CompanionConfig`."""
+    env = os.environ if environ is None else environ
+    d: dict[str, Any] = load_file(args.config) if args.config is not None else {}
+    _check_keys(d, _TOP_KEYS, "")
+    if args.vehicle_id:
+        d["vehicle_id"] = args.vehicle_id
+    if args.goal is not None and args.waypoint:
+        raise ConfigError("give --goal or --waypoint, not both")
+    if args.goal is not None:
+        d.pop("waypoints_ned_m", None)
+        d["goal_ned_m"] = list(args.goal)
+    if args.waypoint:
+        d.pop("goal_ned_m", None)
+        d["waypoints_ned_m"] = [list(w) for w in args.waypoint]
+    key_text = None
+    if args.signing_key_file is not None:
+        try:
+            key_text = args.signing_key_file.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"cannot read --signing-key-file: {exc.strerror}") from None
+    elif args.signing_key:
+        key_text = args.signing_key
+    elif env.get(SIGNING_KEY_ENV):
+        key_text = env[SIGNING_KEY_ENV]
+    _merge(
+        d,
+        "mavlink",
+        {
+            "url": args.mavlink,
+            "baud": args.baud,
+            "system_id": args.system_id,
+            "component_id": args.component_id,
+            "signing_key": key_text,
+            "takeoff_alt_m": args.takeoff_alt,
+            "request_mode": False if args.no_request_mode else None,
+            "frame_clock": args.frame_clock,
+            "telemetry_rate_hz": args.telemetry_rate_hz,
+            "obstacle_distance": True if args.obstacle_distance else None,
+        },
+    )
+    _merge(
+        d,
+        "zenoh",
+        {
+            "listen": list(args.zenoh_listen) or None,
+            "connect": list(args.zenoh_connect) or None,
+            "config_file": str(args.zenoh_config) if args.zenoh_config else None,
+        },
+    )
+    _merge(
+        d,
+        "failsafe",
+        {
+            "frame_timeout_s": args.frame_timeout_s,
+            "telemetry_timeout_s": args.telemetry_timeout_s,
+        },
+    )
+    _merge(
+        d, "perception", {"threshold_m": args.threshold_m, "safety_margin_m": args.safety_margin_m}
+    )
+    cfg = config_from_dict(d)
+    z = cfg.zenoh
+    if not z.listen and not z.connect and z.config_file is None:
+        # plant-sim's default listen endpoint
+        cfg = dataclasses.replace(
+            cfg, zenoh=dataclasses.replace(z, connect=("tcp/127.0.0.1:7447",))
+        )
+    return cfg
+
+
+def parse_argv(argv: Sequence[str] | None) -> tuple[argparse.Namespace, CompanionConfig]:
+    """Parse ``argv`` into (namespace, config); raises :class:`ConfigError`."""
+    args = build_parser().parse_args(argv)
+    return args, config_from_args(args)

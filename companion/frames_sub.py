@@ -1,0 +1,158 @@
+"""Stereo frames from Zenoh into a latest-value slot (never a growing queue).
+
+The Zenoh callback decodes each payload (:func:`protocols.stereo_frame.decode` validates
+every header field and the byte count) and puts the frame in a :class:`LatestFrameSlot`,
+replacing one the service has not taken yet (counted as superseded). Malformed payloads
+are counted and logged, at most one log line per ``log_period_s``. The slot has a wake-up
+file descriptor so the service can ``select`` on frames and MAVLink at once.
+
+Sessions use explicit endpoints with multicast scouting off, or a Zenoh config file
+(routers, TLS, access control) to which explicit endpoints are added.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import threading
+import time
+from dataclasses import dataclass
+
+import zenoh
+
+from companion.config import ZenohConfig
+from protocols.stereo_frame import FrameDecodeError, StereoFrame, decode
+
+__all__ = ["FrameCounters", "FrameSubscriber", "LatestFrameSlot", "zenoh_config"]
+
+_log = logging.getLogger("companion.frames")
+
+
+def zenoh_config(settings: ZenohConfig) -> zenoh.Config:
+    """Session config: file (if any), then mode, endpoints; multicast scouting off."""
+    if settings.config_file is not None:
+        conf = zenoh.Config.from_file(str(settings.config_file))
+    else:
+        conf = zenoh.Config()
+        conf.insert_json5("mode", json.dumps(settings.mode))
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    if settings.listen:
+        conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+    if settings.connect:
+        conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    return conf
+
+
+@dataclass
+class FrameCounters:
+    """Frames seen by the subscriber."""
+
+    received: int = 0  # payloads delivered by Zenoh
+    decoded: int = 0  # valid frames
+    malformed: int = 0  # refused by the decoder
+    superseded: int = 0  # replaced by a newer frame before the service took them
+    taken: int = 0  # handed to the service
+
+
+class LatestFrameSlot:
+    """Holds only the newest frame; ``take()`` empties it. Thread-safe, with a wake-up fd."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._frame: StereoFrame | None = None
+        self._rfd, self._wfd = os.pipe()
+        os.set_blocking(self._rfd, False)
+        os.set_blocking(self._wfd, False)
+        self._signalled = False
+        self.counters = FrameCounters()
+
+    def fileno(self) -> int:
+        return self._rfd
+
+    def put(self, frame: StereoFrame) -> None:
+        with self._lock:
+            if self._frame is not None:
+                self.counters.superseded += 1
+            self._frame = frame
+            if not self._signalled:
+                self._signalled = True
+                with contextlib.suppress(BlockingIOError):
+                    os.write(self._wfd, b"\x01")
+
+    def take(self) -> StereoFrame | None:
+        with self._lock:
+            frame, self._frame = self._frame, None
+            if self._signalled:
+                self._signalled = False
+                with contextlib.suppress(BlockingIOError):
+                    os.read(self._rfd, 64)
+            if frame is not None:
+                self.counters.taken += 1
+            return frame
+
+    def close(self) -> None:
+        for fd in (self._rfd, self._wfd):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+class FrameSubscriber:
+    """Declares the Zenoh subscriber on ``key`` and feeds ``slot``."""
+
+    def __init__(
+        self, session: zenoh.Session, key: str, slot: LatestFrameSlot, log_period_s: float = 2.0
+    ) -> None:
+        self.key = key
+        self.slot = slot
+        self._session = session
+        self._sub = None
+        self._log_period_s = log_period_s
+        self._last_log_s = -float("inf")
+        self._unlogged = 0
+        self._count_lock = threading.Lock()
+
+    def open(self) -> None:
+        self._sub = self._session.declare_subscriber(self.key, self._on_sample)
+
+    def close(self) -> None:
+        if self._sub is not None:
+            self._sub.undeclare()
+            self._sub = None
+
+    def _on_sample(self, sample) -> None:
+        c = self.slot.counters
+        try:
+            payload = sample.payload.to_bytes()
+        except (ValueError, TypeError, zenoh.ZError) as exc:
+            self._malformed(f"unreadable payload: {exc}")
+            return
+        with self._count_lock:
+            c.received += 1
+        try:
+            frame = decode(payload)
+        except FrameDecodeError as exc:
+            self._malformed(str(exc))
+            return
+        with self._count_lock:
+            c.decoded += 1
+        self.slot.put(frame)
+
+    def _malformed(self, reason: str) -> None:
+        with self._count_lock:
+            self.slot.counters.malformed += 1
+            self._unlogged += 1
+            now = time.monotonic()
+            if now - self._last_log_s < self._log_period_s:
+                return
+            self._last_log_s = now
+            n, self._unlogged = self._unlogged, 0
+            total = self.slot.counters.malformed
+        _log.warning(
+            "dropped %d malformed frame payload(s) on %s (total %d), latest: %s",
+            n,
+            self.key,
+            total,
+            reason,
+        )

@@ -1,0 +1,136 @@
+"""Autopilot flavour from its HEARTBEAT, and the modes the companion uses on each.
+
+Pure. ArduPilot (``MAV_AUTOPILOT_ARDUPILOTMEGA``): ArduCopter custom modes, GUIDED = 4 to
+steer, BRAKE = 17 to hold. PX4 (``MAV_AUTOPILOT_PX4``): ``custom_mode`` packs the main mode
+in bits 16–23 and the sub mode in bits 24–31; OFFBOARD is main mode 6 (``6 << 16``) and a
+hold is a hold-position setpoint streamed in OFFBOARD (PX4 leaves OFFBOARD if the stream
+stops for more than its COM_OF_LOSS_T). Anything else is treated like ArduPilot (the most
+common MAVLink "GUIDED" semantics) and reported as GENERIC.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+__all__ = [
+    "ARDUCOPTER_BRAKE",
+    "ARDUCOPTER_GUIDED",
+    "PX4_MAIN_MODE_OFFBOARD",
+    "Flavour",
+    "ModeRequest",
+    "control_mode",
+    "detect_flavour",
+    "hold_mode",
+    "is_autopilot_heartbeat",
+    "mode_name",
+    "px4_custom_mode",
+    "same_mode",
+]
+
+ARDUCOPTER_GUIDED = 4
+ARDUCOPTER_BRAKE = 17
+PX4_MAIN_MODE_OFFBOARD = 6
+_ARDUCOPTER_NAMES = {
+    0: "STABILIZE",
+    1: "ACRO",
+    2: "ALT_HOLD",
+    3: "AUTO",
+    4: "GUIDED",
+    5: "LOITER",
+    6: "RTL",
+    7: "CIRCLE",
+    9: "LAND",
+    16: "POSHOLD",
+    17: "BRAKE",
+    20: "GUIDED_NOGPS",
+    21: "SMART_RTL",
+}
+_PX4_MAIN_NAMES = {
+    1: "MANUAL",
+    2: "ALTCTL",
+    3: "POSCTL",
+    4: "AUTO",
+    5: "ACRO",
+    6: "OFFBOARD",
+    7: "STABILIZED",
+    8: "RATTITUDE",
+}
+
+
+class Flavour(enum.Enum):
+    """Which autopilot family is on the other end of the link."""
+
+    ARDUPILOT = "ardupilot"
+    PX4 = "px4"
+    GENERIC = "generic"
+
+
+@dataclass(frozen=True)
+class ModeRequest:
+    """A mode as MAV_CMD_DO_SET_MODE parameters."""
+
+    base_mode: int
+    custom_mode: int
+    name: str
+
+
+def px4_custom_mode(main_mode: int, sub_mode: int = 0) -> int:
+    """PX4's ``custom_mode``: main mode in bits 16–23, sub mode in bits 24–31."""
+    return (main_mode & 0xFF) << 16 | (sub_mode & 0xFF) << 24
+
+
+def is_autopilot_heartbeat(autopilot: int, mav_type: int) -> bool:
+    """True for a vehicle's autopilot (not a GCS, camera, companion ...)."""
+    return autopilot != mavlink.MAV_AUTOPILOT_INVALID and mav_type not in (
+        mavlink.MAV_TYPE_GCS,
+        mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+        mavlink.MAV_TYPE_GIMBAL,
+        mavlink.MAV_TYPE_CAMERA,
+    )
+
+
+def detect_flavour(autopilot: int) -> Flavour:
+    """Flavour from HEARTBEAT.autopilot."""
+    if autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
+        return Flavour.ARDUPILOT
+    if autopilot == mavlink.MAV_AUTOPILOT_PX4:
+        return Flavour.PX4
+    return Flavour.GENERIC
+
+
+_CUSTOM = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+
+
+def control_mode(flavour: Flavour) -> ModeRequest:
+    """The mode in which the companion steers: GUIDED (ArduPilot) or OFFBOARD (PX4)."""
+    if flavour is Flavour.PX4:
+        return ModeRequest(_CUSTOM, px4_custom_mode(PX4_MAIN_MODE_OFFBOARD), "OFFBOARD")
+    return ModeRequest(_CUSTOM, ARDUCOPTER_GUIDED, "GUIDED")
+
+
+def hold_mode(flavour: Flavour) -> ModeRequest | None:
+    """The mode a failsafe asks for: BRAKE (ArduPilot); None = stream a hold setpoint."""
+    if flavour is Flavour.PX4:
+        return None
+    return ModeRequest(_CUSTOM, ARDUCOPTER_BRAKE, "BRAKE")
+
+
+def mode_name(flavour: Flavour, custom_mode: int) -> str:
+    """Human name of a HEARTBEAT custom mode."""
+    if flavour is Flavour.PX4:
+        main = (custom_mode >> 16) & 0xFF
+        return _PX4_MAIN_NAMES.get(main, f"PX4_MODE_{custom_mode:#x}")
+    return _ARDUCOPTER_NAMES.get(custom_mode, f"MODE_{custom_mode}")
+
+
+def same_mode(flavour: Flavour, custom_mode: int, wanted: ModeRequest) -> bool:
+    """Whether a HEARTBEAT custom_mode is ``wanted`` (PX4: compare the main mode only
+    for OFFBOARD, which has no sub modes)."""
+    if flavour is Flavour.PX4:
+        return (custom_mode >> 16) & 0xFF == (wanted.custom_mode >> 16) & 0xFF and (
+            (custom_mode >> 24) & 0xFF == (wanted.custom_mode >> 24) & 0xFF
+        )
+    return custom_mode == wanted.custom_mode

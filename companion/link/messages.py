@@ -1,0 +1,135 @@
+"""Builders of the messages the companion sends (pure: message objects, no I/O).
+
+HEARTBEAT as ``MAV_TYPE_ONBOARD_CONTROLLER`` whose ``system_status`` (MAV_STATE) follows
+the companion's health, COMMAND_LONGs (SET_MESSAGE_INTERVAL, DO_SET_MODE, arm, takeoff),
+STATUSTEXT, TIMESYNC and OBSTACLE_DISTANCE.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.link.flavour import ModeRequest
+
+__all__ = [
+    "CompanionState",
+    "command_long",
+    "heartbeat_message",
+    "mav_state",
+    "obstacle_distance_message",
+    "set_message_interval",
+    "set_mode_command",
+    "statustext_message",
+    "timesync_reply",
+    "timesync_request",
+]
+
+_M = mavlink
+
+
+class CompanionState(enum.Enum):
+    """Health summary published in the heartbeat (and the status JSON)."""
+
+    BOOT = "boot"  # starting: no autopilot or no frames yet
+    STANDBY = "standby"  # healthy but not steering (waiting for a mode, pilot in control)
+    ACTIVE = "active"  # steering
+    HOLD = "hold"  # failsafe hold commanded
+    LINK_LOST = "link_lost"  # autopilot silent
+
+
+def mav_state(state: CompanionState) -> int:
+    """MAV_STATE for a :class:`CompanionState`."""
+    return {
+        CompanionState.BOOT: _M.MAV_STATE_BOOT,
+        CompanionState.STANDBY: _M.MAV_STATE_STANDBY,
+        CompanionState.ACTIVE: _M.MAV_STATE_ACTIVE,
+        CompanionState.HOLD: _M.MAV_STATE_CRITICAL,
+        CompanionState.LINK_LOST: _M.MAV_STATE_CRITICAL,
+    }[state]
+
+
+def heartbeat_message(state: CompanionState) -> mavlink.MAVLink_heartbeat_message:
+    return _M.MAVLink_heartbeat_message(
+        _M.MAV_TYPE_ONBOARD_CONTROLLER, _M.MAV_AUTOPILOT_INVALID, 0, 0, mav_state(state), 3
+    )
+
+
+def command_long(
+    target_system: int, target_component: int, command: int, *params: float, confirmation=0
+) -> mavlink.MAVLink_command_long_message:
+    p = [float(x) for x in params] + [0.0] * (7 - len(params))
+    return _M.MAVLink_command_long_message(
+        target_system, target_component, command, confirmation, *p
+    )
+
+
+def set_message_interval(
+    target_system: int, target_component: int, message_id: int, rate_hz: float
+) -> mavlink.MAVLink_command_long_message:
+    """MAV_CMD_SET_MESSAGE_INTERVAL (511): ``message_id`` at ``rate_hz`` (interval in µs)."""
+    interval_us = 1e6 / rate_hz if rate_hz > 0 else -1.0
+    return command_long(
+        target_system, target_component, _M.MAV_CMD_SET_MESSAGE_INTERVAL, message_id, interval_us
+    )
+
+
+def set_mode_command(
+    target_system: int, target_component: int, mode: ModeRequest
+) -> mavlink.MAVLink_command_long_message:
+    """MAV_CMD_DO_SET_MODE (176) with base_mode and custom_mode."""
+    return command_long(
+        target_system, target_component, _M.MAV_CMD_DO_SET_MODE, mode.base_mode, mode.custom_mode
+    )
+
+
+def statustext_message(text: str, severity: int) -> mavlink.MAVLink_statustext_message:
+    return _M.MAVLink_statustext_message(severity, text[:50].encode("ascii", "replace"))
+
+
+def timesync_request(host_ns: int) -> mavlink.MAVLink_timesync_message:
+    """TIMESYNC request: tc1 = 0, ts1 = our time [ns]."""
+    return _M.MAVLink_timesync_message(0, int(host_ns))
+
+
+def timesync_reply(host_ns: int, their_ts1: int) -> mavlink.MAVLink_timesync_message:
+    """Answer a peer's TIMESYNC request with our time."""
+    return _M.MAVLink_timesync_message(int(host_ns), int(their_ts1))
+
+
+def obstacle_distance_message(
+    time_usec: int,
+    obstacles_frd: list[tuple[float, float]],
+    hfov_deg: float,
+    min_distance_m: float,
+    max_distance_m: float,
+    n_sectors: int = 72,
+) -> mavlink.MAVLink_obstacle_distance_message:
+    """OBSTACLE_DISTANCE (MAV_FRAME_BODY_FRD) from (bearing_rad, range_m) pairs.
+
+    Sectors of ``hfov_deg / n_sectors`` centred on the camera axis; sectors with nothing
+    within ``max_distance_m`` report max + 1 cm (no obstacle), the rest ``UINT16_MAX``.
+    """
+    increment = hfov_deg / n_sectors
+    start = -hfov_deg / 2.0
+    no_obstacle_cm = int(max_distance_m * 100) + 1
+    distances = [65535] * 72
+    for i in range(n_sectors):
+        distances[i] = no_obstacle_cm
+    for bearing, rng in obstacles_frd:
+        k = math.floor((math.degrees(bearing) - start) / increment)
+        if 0 <= k < n_sectors and math.isfinite(rng):
+            distances[k] = min(distances[k], max(0, int(rng * 100)))
+    return _M.MAVLink_obstacle_distance_message(
+        int(time_usec),
+        _M.MAV_DISTANCE_SENSOR_UNKNOWN,
+        distances,
+        0,
+        int(min_distance_m * 100),
+        int(max_distance_m * 100),
+        float(increment),
+        float(start),
+        _M.MAV_FRAME_BODY_FRD,
+    )

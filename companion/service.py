@@ -1,0 +1,732 @@
+"""The companion process's main loop: MAVLink and frames in, setpoints and status out.
+
+One thread (Zenoh's callback only decodes into the latest-frame slot). Each pass waits on
+the MAVLink socket and the frame slot (``select``), then:
+
+1. drains MAVLink: autopilot heartbeat (flavour, mode watch), LOCAL_POSITION_NED and
+   ATTITUDE into the pose history on the frame clock, TIMESYNC, COMMAND_ACKs;
+2. runs the timers (wall time): heartbeat, TIMESYNC, stream requests, mode requests,
+   link-loss detection, setpoint keep-alive / PX4 stream;
+3. takes the newest frame, if any: pose at its capture time → the same
+   :class:`~companion.pipeline.AvoidancePipeline` as the lockstep harness → setpoint
+   (when in control and healthy) → status on Zenoh;
+4. checks the failsafe on the frame clock and commands or ends a hold.
+
+Events worth a test's or an operator's attention are printed on stdout as
+``COMPANION EVENT <name> {json}``; the log goes to stderr.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import select
+import sys
+import time
+from collections.abc import Callable
+from typing import Any, TextIO
+
+import numpy as np
+import zenoh
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.clock_model import ClockModel, FrameClock, SyncResult, SyncSample
+from companion.config import CompanionConfig
+from companion.failsafe import FailsafeMonitor, Health
+from companion.frames_sub import FrameSubscriber, LatestFrameSlot, zenoh_config
+from companion.link.connection import MavlinkConnection
+from companion.link.flavour import (
+    Flavour,
+    control_mode,
+    detect_flavour,
+    is_autopilot_heartbeat,
+)
+from companion.link.messages import (
+    CompanionState,
+    heartbeat_message,
+    obstacle_distance_message,
+    set_message_interval,
+    set_mode_command,
+    statustext_message,
+    timesync_reply,
+    timesync_request,
+)
+from companion.link.mode_watch import ControlPhase, ModeWatch
+from companion.link.setpoints import PositionTarget, SetpointPolicy, position_target_message
+from companion.pipeline import AvoidancePipeline
+from companion.pose_history import PoseHistory, PoseStatus
+from companion.status import StatusPublisher, status_document
+from protocols.keys import companion_status_key, stereo_key
+from protocols.stereo_frame import StereoFrame
+
+__all__ = ["CompanionService"]
+
+_log = logging.getLogger("companion")
+
+_STREAMS = (
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE,
+)
+_SEV_INFO = mavlink.MAV_SEVERITY_INFO
+_SEV_WARNING = mavlink.MAV_SEVERITY_WARNING
+_REBOOT_BACKSTEP_MS = 500  # time_boot_ms going back this far: the autopilot restarted
+
+
+class CompanionService:
+    """Owns the companion's parts; :meth:`open`, :meth:`run`, :meth:`close`.
+
+    Parameters
+    ----------
+    config : CompanionConfig
+    events : text stream for ``COMPANION EVENT`` lines (default stdout).
+    """
+
+    def __init__(self, config: CompanionConfig, events: TextIO | None = None) -> None:
+        self.config = config
+        self._events = events if events is not None else sys.stdout
+        link = config.link
+        self.link = MavlinkConnection(
+            link.url,
+            system_id=link.system_id,
+            component_id=link.component_id,
+            baud=link.baud,
+            signing_key=link.signing_key,
+        )
+        self.frame_key = stereo_key(config.vehicle_id)
+        self.status_key = companion_status_key(config.vehicle_id)
+        self.slot = LatestFrameSlot()
+        self.clock = ClockModel(link.frame_clock)
+        fs = config.failsafe
+        self.poses = PoseHistory(
+            horizon_ns=round(fs.pose_history_s * 1e9),
+            max_extrapolation_ns=round(fs.max_pose_extrapolation_s * 1e9),
+        )
+        self.failsafe = FailsafeMonitor(fs.frame_timeout_s, fs.telemetry_timeout_s)
+        self.modes = ModeWatch(request_mode=link.request_mode, prestream_s=link.px4_prestream_s)
+        self.policy: SetpointPolicy | None = None
+        self._session: zenoh.Session | None = None
+        self._subscriber: FrameSubscriber | None = None
+        self._status: StatusPublisher | None = None
+        self.counters: dict[str, int] = {
+            "frames_processed": 0,
+            "frames_stale": 0,
+            "pose_empty": 0,
+            "pose_too_old": 0,
+            "pose_too_new": 0,
+            "pose_extrapolated": 0,
+            "telemetry_unmapped": 0,
+            "setpoints_sent": 0,
+            "hold_commands": 0,
+            "link_losses": 0,
+            "autopilot_restarts": 0,
+            "mode_releases": 0,
+            "pipeline_errors": 0,
+        }
+        self._reset_vehicle_state()
+        self._link_up = False
+        self._last_rx_s = -math.inf
+        self._next_heartbeat_s = 0.0
+        self._next_timesync_s = 0.0
+        self._next_progress_s = 0.0
+        self._last_refusal_report = (0, -math.inf)
+        self._drop_log_s: dict[str, float] = {}
+        self._last_mode_request = None
+        self._silent_since_s: float | None = None
+        self._silence_reported_s = -math.inf
+
+    # ---- lifecycle -----------------------------------------------------------------
+    def open(self) -> None:
+        """Open MAVLink and Zenoh, warm up OpenCV so the first frame is on time."""
+        self.link.open()
+        self._session = zenoh.open(zenoh_config(self.config.zenoh))
+        self._subscriber = FrameSubscriber(self._session, self.frame_key, self.slot)
+        self._subscriber.open()
+        self._status = StatusPublisher(self._session, self.status_key)
+        self._status.open()
+
+    def readiness_line(self) -> str:
+        z = self.config.zenoh
+        eps = [f"listen:{e}" for e in z.listen] + [f"connect:{e}" for e in z.connect]
+        return (
+            f"COMPANION READY mavlink={self.config.link.url} zenoh={','.join(eps) or 'config'} "
+            f"key={self.frame_key} status={self.status_key} "
+            f"sysid={self.config.link.system_id} compid={self.config.link.component_id} "
+            f"signing={'on' if self.link.signing else 'off'}"
+        )
+
+    def close(self) -> dict[str, Any]:
+        stats = self.stats()
+        if self._subscriber is not None:
+            self._subscriber.close()
+        if self._status is not None:
+            self._status.close()
+        if self._session is not None:
+            self._session.close()
+            self._session = None
+        self.link.close()
+        self.slot.close()
+        return stats
+
+    def stats(self) -> dict[str, Any]:
+        f = self.slot.counters
+        return {
+            **self.counters,
+            "frames_received": f.received,
+            "frames_decoded": f.decoded,
+            "frames_malformed": f.malformed,
+            "frames_superseded": f.superseded,
+            "mavlink": self.link.counters.as_dict(),
+            "phase": self.modes.phase.value,
+            "flavour": None if self.modes.flavour is None else self.modes.flavour.value,
+            "clock_rate": round(self.clock.autopilot.rate, 3),
+            "waypoint": self._waypoint,
+        }
+
+    # ---- per-connection state ------------------------------------------------------
+    def _reset_vehicle_state(self) -> None:
+        cfg = self.config
+        self._waypoint = 0
+        self.pipeline = AvoidancePipeline(cfg.waypoints_ned_m[0], cfg.perception, cfg.guidance)
+        self.clock.autopilot.reset()
+        self.poses.clear()
+        self.modes.reset()
+        self.policy = None
+        self.failsafe = FailsafeMonitor(
+            cfg.failsafe.frame_timeout_s, cfg.failsafe.telemetry_timeout_s
+        )
+        self._last_boot_ms: int | None = None
+        self._newest_frame_ns: int | None = None  # processed
+        self._newest_seen_ns: int | None = None  # newest frame-clock stamp observed
+        self._last_capture_ns: int | None = None
+        self._streams_acked = 0  # accepted SET_MESSAGE_INTERVAL since the last request
+        self._next_stream_request_s = 0.0
+        self._avoiding = False
+        self._hold_pending = False
+        self._engaged = False  # a guidance setpoint was sent since the last reset
+        self._goal_reported = False
+
+    # ---- main loop -----------------------------------------------------------------
+    def run(self, should_stop: Callable[[], bool]) -> None:
+        fds = [self.slot.fileno()]
+        link_fd = self.link.fileno()
+        if link_fd is not None:
+            fds.append(link_fd)
+        timeout = 0.01 if link_fd is not None else 0.002
+        while not should_stop():
+            try:
+                select.select(fds, [], [], timeout)
+            except InterruptedError:
+                continue
+            now_s = time.monotonic()
+            self._receive(now_s)
+            self._timers(now_s)
+            frame = self.slot.take()
+            if frame is not None:
+                self._on_frame(frame, time.monotonic_ns())
+            self._check_failsafe(time.monotonic())
+
+    # ---- MAVLink input -------------------------------------------------------------
+    def _receive(self, now_s: float) -> None:
+        target_sys = self.config.link.target_system
+        target_comp = self.config.link.target_component
+        for msg in self.link.poll():
+            if msg.get_srcSystem() != target_sys:
+                continue
+            mtype = msg.get_type()
+            from_autopilot = msg.get_srcComponent() == target_comp
+            if mtype == "HEARTBEAT":
+                if from_autopilot and is_autopilot_heartbeat(msg.autopilot, msg.type):
+                    self._on_link_alive(now_s)
+                    self._on_heartbeat(msg, now_s)
+                continue
+            if not from_autopilot:
+                continue
+            self._on_link_alive(now_s)
+            if mtype == "LOCAL_POSITION_NED":
+                if self._check_boot_time(msg.time_boot_ms, now_s):
+                    t = self.clock.frame_ns_from_boot_ms(msg.time_boot_ms)
+                    if t is None:
+                        self.counters["telemetry_unmapped"] += 1
+                    elif self.poses.add_position(
+                        t, (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz)
+                    ):
+                        self._observe(t)
+            elif mtype == "ATTITUDE":
+                if self._check_boot_time(msg.time_boot_ms, now_s):
+                    t = self.clock.frame_ns_from_boot_ms(msg.time_boot_ms)
+                    if t is None:
+                        self.counters["telemetry_unmapped"] += 1
+                    elif self.poses.add_attitude(t, msg.roll, msg.pitch, msg.yaw):
+                        self._observe(t)
+            elif mtype == "TIMESYNC":
+                self._on_timesync(msg, now_s)
+            elif mtype == "COMMAND_ACK":
+                self._on_ack(msg, now_s)
+            elif mtype == "STATUSTEXT":
+                text = (
+                    msg.text if isinstance(msg.text, str) else msg.text.decode("ascii", "replace")
+                )
+                _log.info("autopilot: %s", text.rstrip("\x00"))
+
+    def _observe(self, t_ns: int) -> None:
+        if self._newest_seen_ns is None or t_ns > self._newest_seen_ns:
+            self._newest_seen_ns = t_ns
+
+    def _check_boot_time(self, time_boot_ms: int, now_s: float) -> bool:
+        last = self._last_boot_ms
+        if last is not None and time_boot_ms < last - _REBOOT_BACKSTEP_MS:
+            self._autopilot_restarted(now_s, f"time_boot_ms {last} → {time_boot_ms}")
+        self._last_boot_ms = time_boot_ms
+        return True
+
+    def _on_link_alive(self, now_s: float) -> None:
+        self._last_rx_s = now_s
+        self._silent_since_s = None
+        if not self._link_up:
+            self._link_up = True
+            self._event("link_up", url=self.config.link.url)
+            _log.info("autopilot link up on %s", self.config.link.url)
+            self._next_stream_request_s = now_s
+            self._next_timesync_s = now_s
+
+    def _autopilot_restarted(self, now_s: float, why: str) -> None:
+        self.counters["autopilot_restarts"] += 1
+        _log.warning("autopilot restarted (%s): starting over", why)
+        self._event("autopilot_restart", reason=why)
+        self._reset_vehicle_state()
+        self._next_stream_request_s = now_s
+
+    def _on_heartbeat(self, msg, now_s: float) -> None:
+        flavour = detect_flavour(msg.autopilot)
+        if self.modes.flavour is None:
+            cfg = self.config.link
+            self.policy = SetpointPolicy(
+                flavour,
+                ardupilot_period_s=cfg.ardupilot_setpoint_period_s,
+                px4_rate_hz=cfg.px4_setpoint_rate_hz,
+            )
+            self._event("autopilot", flavour=flavour.value, mode=msg.custom_mode)
+            _log.info(
+                "autopilot found: %s (system %d), control mode %s",
+                flavour.value,
+                msg.get_srcSystem(),
+                control_mode(flavour).name,
+            )
+        before = self.modes.phase
+        for notice in self.modes.on_heartbeat(now_s, flavour, msg.custom_mode):
+            self._notice(notice)
+        self._after_phase_change(before, now_s)
+
+    def _after_phase_change(self, before: ControlPhase, now_s: float) -> None:
+        after = self.modes.phase
+        if after is before:
+            return
+        self._event(
+            "phase",
+            phase=after.value,
+            mode=self.modes.mode_text(),
+            setpoints_sent=self.counters["setpoints_sent"],
+        )
+        if after is ControlPhase.RELEASED:
+            self.counters["mode_releases"] += 1
+        if after in (ControlPhase.ACTIVE, ControlPhase.PRESTREAM) and self.policy is not None:
+            self.policy.reset()  # first setpoint goes out at once
+            self._resend_now(now_s)
+
+    def _on_timesync(self, msg, now_s: float) -> None:
+        now_ns = time.monotonic_ns()
+        if msg.tc1 == 0:  # the autopilot asks for our time
+            self.link.send(timesync_reply(now_ns, msg.ts1))
+            return
+        result = self.clock.autopilot.add_sample(SyncSample(msg.ts1, msg.tc1, now_ns))
+        if result is SyncResult.REBOOT:
+            self._autopilot_restarted(now_s, "TIMESYNC went backwards")
+
+    def _on_ack(self, msg, now_s: float) -> None:
+        accepted = msg.result == mavlink.MAV_RESULT_ACCEPTED
+        if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            if accepted:
+                self._streams_acked += 1
+            return
+        if msg.command == mavlink.MAV_CMD_DO_SET_MODE:
+            before = self.modes.phase
+            if accepted:
+                mode = self._last_mode_request
+                if mode is not None:
+                    for notice in self.modes.on_mode_accepted(now_s, mode.custom_mode):
+                        self._notice(notice)
+            else:
+                result = mavlink.enums["MAV_RESULT"].get(msg.result)
+                for notice in self.modes.on_mode_refused(
+                    now_s, result.name if result else str(msg.result)
+                ):
+                    self._notice(notice, _SEV_WARNING)
+            self._after_phase_change(before, now_s)
+
+    # ---- timers --------------------------------------------------------------------
+    def _timers(self, now_s: float) -> None:
+        cfg = self.config.link
+        if now_s >= self._next_heartbeat_s:
+            self.link.send(heartbeat_message(self._state()))
+            self._next_heartbeat_s = now_s + cfg.heartbeat_period_s
+            self._report_refusals(now_s)
+        if self._link_up and now_s - self._last_rx_s > self.config.failsafe.link_timeout_s:
+            self._link_lost(now_s)
+        if not self._link_up:
+            self._report_silence(now_s)
+            return
+        if now_s >= self._next_timesync_s:
+            self.link.send(timesync_request(time.monotonic_ns()))
+            self._next_timesync_s = now_s + cfg.timesync_period_s
+        if now_s >= self._next_stream_request_s and self._streams_acked < len(_STREAMS):
+            self._streams_acked = 0
+            for msg_id in _STREAMS:
+                self.link.send(
+                    set_message_interval(
+                        cfg.target_system, cfg.target_component, msg_id, cfg.telemetry_rate_hz
+                    )
+                )
+            self._next_stream_request_s = now_s + 1.0
+        before = self.modes.phase
+        request = self.modes.tick(now_s)
+        if request is not None:
+            self._request_mode(request)
+        self._after_phase_change(before, now_s)
+        policy = self.policy
+        if policy is not None and (
+            policy.due(now_s) or (policy.last is None and self._must_stream())
+        ):
+            self._resend_now(now_s)
+        if now_s >= self._next_progress_s:
+            self._next_progress_s = now_s + self.config.status_log_period_s
+            self._progress()
+
+    def _must_stream(self) -> bool:
+        return self.modes.flavour is Flavour.PX4 and (
+            self.modes.steering or self.modes.streaming_hold
+        )
+
+    def _link_lost(self, now_s: float) -> None:
+        self._link_up = False
+        self.counters["link_losses"] += 1
+        _log.warning(
+            "autopilot link lost: nothing for %.1f s (wall); stopped commanding, waiting",
+            now_s - self._last_rx_s,
+        )
+        self._event("link_lost", silent_s=round(now_s - self._last_rx_s, 3))
+        self._reset_vehicle_state()
+
+    def _request_mode(self, request) -> None:
+        cfg = self.config.link
+        self._last_mode_request = request
+        _log.info("requesting %s", request.name)
+        self.link.send(set_mode_command(cfg.target_system, cfg.target_component, request))
+
+    def _report_silence(self, now_s: float) -> None:
+        """No autopilot: say so every few seconds, with the likely causes."""
+        if self._silent_since_s is None:
+            self._silent_since_s = now_s
+            return
+        silent = now_s - self._silent_since_s
+        if silent < 3.0 or now_s - self._silence_reported_s < 5.0:
+            return
+        self._silence_reported_s = now_s
+        hint = (
+            "MAVLink signing is on: an autopilot with another key (or none) ignores every "
+            "message we send"
+            if self.link.signing
+            else "check the URL and that the autopilot sends to us"
+        )
+        _log.error(
+            "no message from autopilot %d/%d on %s for %.0f s (%d sent): %s",
+            self.config.link.target_system,
+            self.config.link.target_component,
+            self.config.link.url,
+            silent,
+            self.link.counters.sent,
+            hint,
+        )
+        self._event("no_autopilot", silent_s=round(silent, 1), signing=self.link.signing)
+
+    def _report_refusals(self, now_s: float) -> None:
+        refused = self.link.counters.signing_refused
+        last_count, _last_s = self._last_refusal_report
+        if refused > last_count:
+            _log.error(
+                "MAVLink signing: %d message(s) from the link refused (unsigned or bad "
+                "signature, %d in total): check that both ends use the same key",
+                refused - last_count,
+                refused,
+            )
+            self._event("signing_refused", total=refused)
+            self._last_refusal_report = (refused, now_s)
+
+    # ---- frames --------------------------------------------------------------------
+    def _on_frame(self, frame: StereoFrame, recv_ns: int) -> None:
+        t_start = time.monotonic_ns()
+        self._observe(frame.capture_ns)
+        if self._last_capture_ns is not None and frame.capture_ns <= self._last_capture_ns:
+            if frame.capture_ns < self._last_capture_ns - 1_000_000_000:
+                # plant-sim restarted: its clock began again
+                self._autopilot_restarted(time.monotonic(), "frame capture time went back")
+            else:
+                self.counters["frames_stale"] += 1
+                return
+        lookup = self.poses.at(frame.capture_ns)
+        if not lookup.status.usable:
+            self.counters[f"pose_{lookup.status.value}"] += 1
+            self._drop_log(
+                lookup.status.value,
+                "frame %d dropped: no pose at its capture time (%s; %d so far)",
+                frame.sequence,
+                lookup.status.value,
+                self.counters[f"pose_{lookup.status.value}"],
+            )
+            return
+        if lookup.status is PoseStatus.EXTRAPOLATED:
+            self.counters["pose_extrapolated"] += 1
+        self._last_capture_ns = frame.capture_ns
+        pose = lookup.pose
+        assert pose is not None
+        self._advance_waypoint(pose.pos_ned_m)
+        try:
+            out = self.pipeline.process(frame, pose)
+        except (ValueError, ArithmeticError) as exc:  # cv2.error is an Exception subclass
+            self.counters["pipeline_errors"] += 1
+            self._drop_log("pipeline", "frame %d: pipeline error %s", frame.sequence, exc)
+            return
+        self.counters["frames_processed"] += 1
+        self._newest_frame_ns = frame.capture_ns
+        self._check_failsafe(time.monotonic())
+        g = out.guidance
+        t_computed = time.monotonic_ns()
+        sent_ns = None
+        target = PositionTarget(tuple(float(x) for x in g.setpoint_ned_m), float(g.yaw_rad))
+        if self.modes.steering and self.failsafe.status.health.ok and self.policy is not None:
+            now_s = time.monotonic()
+            if self.policy.on_new_target(target, now_s):
+                sent_ns = self._send_target(target, now_s, frame.capture_ns)
+        self._check_goal(pose.pos_ned_m, frame.capture_ns)
+        if g.avoidance_flag != self._avoiding:
+            self._avoiding = bool(g.avoidance_flag)
+            self._event("avoidance", active=self._avoiding, capture_s=frame.capture_ns * 1e-9)
+            if self._avoiding:
+                near = min((o.nearest_range_m for o in out.perception.obstacles), default=math.nan)
+                self._notice(f"Avoiding obstacle at {near:.1f} m", _SEV_WARNING)
+            else:
+                self._notice("Avoidance ended, heading to goal")
+        if self.config.link.obstacle_distance:
+            self._send_obstacle_distance(out, pose)
+        if self._status is not None:
+            host_capture = frame.capture_ns if self.clock.frame_clock is FrameClock.HOST else None
+            latency = {
+                "receive_to_compute_start": round((t_start - recv_ns) * 1e-6, 3),
+                "compute": round((t_computed - t_start) * 1e-6, 3),
+                "receive_to_send": None
+                if sent_ns is None
+                else round((sent_ns - recv_ns) * 1e-6, 3),
+                "capture_to_send": None
+                if sent_ns is None or host_capture is None
+                else round((sent_ns - host_capture) * 1e-6, 3),
+            }
+            self._status.publish(
+                status_document(
+                    out,
+                    state=self._state().value,
+                    phase=self.modes.phase.value,
+                    autopilot_mode=self.modes.mode_text(),
+                    health=self.failsafe.status.health.value,
+                    pose=lookup.status.value,
+                    pos_ned_m=[round(float(x), 4) for x in pose.pos_ned_m],
+                    waypoint=self._waypoint,
+                    setpoint_sent=sent_ns is not None,
+                    latency_ms=latency,
+                )
+            )
+
+    def _check_goal(self, pos_ned_m: np.ndarray, capture_ns: int) -> None:
+        if self._goal_reported or self._waypoint + 1 < len(self.config.waypoints_ned_m):
+            return
+        distance_m = float(np.linalg.norm(pos_ned_m - self.pipeline.goal_ned_m))
+        if distance_m < self.config.goal_tolerance_m:
+            self._goal_reported = True
+            self._notice("Goal reached")
+            self._event("goal_reached", capture_s=capture_ns * 1e-9, distance_m=distance_m)
+
+    def _advance_waypoint(self, pos_ned_m: np.ndarray) -> None:
+        wps = self.config.waypoints_ned_m
+        if self._waypoint + 1 >= len(wps):
+            return
+        distance_m = float(np.linalg.norm(pos_ned_m - self.pipeline.goal_ned_m))
+        if distance_m < self.config.goal_tolerance_m:
+            self._waypoint += 1
+            self.pipeline.goal_ned_m = np.array(wps[self._waypoint], dtype=float)
+            self._notice(f"Waypoint {self._waypoint} of {len(wps) - 1}")
+
+    def _send_target(self, target: PositionTarget, now_s: float, frame_ns: int | None) -> int:
+        cfg = self.config.link
+        ap_ns = None
+        if frame_ns is not None:
+            ap_ns = self.clock.frame_to_autopilot_ns(frame_ns)
+        if ap_ns is None:
+            ap_ns = (self._last_boot_ms or 0) * 1_000_000
+        msg = position_target_message(
+            target, ap_ns // 1_000_000, cfg.target_system, cfg.target_component
+        )
+        self.link.send(msg)
+        sent_ns = time.monotonic_ns()
+        assert self.policy is not None
+        self.policy.sent(target, now_s)
+        self.counters["setpoints_sent"] += 1
+        if not self._engaged:
+            self._engaged = True
+            self._event(
+                "steering",
+                setpoint_ned_m=list(target.pos_ned_m),
+                autopilot_time_s=None if self._last_boot_ms is None else self._last_boot_ms / 1e3,
+            )
+        return sent_ns
+
+    def _resend_now(self, now_s: float) -> None:
+        """Keep-alive / PX4 stream / hold: (re)send the appropriate target."""
+        if self.policy is None:
+            return
+        if self.modes.streaming_hold or (
+            self.modes.steering and not self.failsafe.status.health.ok and self._must_stream()
+        ):
+            target = self._hold_target()
+        elif self.modes.steering and (self.failsafe.status.health.ok or self.policy.last is None):
+            target = self.policy.last
+            if target is None and self._must_stream():
+                target = self._hold_target()
+        else:
+            return
+        if target is not None:
+            self._send_target(target, now_s, None)
+
+    def _hold_target(self) -> PositionTarget | None:
+        newest = self.poses.newest_ns
+        if newest is None:
+            return None
+        lookup = self.poses.at(newest)
+        if lookup.pose is None:
+            return None
+        p = lookup.pose.pos_ned_m
+        yaw = math.atan2(lookup.pose.R_ned_from_frd[1, 0], lookup.pose.R_ned_from_frd[0, 0])
+        return PositionTarget((float(p[0]), float(p[1]), float(p[2])), yaw)
+
+    def _send_obstacle_distance(self, out, pose) -> None:
+        pairs = []
+        for o in out.perception.obstacles:
+            rel_frd = pose.R_ned_from_frd.T @ (np.asarray(o.center_ned_m) - pose.pos_ned_m)
+            pairs.append((math.atan2(rel_frd[1], rel_frd[0]), float(o.nearest_range_m)))
+        hfov = 48.0
+        self.link.send(
+            obstacle_distance_message(
+                out.perception.capture_ns // 1000,
+                pairs,
+                hfov,
+                self.config.perception.min_range_m,
+                self.config.perception.threshold_m,
+            )
+        )
+
+    # ---- failsafe ------------------------------------------------------------------
+    def _check_failsafe(self, now_s: float) -> None:
+        if self.modes.flavour is None:
+            return
+        now_frame = self.clock.now_frame_ns(time.monotonic_ns(), self._newest_seen_ns)
+        changed = self.failsafe.update(now_frame, self._newest_frame_ns, self.poses.newest_ns)
+        if changed is None:
+            return
+        status = self.failsafe.status
+        if changed.ok:
+            before = self.modes.phase
+            request = self.modes.set_hold(now_s, False)
+            if before is ControlPhase.HOLD:
+                self._notice("Frames and telemetry healthy: avoidance resumes")
+                self._event("resume")
+            if request is not None:
+                self._request_mode(request)
+            self._after_phase_change(before, now_s)
+            return
+        if not self._engaged or changed in (Health.NO_FRAMES, Health.NO_CLOCK):
+            _log.info("not steering yet: %s", changed.value)
+            return
+        before = self.modes.phase
+        request = self.modes.set_hold(now_s, True)
+        if self.modes.phase is ControlPhase.HOLD and before is not ControlPhase.HOLD:
+            self.counters["hold_commands"] += 1
+            ages = f"frames {_age(status.frame_age_s)}, telemetry {_age(status.telemetry_age_s)}"
+            what = request.name if request is not None else "hold position"
+            self._notice(f"Failsafe {changed.value}: {what}", _SEV_WARNING)
+            _log.warning("failsafe %s (%s): commanding %s", changed.value, ages, what)
+            self._event(
+                "hold",
+                reason=changed.value,
+                command=what,
+                frame_age_s=status.frame_age_s,
+                telemetry_age_s=status.telemetry_age_s,
+                newest_frame_ns=self._newest_frame_ns,
+                now_frame_ns=now_frame,
+            )
+            if request is not None:
+                self._request_mode(request)
+            else:
+                self._resend_now(now_s)
+        self._after_phase_change(before, now_s)
+
+    # ---- reporting -----------------------------------------------------------------
+    def _state(self) -> CompanionState:
+        if not self._link_up:
+            return CompanionState.LINK_LOST if self.counters["link_losses"] else CompanionState.BOOT
+        if self.modes.phase is ControlPhase.HOLD:
+            return CompanionState.HOLD
+        if self.modes.steering and self.failsafe.status.health.ok:
+            return CompanionState.ACTIVE
+        if self._newest_frame_ns is None:
+            return CompanionState.BOOT
+        return CompanionState.STANDBY
+
+    def _notice(self, text: str, severity: int = _SEV_INFO) -> None:
+        _log.info("STATUSTEXT: %s", text)
+        self.link.send(statustext_message(text, severity))
+
+    def _event(self, name: str, **fields: Any) -> None:
+        print(f"COMPANION EVENT {name} {json.dumps(fields, default=str)}", file=self._events)
+        self._events.flush()
+
+    def _drop_log(self, key: str, fmt: str, *args: Any) -> None:
+        now = time.monotonic()
+        if now - self._drop_log_s.get(key, -math.inf) >= 2.0:
+            self._drop_log_s[key] = now
+            _log.warning(fmt, *args)
+
+    def _progress(self) -> None:
+        newest = self.poses.newest_ns
+        pos = "-"
+        if newest is not None:
+            lookup = self.poses.at(newest)
+            if lookup.pose is not None:
+                p = lookup.pose.pos_ned_m
+                pos = f"({p[0]:.1f}, {p[1]:.1f}, {p[2]:.1f})"
+        f = self.slot.counters
+        _log.info(
+            "t=%s pos=%s phase=%s mode=%s health=%s frames %d/%d (malformed %d, superseded %d)"
+            " setpoints %d",
+            "-" if newest is None else f"{newest * 1e-9:.1f}s",
+            pos,
+            self.modes.phase.value,
+            self.modes.mode_text(),
+            self.failsafe.status.health.value,
+            self.counters["frames_processed"],
+            f.received,
+            f.malformed,
+            f.superseded,
+            self.counters["setpoints_sent"],
+        )
+
+
+def _age(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f} s"

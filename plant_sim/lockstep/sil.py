@@ -1,0 +1,433 @@
+"""``stereo-avoid sil``: plant-sim and the companion as two processes on loopback.
+
+Starts ``python -m companion`` (Zenoh listening, MAVLink ``udpout`` to the plant) and
+``python -m plant_sim`` (MAVLink ``udpin``, Zenoh connecting to the companion) on free
+ports of 127.0.0.1 with multicast scouting off, waits for both readiness lines, shows
+progress, stops both with SIGTERM when the companion reports the goal (or a timeout), and
+judges the run from plant-sim's ground-truth log (``truth.csv``) with the same
+:class:`~plant_sim.lockstep.harness.Verdict` and figures as the lockstep run.
+
+The run is judged from the moment the companion sent its first setpoint (the plant hovers
+while the companion connects), so ``sim_time_s`` is comparable with the lockstep run's.
+No companion code is imported: the two talk only through MAVLink and Zenoh.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import json
+import math
+import os
+import queue
+import re
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from plant_sim.lockstep.harness import RunConfig, Verdict
+from plant_sim.lockstep.history import History
+from plant_sim.scenario import Scenario, load_scenario, paper_scenario
+
+__all__ = [
+    "ChildProcess",
+    "SilOptions",
+    "SilResult",
+    "free_port",
+    "history_from_truth",
+    "run_sil",
+    "verdict_from_truth",
+]
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    """A port the OS reports free on 127.0.0.1."""
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class ChildProcess:
+    """``python -m <module> args`` with stdout lines queued and stderr kept in a file."""
+
+    def __init__(self, name: str, module: str, args: Sequence[str], env: dict | None = None):
+        self.name = name
+        self._stderr = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 (closed in close())
+        full_env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", **(env or {})}
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", module, *args],
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=self._stderr,
+            text=True,
+            env=full_env,
+        )
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.stdout_lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            line = line.rstrip("\n")
+            self.stdout_lines.append(line)
+            self.lines.put(line)
+
+    def wait_line(self, pattern: str, timeout_s: float) -> re.Match:
+        """The next stdout line matching ``pattern`` (regex), within ``timeout_s``."""
+        rx = re.compile(pattern)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            try:
+                line = self.lines.get(timeout=0.1)
+            except queue.Empty:
+                if self.proc.poll() is not None and self.lines.empty():
+                    raise RuntimeError(
+                        f"{self.name} exited ({self.proc.returncode}) while waiting for "
+                        f"{pattern!r}\n{self.logs()}"
+                    ) from None
+                continue
+            m = rx.search(line)
+            if m:
+                return m
+        raise TimeoutError(f"{self.name}: no line {pattern!r} within {timeout_s} s\n{self.logs()}")
+
+    def events(self, name: str | None = None) -> list[tuple[str, dict]]:
+        """``COMPANION EVENT`` lines seen so far as (name, fields)."""
+        out = []
+        for line in list(self.stdout_lines):
+            if line.startswith("COMPANION EVENT "):
+                _, _, ev, payload = line.split(" ", 3)
+                if name is None or ev == name:
+                    out.append((ev, json.loads(payload)))
+        return out
+
+    def stats(self, prefix: str) -> dict | None:
+        for line in self.stdout_lines:
+            if line.startswith(prefix):
+                return json.loads(line[len(prefix) :])
+        return None
+
+    def stop(self, timeout_s: float = 15.0) -> int | None:
+        """SIGTERM, wait; SIGKILL if it does not stop. Returns the exit status."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=5)
+        self._reader.join(timeout=5)
+        return self.proc.returncode
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=5)
+
+    def stderr_text(self) -> str:
+        self._stderr.seek(0)
+        return self._stderr.read()
+
+    def logs(self, tail_chars: int = 8000) -> str:
+        return (
+            f"--- {self.name} stdout ---\n"
+            + "\n".join(self.stdout_lines[-200:])
+            + f"\n--- {self.name} stderr ---\n"
+            + self.stderr_text()[-tail_chars:]
+        )
+
+    def close(self) -> None:
+        self.kill()
+        self._reader.join(timeout=5)
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        with contextlib.suppress(OSError):
+            self._stderr.close()
+
+
+# ---- judging from the ground truth -------------------------------------------------
+
+
+def _read_truth(path: Path) -> dict[str, np.ndarray]:
+    with Path(path).open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    cols: dict[str, np.ndarray] = {}
+    if not rows:
+        return cols
+    for key in rows[0]:
+        if key == "mode":
+            continue
+        cols[key] = np.array([float(r[key]) if r[key] != "" else math.nan for r in rows])
+    return cols
+
+
+def _avoid_intervals(events: list[tuple[str, dict]]) -> list[tuple[float, float]]:
+    intervals, start = [], None
+    for name, fields in events:
+        if name != "avoidance":
+            continue
+        if fields.get("active") and start is None:
+            start = float(fields["capture_s"])
+        elif not fields.get("active") and start is not None:
+            intervals.append((start, float(fields["capture_s"])))
+            start = None
+    if start is not None:
+        intervals.append((start, math.inf))
+    return intervals
+
+
+def verdict_from_truth(
+    truth: dict[str, np.ndarray],
+    *,
+    scene: str,
+    goal_ned_m,
+    t0_s: float,
+    avoid_intervals: list[tuple[float, float]],
+    frames: int,
+    wall_time_s: float,
+    config: RunConfig | None = None,
+) -> Verdict:
+    """The lockstep :class:`Verdict`, computed from plant-sim's truth log after ``t0_s``.
+
+    The run ends at the first sample within the goal tolerance, or a collision (centre
+    nearer a surface than ``collision_distance_m``), or the end of the log.
+    """
+    cfg = config or RunConfig()
+    t = truth["time_s"]
+    sel = t >= t0_s - 1e-9
+    t = t[sel]
+    pos = np.stack([truth[k][sel] for k in ("pos_n_m", "pos_e_m", "pos_d_m")], axis=1)
+    surface = truth["surface_distance_m"][sel]
+    surface = np.where(np.isnan(surface), math.inf, surface)
+    goal_dist = np.linalg.norm(pos - np.asarray(goal_ned_m, dtype=float), axis=1)
+    end = len(t) - 1
+    reached = collided = False
+    failure: str | None = None
+    hit_goal = np.flatnonzero(goal_dist < cfg.goal_tolerance_m)
+    hit_obst = np.flatnonzero(surface < cfg.collision_distance_m)
+    if hit_obst.size and (not hit_goal.size or hit_obst[0] <= hit_goal[0]):
+        end, collided, failure = int(hit_obst[0]), True, "collision"
+    elif hit_goal.size:
+        end, reached = int(hit_goal[0]), True
+    else:
+        failure = "timeout"
+    w = slice(0, end + 1)
+    t_end = float(t[end])
+    avoid = sum(max(0.0, min(b, t_end) - max(a, t0_s)) for a, b in avoid_intervals)
+    return Verdict(
+        scene=scene,
+        seed=0,
+        reached_goal=reached,
+        collided=collided,
+        min_surface_distance_m=round(float(np.min(surface[w])), 4),
+        max_roll_cmd_deg=round(
+            math.degrees(float(np.max(np.abs(truth["roll_cmd_rad"][sel][w])))), 4
+        ),
+        max_pitch_cmd_deg=round(
+            math.degrees(float(np.max(np.abs(truth["pitch_cmd_rad"][sel][w])))), 4
+        ),
+        avoidance_time_s=round(avoid, 4),
+        sim_time_s=round(t_end - t0_s, 4),
+        wall_time_s=round(wall_time_s, 3),
+        final_goal_distance_m=round(float(goal_dist[end]), 4),
+        frames=frames,
+        failure=failure,
+    )
+
+
+def history_from_truth(
+    truth: dict[str, np.ndarray], t0_s: float, avoid_intervals: list[tuple[float, float]]
+) -> History:
+    """A lockstep :class:`History` from the truth log (time shifted so that t0 = 0).
+
+    The truth log has no rotor thrusts, setpoints or obstacle counts: those columns are NaN
+    (Fig. 10 stays empty in a SIL run).
+    """
+    h = History()
+    t_all = truth["time_s"]
+    for i in np.flatnonzero(t_all >= t0_s - 1e-9):
+        ts = float(t_all[i])
+        avoid = any(a <= ts < b for a, b in avoid_intervals)
+        h.append(
+            time_s=ts - t0_s,
+            north_m=truth["pos_n_m"][i],
+            east_m=truth["pos_e_m"][i],
+            down_m=truth["pos_d_m"][i],
+            vn_mps=truth["vel_n_mps"][i],
+            ve_mps=truth["vel_e_mps"][i],
+            vd_mps=truth["vel_d_mps"][i],
+            roll_deg=math.degrees(truth["roll_rad"][i]),
+            pitch_deg=math.degrees(truth["pitch_rad"][i]),
+            yaw_deg=math.degrees(truth["yaw_rad"][i]),
+            roll_cmd_deg=math.degrees(truth["roll_cmd_rad"][i]),
+            pitch_cmd_deg=math.degrees(truth["pitch_cmd_rad"][i]),
+            yaw_cmd_deg=math.degrees(truth["yaw_cmd_rad"][i]),
+            rotor1_n=math.nan,
+            rotor2_n=math.nan,
+            rotor3_n=math.nan,
+            rotor4_n=math.nan,
+            nearest_surface_m=truth["surface_distance_m"][i],
+            avoid_flag=1.0 if avoid else 0.0,
+            mode=math.nan,
+            setpoint_north_m=math.nan,
+            setpoint_east_m=math.nan,
+            setpoint_down_m=math.nan,
+            n_obstacles_seen=math.nan,
+            tilt_saturated=truth["tilt_saturated"][i],
+        )
+    return h
+
+
+# ---- the run -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SilOptions:
+    """How a SIL run is set up."""
+
+    scenario_path: Path | None = None  # None: the paper's §6
+    speedup: float = 4.0
+    out_dir: Path = Path("runs/sil")
+    max_time_s: float = 90.0  # simulation time after the companion starts steering
+    signing_key: str | None = None  # shared key given to both processes (environment)
+    companion_args: tuple[str, ...] = ()
+    plant_args: tuple[str, ...] = ()
+    startup_timeout_s: float = 60.0
+
+
+@dataclass(frozen=True, eq=False)
+class SilResult:
+    verdict: Verdict
+    history: History
+    plant_stats: dict | None
+    companion_stats: dict | None
+    events: list[tuple[str, dict]] = field(default_factory=list)
+    truth_path: Path | None = None
+
+
+def run_sil(
+    options: SilOptions,
+    progress: Callable[[str], None] | None = None,
+) -> SilResult:
+    """Fly a scenario with both processes on loopback; judge it from the truth log."""
+    say = progress or (lambda _text: None)
+    scenario: Scenario = (
+        load_scenario(options.scenario_path) if options.scenario_path else paper_scenario()
+    )
+    goal = scenario.goal_ned_m or (0.0, 0.0, -7.0)
+    out = Path(options.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    mav_port = free_port()
+    zen_port = free_port(socket.SOCK_STREAM)
+    zen = f"tcp/127.0.0.1:{zen_port}"
+    env = {"STEREO_AVOID_SIGNING_KEY": options.signing_key} if options.signing_key else {}
+    vehicle = scenario.vehicle_id
+    companion = ChildProcess(
+        "companion",
+        "companion",
+        [
+            "--mavlink",
+            f"udpout:127.0.0.1:{mav_port}",
+            "--zenoh-listen",
+            zen,
+            "--vehicle-id",
+            vehicle,
+            "--goal",
+            *(str(x) for x in goal),
+            *options.companion_args,
+        ],
+        env,
+    )
+    plant: ChildProcess | None = None
+    wall_start = time.monotonic()
+    try:
+        companion.wait_line(r"^COMPANION READY ", options.startup_timeout_s)
+        plant_cmd = [
+            "--mavlink",
+            f"udpin:127.0.0.1:{mav_port}",
+            "--zenoh-connect",
+            zen,
+            "--zenoh-listen",
+            f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}",
+            "--speedup",
+            f"{options.speedup:g}",
+            "--log-dir",
+            str(out),
+            *options.plant_args,
+        ]
+        if options.scenario_path:
+            plant_cmd += ["--scenario", str(options.scenario_path)]
+        plant = ChildProcess("plant-sim", "plant_sim", plant_cmd, env)
+        plant.wait_line(r"^PLANT_SIM READY ", options.startup_timeout_s)
+        say(f"plant-sim and companion up (MAVLink udp {mav_port}, Zenoh {zen})")
+        steering = companion.wait_line(r"^COMPANION EVENT steering ", 30.0)
+        t0 = json.loads(steering.string.split(" ", 3)[3]).get("autopilot_time_s") or 0.0
+        say(f"companion steering at t={t0:.2f} s (simulation time)")
+        deadline = time.monotonic() + options.max_time_s / options.speedup + 10.0
+        last_say = 0.0
+        while time.monotonic() < deadline:
+            if companion.events("goal_reached") or plant.proc.poll() is not None:
+                break
+            if companion.proc.poll() is not None:
+                raise RuntimeError(f"companion exited\n{companion.logs()}")
+            if time.monotonic() - last_say >= 1.0:
+                last_say = time.monotonic()
+                last = _last_progress(companion.stderr_text())
+                if last:
+                    say(last)
+            time.sleep(0.05)
+        time.sleep(0.5)  # a little of the flight after the goal, as the truth log samples it
+    finally:
+        if plant is not None:
+            plant.stop()
+        companion.stop()
+    wall = time.monotonic() - wall_start
+    events = companion.events()
+    companion_stats = companion.stats("COMPANION STATS ")
+    plant_stats = plant.stats("PLANT_SIM STATS ") if plant is not None else None
+    (out / "companion.log").write_text(companion.stderr_text())
+    if plant is not None:
+        (out / "plant_sim.log").write_text(plant.stderr_text())
+        plant.close()
+    companion.close()
+    truth_path = out / "truth.csv"
+    truth = _read_truth(truth_path)
+    intervals = _avoid_intervals(events)
+    verdict = verdict_from_truth(
+        truth,
+        scene=("paper" if options.scenario_path is None else options.scenario_path.stem),
+        goal_ned_m=goal,
+        t0_s=t0,
+        avoid_intervals=intervals,
+        frames=(companion_stats or {}).get("frames_processed", 0),
+        wall_time_s=wall,
+    )
+    return SilResult(
+        verdict=verdict,
+        history=history_from_truth(truth, t0, intervals),
+        plant_stats=plant_stats,
+        companion_stats=companion_stats,
+        events=events,
+        truth_path=truth_path,
+    )
+
+
+_PROGRESS = re.compile(r"companion: (t=\S+ pos=\([^)]*\) phase=\S+ mode=\S+ health=\S+)")
+
+
+def _last_progress(stderr_text: str) -> str | None:
+    found = _PROGRESS.findall(stderr_text[-4000:])
+    return found[-1] if found else None
