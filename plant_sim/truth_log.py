@@ -5,7 +5,8 @@ One row per sample of simulation time. Columns (NED/FRD, SI units, MAVLink 3-2-1
     time_s, pos_n_m, pos_e_m, pos_d_m, vel_n_mps, vel_e_mps, vel_d_mps,
     roll_rad, pitch_rad, yaw_rad, roll_cmd_rad, pitch_cmd_rad, yaw_cmd_rad,
     tilt_saturated, rotor_saturated, on_ground, armed, mode,
-    nearest_obstacle, surface_distance_m, clearance_m
+    nearest_obstacle, surface_distance_m, clearance_m,
+    rotor1_n, rotor2_n, rotor3_n, rotor4_n
 
 ``surface_distance_m`` is the distance from the vehicle's centre to the nearest obstacle
 surface (negative inside); ``clearance_m`` subtracts the vehicle radius (a collision when
@@ -47,6 +48,10 @@ COLUMNS = (
     "nearest_obstacle",
     "surface_distance_m",
     "clearance_m",
+    "rotor1_n",
+    "rotor2_n",
+    "rotor3_n",
+    "rotor4_n",
 )
 
 
@@ -108,6 +113,7 @@ class TruthLogWriter:
                 idx if idx >= 0 else "",
                 f"{dist:.4f}" if idx >= 0 else "",
                 f"{clearance:.4f}" if idx >= 0 else "",
+                *(f"{f:.4f}" for f in s.rotor_thrusts_n),
             )
         )
         self.rows += 1

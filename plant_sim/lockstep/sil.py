@@ -253,8 +253,8 @@ def history_from_truth(
 ) -> History:
     """A lockstep :class:`History` from the truth log (time shifted so that t0 = 0).
 
-    The truth log has no rotor thrusts, setpoints or obstacle counts: those columns are NaN
-    (Fig. 10 stays empty in a SIL run).
+    The truth log has no setpoints or obstacle counts (the companion's business): those
+    columns are NaN.
     """
     h = History()
     t_all = truth["time_s"]
@@ -275,10 +275,10 @@ def history_from_truth(
             roll_cmd_deg=math.degrees(truth["roll_cmd_rad"][i]),
             pitch_cmd_deg=math.degrees(truth["pitch_cmd_rad"][i]),
             yaw_cmd_deg=math.degrees(truth["yaw_cmd_rad"][i]),
-            rotor1_n=math.nan,
-            rotor2_n=math.nan,
-            rotor3_n=math.nan,
-            rotor4_n=math.nan,
+            rotor1_n=truth["rotor1_n"][i],
+            rotor2_n=truth["rotor2_n"][i],
+            rotor3_n=truth["rotor3_n"][i],
+            rotor4_n=truth["rotor4_n"][i],
             nearest_surface_m=truth["surface_distance_m"][i],
             avoid_flag=1.0 if avoid else 0.0,
             mode=math.nan,
