@@ -21,7 +21,6 @@ usage error.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import sys
@@ -30,7 +29,7 @@ from pathlib import Path
 
 from plant_sim.lockstep.harness import RunConfig, RunResult, run_scene
 from plant_sim.lockstep.montecarlo import run_batch, summarize
-from plant_sim.lockstep.plots import write_figures
+from plant_sim.lockstep.report import write_run_report
 from plant_sim.lockstep.scenes import Scene, paper_scene, random_scene
 
 __all__ = ["main"]
@@ -49,31 +48,18 @@ def _fly_and_report(scene: Scene, out_dir: Path, as_json: bool) -> int:
     log = sys.stderr if as_json else sys.stdout
     print(f"flying scene '{scene.name}' in lockstep (simulation time)", file=log)
     result: RunResult = run_scene(scene, cfg, progress=_progress(log))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    csv_path = out_dir / "history.csv"
-    result.history.write_csv(csv_path)
-    figures = write_figures(
+    return write_run_report(
+        result.verdict,
         result.history,
-        scene.world,
-        scene.goal_ned_m,
-        out_dir,
-        max_tilt_deg=cfg.control.max_tilt_deg,
-        rotor_limits_n=(cfg.vehicle.rotor_thrust_min_n, cfg.vehicle.rotor_thrust_max_n),
+        world=scene.world,
+        goal_ned_m=scene.goal_ned_m,
+        out_dir=out_dir,
+        vehicle=cfg.vehicle,
+        control=cfg.control,
         detect_threshold_m=cfg.perception.threshold_m,
+        as_json=as_json,
+        stdout=sys.stdout,
     )
-    verdict = dataclasses.asdict(result.verdict)
-    verdict["passed"] = result.verdict.passed
-    (out_dir / "verdict.json").write_text(json.dumps(verdict, indent=2) + "\n")
-    if as_json:
-        print(json.dumps(verdict, indent=2))
-    else:
-        print("verdict:", "PASS" if result.verdict.passed else "FAIL")
-        for key, value in verdict.items():
-            print(f"  {key:24s} {value}")
-        print(f"history: {csv_path}")
-        for path in figures:
-            print(f"figure:  {path}")
-    return 0 if result.verdict.passed else 1
 
 
 def _montecarlo(args: argparse.Namespace) -> int:

@@ -1,15 +1,13 @@
 """``stereo-avoid sil`` reporting: run :func:`~plant_sim.lockstep.sil.run_sil`, print
-progress and the verdict (text or JSON), write the history CSV, figures and verdict.json."""
+progress, then the verdict and files through :func:`~plant_sim.lockstep.report.write_run_report`."""
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import sys
 from pathlib import Path
 
 from plant_sim.lockstep.harness import RunConfig
-from plant_sim.lockstep.plots import write_figures
+from plant_sim.lockstep.report import write_run_report
 from plant_sim.lockstep.sil import SilOptions, run_sil
 from plant_sim.scenario import load_scenario, paper_scenario
 
@@ -36,29 +34,17 @@ def fly_sil_and_report(scenario: Path | None, speedup: float, out_dir: Path, as_
         print(f"stereo-avoid sil: {exc}", file=sys.stderr)
         return 1
     sc = load_scenario(scenario) if scenario else paper_scenario()
-    cfg = RunConfig()
-    csv_path = out_dir / "history.csv"
-    result.history.write_csv(csv_path)
-    figures = write_figures(
+    logs = [("truth", result.truth_path), ("tlog", out_dir / "plant_sim.tlog")]
+    return write_run_report(
+        result.verdict,
         result.history,
-        sc.world,
-        sc.goal_ned_m or (0.0, 0.0, -7.0),
-        out_dir,
-        max_tilt_deg=sc.control.max_tilt_deg,
-        rotor_limits_n=(sc.vehicle.rotor_thrust_min_n, sc.vehicle.rotor_thrust_max_n),
-        detect_threshold_m=cfg.perception.threshold_m,
+        world=sc.world,
+        goal_ned_m=sc.goal_ned_m or (0.0, 0.0, -7.0),
+        out_dir=out_dir,
+        vehicle=sc.vehicle,
+        control=sc.control,
+        detect_threshold_m=RunConfig().perception.threshold_m,
+        as_json=as_json,
+        stdout=sys.stdout,
+        other_files=[(label, path) for label, path in logs if path is not None],
     )
-    verdict = dataclasses.asdict(result.verdict)
-    verdict["passed"] = result.verdict.passed
-    (out_dir / "verdict.json").write_text(json.dumps(verdict, indent=2) + "\n")
-    if as_json:
-        print(json.dumps(verdict, indent=2))
-    else:
-        print("verdict:", "PASS" if result.verdict.passed else "FAIL")
-        for key, value in verdict.items():
-            print(f"  {key:24s} {value}")
-        print(f"history: {csv_path}")
-        print(f"truth:   {result.truth_path}")
-        for path in figures:
-            print(f"figure:  {path}")
-    return 0 if result.verdict.passed else 1
