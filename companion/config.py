@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import json
 import math
 import os
@@ -53,6 +52,8 @@ from companion.clock_model import FrameClock
 from companion.guidance import GuidanceConfig
 from companion.perception import PerceptionConfig
 from protocols.keys import validate_vehicle_id
+from protocols.signing import SIGNING_KEY_ENV, SigningKey
+from protocols.zenoh_session import ZenohSettings as ZenohConfig
 
 __all__ = [
     "CompanionConfig",
@@ -68,48 +69,9 @@ __all__ = [
     "load_file",
 ]
 
-SIGNING_KEY_ENV = "STEREO_AVOID_SIGNING_KEY"
-
 
 class ConfigError(ValueError):
     """The configuration is invalid; the message names the key or flag."""
-
-
-class SigningKey:
-    """A 32-byte MAVLink 2 signing key; its ``repr`` never shows the secret."""
-
-    __slots__ = ("_secret",)
-
-    def __init__(self, secret: bytes) -> None:
-        if len(secret) != 32:
-            raise ConfigError(f"a signing key has 32 bytes, got {len(secret)}")
-        self._secret = bytes(secret)
-
-    @classmethod
-    def from_text(cls, text: str) -> SigningKey:
-        """64 hex digits → those bytes; anything else → SHA-256 of the UTF-8 passphrase."""
-        text = text.strip()
-        if not text:
-            raise ConfigError("empty signing key")
-        if len(text) == 64:
-            try:
-                return cls(bytes.fromhex(text))
-            except ValueError:
-                pass
-        return cls(hashlib.sha256(text.encode("utf-8")).digest())
-
-    @property
-    def secret(self) -> bytes:
-        return self._secret
-
-    def __repr__(self) -> str:
-        return "SigningKey(<redacted>)"
-
-    def __eq__(self, other: object) -> bool:
-        return isinstance(other, SigningKey) and other._secret == self._secret
-
-    def __hash__(self) -> int:
-        return hash(self._secret)
 
 
 @dataclass(frozen=True)
@@ -162,16 +124,6 @@ class LinkConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"mavlink.{name} must be finite and > 0, got {value!r}")
-
-
-@dataclass(frozen=True)
-class ZenohConfig:
-    """Zenoh session: explicit endpoints (multicast scouting off) or a config file."""
-
-    listen: tuple[str, ...] = ()
-    connect: tuple[str, ...] = ()
-    config_file: Path | None = None
-    mode: str = "peer"
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,6 @@ Sessions use explicit endpoints with multicast scouting off, or a Zenoh config f
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
 import threading
@@ -22,27 +21,11 @@ from dataclasses import dataclass
 
 import zenoh
 
-from companion.config import ZenohConfig
 from protocols.stereo_frame import FrameDecodeError, StereoFrame, decode
 
-__all__ = ["FrameCounters", "FrameSubscriber", "LatestFrameSlot", "zenoh_config"]
+__all__ = ["FrameCounters", "FrameSubscriber", "LatestFrameSlot"]
 
 _log = logging.getLogger("companion.frames")
-
-
-def zenoh_config(settings: ZenohConfig) -> zenoh.Config:
-    """Session config: file (if any), then mode, endpoints; multicast scouting off."""
-    if settings.config_file is not None:
-        conf = zenoh.Config.from_file(str(settings.config_file))
-    else:
-        conf = zenoh.Config()
-        conf.insert_json5("mode", json.dumps(settings.mode))
-        conf.insert_json5("scouting/multicast/enabled", "false")
-    if settings.listen:
-        conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
-    if settings.connect:
-        conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
-    return conf
 
 
 @dataclass

@@ -34,7 +34,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.clock_model import ClockModel, FrameClock, SyncResult, SyncSample
 from companion.config import CompanionConfig
 from companion.failsafe import FailsafeMonitor, Health
-from companion.frames_sub import FrameSubscriber, LatestFrameSlot, zenoh_config
+from companion.frames_sub import FrameSubscriber, LatestFrameSlot
 from companion.link.connection import MavlinkConnection
 from companion.link.flavour import (
     Flavour,
@@ -59,6 +59,7 @@ from companion.pose_history import PoseHistory, PoseStatus
 from companion.status import StatusPublisher, status_document
 from protocols.keys import companion_status_key, stereo_key
 from protocols.stereo_frame import StereoFrame
+from protocols.zenoh_session import zenoh_config
 
 __all__ = ["CompanionService"]
 

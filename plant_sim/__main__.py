@@ -122,11 +122,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def config_from_args(args: argparse.Namespace):
     """The one place CLI flags become a :class:`PlantConfig` (raises ValueError if invalid)."""
-    from plant_sim.autopilot.link import SigningKey, parse_endpoint
-    from plant_sim.camera_publisher import ZenohSettings
+    from plant_sim.autopilot.link import parse_endpoint
     from plant_sim.scenario import load_scenario, paper_scenario
     from plant_sim.service import PlantConfig
     from protocols.keys import validate_vehicle_id
+    from protocols.signing import SigningKey
+    from protocols.zenoh_session import ZenohSettings
 
     scenario = load_scenario(args.scenario) if args.scenario else paper_scenario()
     if args.vehicle_id:

@@ -9,10 +9,7 @@ added to the file's).
 
 from __future__ import annotations
 
-import json
 import logging
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import zenoh
@@ -21,35 +18,11 @@ from plant_sim.scenario import CameraConfig
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import World
 from protocols import stereo_frame
+from protocols.zenoh_session import ZenohSettings, zenoh_config
 
-__all__ = ["StereoPublisher", "ZenohSettings", "zenoh_config"]
+__all__ = ["StereoPublisher"]
 
 _log = logging.getLogger("plant_sim.camera")
-
-
-@dataclass(frozen=True)
-class ZenohSettings:
-    """Where the Zenoh session listens / connects; ``config_file`` is a Zenoh JSON5 file."""
-
-    listen: tuple[str, ...] = ()
-    connect: tuple[str, ...] = ()
-    config_file: Path | None = None
-    mode: str = "peer"
-
-
-def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
-    """Build the session config: file (if any), then mode, endpoints, scouting off."""
-    if settings.config_file is not None:
-        conf = zenoh.Config.from_file(str(settings.config_file))
-    else:
-        conf = zenoh.Config()
-        conf.insert_json5("mode", json.dumps(settings.mode))
-        conf.insert_json5("scouting/multicast/enabled", "false")
-    if settings.listen:
-        conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
-    if settings.connect:
-        conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
-    return conf
 
 
 class StereoPublisher:

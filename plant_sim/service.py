@@ -22,7 +22,7 @@ from pathlib import Path
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from plant_sim.autopilot import commands as cmds
-from plant_sim.autopilot.link import EndpointSpec, MavlinkLink, SigningKey
+from plant_sim.autopilot.link import EndpointSpec, MavlinkLink
 from plant_sim.autopilot.modes import FlightModeMachine, GuidedTarget, Kinematics, ModeTimings
 from plant_sim.autopilot.params import ParamTable, timings_from_params
 from plant_sim.autopilot.setpoints import SetpointError, VehiclePose, decode_position_target
@@ -32,13 +32,15 @@ from plant_sim.autopilot.telemetry import (
     TelemetryBuilder,
     VehicleIdentity,
 )
-from plant_sim.camera_publisher import StereoPublisher, ZenohSettings
+from plant_sim.camera_publisher import StereoPublisher
 from plant_sim.clock import Pacer
 from plant_sim.scenario import Scenario
 from plant_sim.tlog import TlogWriter
 from plant_sim.truth_log import TruthLogWriter
 from plant_sim.vehicle import Quadrotor, VehicleState
 from protocols.keys import stereo_key
+from protocols.signing import SigningKey
+from protocols.zenoh_session import ZenohSettings
 
 __all__ = ["PlantConfig", "PlantService"]
 

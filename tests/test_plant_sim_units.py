@@ -13,7 +13,6 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from plant_sim.autopilot.link import (
     SignatureVerifier,
-    SigningKey,
     parse_endpoint,
     signing_timestamp_now,
     split_frames,
@@ -33,6 +32,7 @@ from plant_sim.clock import Pacer
 from plant_sim.scenario import ScenarioError, load_scenario, scenario_from_dict
 from plant_sim.tlog import TlogWriter
 from plant_sim.vehicle import Quadrotor
+from protocols.signing import SigningKey
 
 POSE = VehiclePose(pos_ned_m=(1.0, 2.0, -3.0), yaw_rad=math.pi / 2)
 

@@ -41,6 +41,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
+from protocols.zenoh_session import ZenohSettings, zenoh_config
+
 if TYPE_CHECKING:  # numpy & co. load inside main(), after OPENBLAS_NUM_THREADS is set
     from protocols.camera import StereoIntrinsics
 
@@ -48,7 +50,6 @@ __all__ = [
     "CameraConfig",
     "SourceConfig",
     "SourceKind",
-    "ZenohSettings",
     "build_parser",
     "config_from_args",
     "main",
@@ -100,16 +101,6 @@ class SourceConfig:
     fps: float | None = None
     fourcc: str | None = None
     rate_hz: float | None = None
-
-
-@dataclass(frozen=True)
-class ZenohSettings:
-    """Zenoh session: explicit endpoints, multicast scouting off, or a JSON5 config file."""
-
-    listen: tuple[str, ...] = ()
-    connect: tuple[str, ...] = ()
-    config_file: Path | None = None
-    mode: str = "peer"
 
 
 @dataclass(frozen=True)
@@ -347,22 +338,6 @@ def make_source(config: SourceConfig):
     return sources.FolderReplay(config.folder, config.rate_hz)
 
 
-def _zenoh_config(settings: ZenohSettings):
-    import zenoh
-
-    if settings.config_file is not None:
-        conf = zenoh.Config.from_file(str(settings.config_file))
-    else:
-        conf = zenoh.Config()
-        conf.insert_json5("mode", json.dumps(settings.mode))
-        conf.insert_json5("scouting/multicast/enabled", "false")
-    if settings.listen:
-        conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
-    if settings.connect:
-        conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
-    return conf
-
-
 def _geometry(config: CameraConfig, source, calibration):
     """(intrinsics, rectify function or None) for the open ``source``."""
     import dataclasses
@@ -469,7 +444,7 @@ def run(
         calibration = load_calibration(config.calibration_files, config.calibration_units)
     key = stereo_key(config.vehicle_id)
     try:
-        zenoh_conf = _zenoh_config(config.zenoh)
+        zenoh_conf = zenoh_config(config.zenoh)
     except zenoh.ZError as exc:
         raise ValueError(f"zenoh config: {exc}") from None
     live = config.source.kind is not SourceKind.REPLAY

@@ -32,13 +32,14 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from protocols.signing import SigningKey
+
 __all__ = [
     "PEER_TIMEOUT_S",
     "EndpointSpec",
     "LinkStats",
     "MavlinkLink",
     "SignatureVerifier",
-    "SigningKey",
     "parse_endpoint",
     "signing_timestamp_now",
     "split_frames",
@@ -93,37 +94,6 @@ def parse_endpoint(url: str) -> EndpointSpec:
     if not host:
         raise ValueError(f"MAVLink endpoint {url!r}: empty host")
     return EndpointSpec(kind, host, port)
-
-
-class SigningKey:
-    """A 32-byte MAVLink 2 signing key: 64 hex digits, or a passphrase hashed with SHA-256."""
-
-    __slots__ = ("_secret",)
-
-    def __init__(self, secret: bytes) -> None:
-        if len(secret) != 32:
-            raise ValueError(f"a signing key has 32 bytes, got {len(secret)}")
-        self._secret = bytes(secret)
-
-    @classmethod
-    def from_text(cls, text: str) -> SigningKey:
-        """64 hex digits → those bytes; anything else → SHA-256 of the UTF-8 passphrase."""
-        text = text.strip()
-        if not text:
-            raise ValueError("empty signing key")
-        if len(text) == 64:
-            try:
-                return cls(bytes.fromhex(text))
-            except ValueError:
-                pass
-        return cls(hashlib.sha256(text.encode("utf-8")).digest())
-
-    @property
-    def secret(self) -> bytes:
-        return self._secret
-
-    def __repr__(self) -> str:
-        return "SigningKey(<redacted>)"
 
 
 def signing_timestamp_now(wall_unix_s: float | None = None) -> int:
