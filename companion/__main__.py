@@ -22,13 +22,19 @@ import signal
 import sys
 import threading
 from collections.abc import Sequence
+from pathlib import Path
 
 __all__ = ["main", "run"]
 
 
-def run(config) -> int:
-    """Open the service, print the readiness line, run until SIGINT/SIGTERM, print stats."""
+def run(config, ready_file: Path | None = None) -> int:
+    """Open the service, print the readiness line, run until SIGINT/SIGTERM, print stats.
+
+    With ``ready_file`` the readiness line is also written there (container healthchecks
+    test for it); it is removed at exit.
+    """
     from companion.service import CompanionService
+    from protocols.readiness import announce_ready, withdraw_ready
 
     stop = threading.Event()
 
@@ -40,9 +46,10 @@ def run(config) -> int:
     service = CompanionService(config)
     try:
         service.open()
-        print(service.readiness_line(), flush=True)
+        announce_ready(service.readiness_line(), ready_file)
         service.run(stop.is_set)
     finally:
+        withdraw_ready(ready_file)
         stats = service.close()
         for s, handler in previous.items():
             signal.signal(s, handler)
@@ -67,7 +74,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"companion: configuration error: {exc}", file=sys.stderr)
         return 2
     try:
-        return run(config)
+        return run(config, args.ready_file)
     except OSError as exc:
         print(f"companion: {exc}", file=sys.stderr)
         return 1

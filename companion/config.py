@@ -331,6 +331,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--telemetry-timeout-s", type=float, help="hold if poses are older [s]")
     p.add_argument("--obstacle-distance", action="store_true", help="send OBSTACLE_DISTANCE")
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    p.add_argument(
+        "--ready-file",
+        type=Path,
+        help="also write the readiness line to this file (removed at exit): a healthcheck",
+    )
     return p
 
 

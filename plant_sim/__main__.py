@@ -182,6 +182,7 @@ def run(config, ready_file: Path | None = None) -> int:
     bound, and the file is removed at exit (container healthchecks test for it).
     """
     from plant_sim.service import PlantService, stats_line
+    from protocols.readiness import announce_ready, withdraw_ready
 
     stop = threading.Event()
 
@@ -193,16 +194,10 @@ def run(config, ready_file: Path | None = None) -> int:
     service = PlantService(config)
     try:
         service.open()
-        line = service.readiness_line()
-        if ready_file is not None:  # complete before anyone sees the stdout line
-            partial = ready_file.with_name(ready_file.name + ".partial")
-            partial.write_text(line + "\n", encoding="utf-8")
-            partial.replace(ready_file)
-        print(line, flush=True)
+        announce_ready(service.readiness_line(), ready_file)
         service.run(stop.is_set)
     finally:
-        if ready_file is not None:
-            ready_file.unlink(missing_ok=True)
+        withdraw_ready(ready_file)
         stats = service.close()
         for s, handler in previous.items():
             signal.signal(s, handler)

@@ -359,3 +359,14 @@ def test_ground_station_loiter_stops_setpoints(rig):
     assert stats["mode_releases"] == 1 and stats["hold_commands"] == 0
     assert stats["phase"] == "released"
     assert "LOITER" in companion.stderr_text()
+
+
+def test_ready_file_exists_exactly_while_ready(rig):
+    """Container healthchecks test for the ready file: written before the stdout line,
+    removed at a clean stop (no autopilot needed to be ready)."""
+    ready = rig.tmp / "companion.ready"
+    companion = rig.companion("--ready-file", str(ready))
+    line = next(x for x in companion.stdout_lines if x.startswith("COMPANION READY "))
+    assert ready.read_text(encoding="utf-8").strip() == line
+    assert companion.stop() == 0, rig.logs()
+    assert not ready.exists()
