@@ -13,6 +13,7 @@ import json
 import math
 import socket
 import threading
+import time
 
 import cv2
 import numpy as np
@@ -123,7 +124,10 @@ def test_replayed_pairs_drive_the_companion(tmp_path):
         assert np.linalg.norm(centre - OBSTACLE.center_ned_m) < 0.5, centre
         assert first["obstacles"][0]["range_m"] == pytest.approx(3.0, abs=0.3)
         assert any(d["mode"] == "avoid" for d in docs)
-        assert any(d["setpoint_sent"] for d in docs)  # it steered the autopilot
+        deadline = time.monotonic() + 5.0  # and it steers the autopilot
+        while not any(d["setpoint_sent"] for d in docs) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert any(d["setpoint_sent"] for d in docs), "\n".join(c.logs() for c in children)
     finally:
         session.close()
         for child in reversed(children):
