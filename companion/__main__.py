@@ -9,8 +9,10 @@ and Zenoh are open it prints one readiness line on stdout (one line; wrapped her
         sysid=1 compid=196 signing=off
 
 then ``COMPANION EVENT <name> {json}`` lines (link up/lost, autopilot, phase, hold, resume,
-signing refusals) and at exit (SIGINT, SIGTERM) ``COMPANION STATS {json}``. Exit status 0
-on a clean stop, 2 on a configuration error, 1 if a socket cannot be opened.
+signing refusals, takeoff steps) and at exit (SIGINT, SIGTERM) ``COMPANION STATS {json}``.
+Exit status 0 on a clean stop, 2 on a configuration error, 1 if a socket cannot be opened,
+3 if ``--takeoff-alt`` was refused by the autopilot or did not complete (the service stops
+rather than steer a vehicle that is not flying).
 """
 
 from __future__ import annotations
@@ -54,6 +56,9 @@ def run(config, ready_file: Path | None = None) -> int:
         for s, handler in previous.items():
             signal.signal(s, handler)
     print("COMPANION STATS " + json.dumps(stats, sort_keys=True), flush=True)
+    if service.fatal is not None:
+        print(f"companion: {service.fatal}", file=sys.stderr, flush=True)
+        return 3
     return 0
 
 

@@ -14,7 +14,9 @@ optional, and an unknown key anywhere is an error that names it (``link.rate`` â
     system_id = 1
     component_id = 196                   # MAV_COMP_ID_OBSTACLE_AVOIDANCE
     signing_key = "..."                  # 64 hex digits or a passphrase (SHA-256)
-    takeoff_alt_m = 0.0                  # > 0: arm and take off (SIL runs)
+    takeoff_alt_m = 0.0                  # > 0: arm and take off if on the ground (SIL runs)
+    takeoff_tolerance_m = 0.5            # climb done within this of takeoff_alt_m
+    takeoff_timeout_s = 0.0              # climb limit, autopilot time; 0: alt/0.5 m/s + 15 s
     request_mode = true                  # ask for GUIDED / OFFBOARD ourselves
     telemetry_rate_hz = 50.0             # LOCAL_POSITION_NED and ATTITUDE
     frame_clock = "autopilot"            # or "host": frames stamped with this host's clock
@@ -85,7 +87,9 @@ class LinkConfig:
     target_system: int = 1  # the autopilot
     target_component: int = 1
     signing_key: SigningKey | None = None
-    takeoff_alt_m: float = 0.0  # > 0: arm, GUIDED, take off to this height [m]
+    takeoff_alt_m: float = 0.0  # > 0: on the ground â†’ GUIDED, arm, take off to this [m]
+    takeoff_tolerance_m: float = 0.5  # climb done within this of takeoff_alt_m [m]
+    takeoff_timeout_s: float = 0.0  # climb limit [s autopilot time]; 0: alt / 0.5 m/s + 15 s
     request_mode: bool = True  # request GUIDED / OFFBOARD ourselves at start
     telemetry_rate_hz: float = 50.0  # LOCAL_POSITION_NED and ATTITUDE [Hz]
     frame_clock: FrameClock = FrameClock.AUTOPILOT
@@ -107,10 +111,12 @@ class LinkConfig:
                 raise ConfigError(f"mavlink.{name} must be 0..255")
         if not (math.isfinite(self.takeoff_alt_m) and self.takeoff_alt_m >= 0):
             raise ConfigError("mavlink.takeoff_alt_m must be >= 0")
-        if self.takeoff_alt_m > 0:
+        if not (math.isfinite(self.takeoff_timeout_s) and self.takeoff_timeout_s >= 0):
+            raise ConfigError("mavlink.takeoff_timeout_s must be >= 0 (0: automatic)")
+        if self.takeoff_alt_m > 0 and not (0 < self.takeoff_tolerance_m < self.takeoff_alt_m):
             raise ConfigError(
-                "mavlink.takeoff_alt_m / --takeoff-alt: arm-and-take-off is not implemented "
-                "yet; start the vehicle airborne (plant-sim's default) in GUIDED"
+                "mavlink.takeoff_tolerance_m must be > 0 and below takeoff_alt_m, got "
+                f"{self.takeoff_tolerance_m!r}"
             )
         if not self.px4_setpoint_rate_hz > 2.0:
             raise ConfigError("mavlink.px4_setpoint_rate_hz must be > 2 (PX4 offboard)")
@@ -323,7 +329,12 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"MAVLink 2 signing key (prefer --signing-key-file or ${SIGNING_KEY_ENV})",
     )
     p.add_argument("--signing-key-file", type=Path, help="file holding the signing key")
-    p.add_argument("--takeoff-alt", type=float, metavar="M", help="arm and take off to M metres")
+    p.add_argument(
+        "--takeoff-alt",
+        type=float,
+        metavar="M",
+        help="if on the ground: (GUIDED,) arm and take off to M metres before steering",
+    )
     p.add_argument("--no-request-mode", action="store_true", help="never request GUIDED/OFFBOARD")
     p.add_argument("--frame-clock", choices=[c.value for c in FrameClock])
     p.add_argument("--telemetry-rate-hz", type=float)

@@ -44,6 +44,7 @@ from companion.link.flavour import (
 )
 from companion.link.messages import (
     CompanionState,
+    command_long,
     heartbeat_message,
     obstacle_distance_message,
     set_message_interval,
@@ -54,6 +55,14 @@ from companion.link.messages import (
 )
 from companion.link.mode_watch import ControlPhase, ModeWatch
 from companion.link.setpoints import PositionTarget, SetpointPolicy, position_target_message
+from companion.link.takeoff import (
+    TakeoffCommand,
+    TakeoffEvent,
+    TakeoffNotice,
+    TakeoffSequence,
+    TakeoffSettings,
+    TakeoffStep,
+)
 from companion.pipeline import AvoidancePipeline
 from companion.pose_history import PoseHistory, PoseStatus
 from companion.status import StatusPublisher, status_document
@@ -123,6 +132,7 @@ class CompanionService:
             "autopilot_restarts": 0,
             "mode_releases": 0,
             "pipeline_errors": 0,
+            "frames_during_takeoff": 0,
         }
         self._reset_vehicle_state()
         self._link_up = False
@@ -135,6 +145,7 @@ class CompanionService:
         self._last_mode_request = None
         self._silent_since_s: float | None = None
         self._silence_reported_s = -math.inf
+        self.fatal: str | None = None  # terminal error (a refused takeoff): run() returns
 
     # ---- lifecycle -----------------------------------------------------------------
     def open(self) -> None:
@@ -179,9 +190,10 @@ class CompanionService:
             "frames_superseded": f.superseded,
             "mavlink": self.link.counters.as_dict(),
             "phase": self.modes.phase.value,
-            "flavour": None if self.modes.flavour is None else self.modes.flavour.value,
+            "flavour": None if self.policy is None else self.policy.flavour.value,
             "clock_rate": round(self.clock.autopilot.rate, 3),
             "waypoint": self._waypoint,
+            "takeoff": None if self.takeoff is None else self.takeoff.step.value,
         }
 
     # ---- per-connection state ------------------------------------------------------
@@ -206,6 +218,8 @@ class CompanionService:
         self._hold_pending = False
         self._engaged = False  # a guidance setpoint was sent since the last reset
         self._goal_reported = False
+        self.takeoff: TakeoffSequence | None = None  # --takeoff-alt, until finished
+        self._held_heartbeat: tuple[Flavour, int] | None = None  # for ModeWatch after takeoff
 
     # ---- main loop -----------------------------------------------------------------
     def run(self, should_stop: Callable[[], bool]) -> None:
@@ -214,7 +228,7 @@ class CompanionService:
         if link_fd is not None:
             fds.append(link_fd)
         timeout = 0.01 if link_fd is not None else 0.002
-        while not should_stop():
+        while not should_stop() and self.fatal is None:
             try:
                 select.select(fds, [], [], timeout)
             except InterruptedError:
@@ -244,6 +258,8 @@ class CompanionService:
             if not from_autopilot:
                 continue
             self._on_link_alive(now_s)
+            if self._takeoff_busy():
+                self._takeoff_input(msg, mtype, now_s)
             if mtype == "LOCAL_POSITION_NED":
                 if self._check_boot_time(msg.time_boot_ms, now_s):
                     t = self.clock.frame_ns_from_boot_ms(msg.time_boot_ms)
@@ -265,10 +281,7 @@ class CompanionService:
             elif mtype == "COMMAND_ACK":
                 self._on_ack(msg, now_s)
             elif mtype == "STATUSTEXT":
-                text = (
-                    msg.text if isinstance(msg.text, str) else msg.text.decode("ascii", "replace")
-                )
-                _log.info("autopilot: %s", text.rstrip("\x00"))
+                _log.info("autopilot: %s", _statustext(msg))
 
     def _observe(self, t_ns: int) -> None:
         if self._newest_seen_ns is None or t_ns > self._newest_seen_ns:
@@ -300,7 +313,7 @@ class CompanionService:
 
     def _on_heartbeat(self, msg, now_s: float) -> None:
         flavour = detect_flavour(msg.autopilot)
-        if self.modes.flavour is None:
+        if self.policy is None:  # first heartbeat since the (re)start
             cfg = self.config.link
             self.policy = SetpointPolicy(
                 flavour,
@@ -314,10 +327,94 @@ class CompanionService:
                 msg.get_srcSystem(),
                 control_mode(flavour).name,
             )
+            if cfg.takeoff_alt_m > 0:
+                self.takeoff = TakeoffSequence(
+                    flavour,
+                    TakeoffSettings(
+                        cfg.takeoff_alt_m,
+                        tolerance_m=cfg.takeoff_tolerance_m,
+                        climb_timeout_s=cfg.takeoff_timeout_s,
+                    ),
+                    now_s,
+                )
+        if self._takeoff_busy():
+            assert self.takeoff is not None
+            self._held_heartbeat = (flavour, msg.custom_mode)
+            armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            self.takeoff.on_heartbeat(now_s, msg.custom_mode, armed)
+            self._drive_takeoff(now_s)
+            return
+        self._mode_heartbeat(flavour, msg.custom_mode, now_s)
+
+    def _mode_heartbeat(self, flavour: Flavour, custom_mode: int, now_s: float) -> None:
         before = self.modes.phase
-        for notice in self.modes.on_heartbeat(now_s, flavour, msg.custom_mode):
+        for notice in self.modes.on_heartbeat(now_s, flavour, custom_mode):
             self._notice(notice)
         self._after_phase_change(before, now_s)
+
+    # ---- takeoff (--takeoff-alt) ---------------------------------------------------
+    def _takeoff_busy(self) -> bool:
+        return self.takeoff is not None and self.takeoff.busy
+
+    def _takeoff_input(self, msg, mtype: str, now_s: float) -> None:
+        """Feed the takeoff sequence what it watches (heartbeats go via _on_heartbeat)."""
+        seq = self.takeoff
+        assert seq is not None
+        if mtype == "EXTENDED_SYS_STATE":
+            seq.on_landed_state(now_s, msg.landed_state)
+        elif mtype == "LOCAL_POSITION_NED":
+            seq.on_position(now_s, msg.time_boot_ms * 1e-3, msg.z)
+        elif mtype == "HOME_POSITION":
+            seq.on_home_amsl(msg.altitude * 1e-3)
+        elif mtype == "GLOBAL_POSITION_INT" and seq.home_amsl_m is None:
+            seq.on_home_amsl((msg.alt - msg.relative_alt) * 1e-3)
+        elif mtype == "STATUSTEXT":
+            seq.on_statustext(_statustext(msg))
+        elif mtype == "COMMAND_ACK" and self._ack_is_ours(msg):
+            seq.on_ack(now_s, msg.command, msg.result)
+        else:
+            return
+        self._drive_takeoff(now_s)
+
+    def _ack_is_ours(self, msg) -> bool:
+        """COMMAND_ACK addressed to us (0 = not filled in by a MAVLink 1 sender)."""
+        cfg = self.config.link
+        return getattr(msg, "target_system", 0) in (0, cfg.system_id) and getattr(
+            msg, "target_component", 0
+        ) in (0, cfg.component_id)
+
+    def _drive_takeoff(self, now_s: float) -> None:
+        """Carry out the sequence's actions; start steering when it is over."""
+        seq = self.takeoff
+        if seq is None:
+            return
+        cfg = self.config.link
+        for action in seq.pop_actions():
+            if isinstance(action, TakeoffCommand):
+                if action.name != "REQUEST_MESSAGE":
+                    _log.info(
+                        "takeoff: sending %s (attempt %d)", action.name, action.confirmation + 1
+                    )
+                self.link.send(
+                    command_long(
+                        cfg.target_system,
+                        cfg.target_component,
+                        action.command,
+                        *action.params,
+                        confirmation=action.confirmation,
+                    )
+                )
+            elif isinstance(action, TakeoffNotice):
+                self._notice(action.text, action.severity)
+            elif isinstance(action, TakeoffEvent):
+                self._event("takeoff", **action.fields)
+        if seq.step is TakeoffStep.FAILED and self.fatal is None:
+            self.fatal = f"takeoff failed: {seq.reason}"
+            _log.error("%s; not steering, stopping", self.fatal)
+        elif seq.step in (TakeoffStep.DONE, TakeoffStep.SKIPPED) and self._held_heartbeat:
+            flavour, custom_mode = self._held_heartbeat
+            self._held_heartbeat = None
+            self._mode_heartbeat(flavour, custom_mode, now_s)  # engage at once
 
     def _after_phase_change(self, before: ControlPhase, now_s: float) -> None:
         after = self.modes.phase
@@ -389,6 +486,10 @@ class CompanionService:
                     )
                 )
             self._next_stream_request_s = now_s + 1.0
+        if self._takeoff_busy():
+            assert self.takeoff is not None
+            self.takeoff.tick(now_s)
+            self._drive_takeoff(now_s)
         before = self.modes.phase
         request = self.modes.tick(now_s)
         if request is not None:
@@ -467,6 +568,9 @@ class CompanionService:
     def _on_frame(self, frame: StereoFrame, recv_ns: int) -> None:
         t_start = time.monotonic_ns()
         self._observe(frame.capture_ns)
+        if self._takeoff_busy():
+            self.counters["frames_during_takeoff"] += 1  # not steering before the climb
+            return
         if self._last_capture_ns is not None and frame.capture_ns <= self._last_capture_ns:
             if frame.capture_ns < self._last_capture_ns - 1_000_000_000:
                 # plant-sim restarted: its clock began again
@@ -718,7 +822,9 @@ class CompanionService:
             " setpoints %d",
             "-" if newest is None else f"{newest * 1e-9:.1f}s",
             pos,
-            self.modes.phase.value,
+            f"takeoff:{self.takeoff.step.value}"
+            if self.takeoff is not None and self.takeoff.busy
+            else self.modes.phase.value,
             self.modes.mode_text(),
             self.failsafe.status.health.value,
             self.counters["frames_processed"],
@@ -727,6 +833,11 @@ class CompanionService:
             f.superseded,
             self.counters["setpoints_sent"],
         )
+
+
+def _statustext(msg) -> str:
+    text = msg.text if isinstance(msg.text, str) else msg.text.decode("ascii", "replace")
+    return text.rstrip("\x00")
 
 
 def _age(value: float | None) -> str:
