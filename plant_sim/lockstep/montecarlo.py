@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 from collections import Counter
 from collections.abc import Callable, Iterable
@@ -46,7 +47,13 @@ def run_batch(
             if progress is not None:
                 progress(len(verdicts), len(seeds), verdicts[seed])
     else:
-        with ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker) as pool:
+        # spawn, not fork: a forked child inherits whatever locks the parent's other
+        # threads hold at that instant (Zenoh, numba, OpenCV, pytest plugins); in a full
+        # test run two forked workers hung forever at 0 % CPU
+        spawn = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(
+            max_workers=jobs, mp_context=spawn, initializer=_init_worker
+        ) as pool:
             futures = {pool.submit(fly_seed, seed): seed for seed in seeds}
             for future in as_completed(futures):
                 verdict = future.result()
