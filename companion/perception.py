@@ -228,15 +228,18 @@ class PerceptionResult:
     unknown_fraction: float
 
 
-def _sample_region(region: np.ndarray, max_points: int) -> tuple[np.ndarray, np.ndarray, int]:
+def _sample_region(
+    region: np.ndarray, max_points: int, n: int | None = None
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Pixel coordinates (x, y, n_grid) of a region: a regular grid, then its outer contour.
 
     The contour carries the angular extremes and the farthest points exactly; the grid
     (stride chosen for about ``max_points`` samples) carries the mean bearing and the
     nearest range; the first ``n_grid`` samples are the grid. Keeps the per-obstacle cost flat
-    however large the obstacle looks.
+    however large the obstacle looks. ``n`` is the region's pixel count when already known.
     """
-    n = int(np.count_nonzero(region))
+    if n is None:
+        n = int(np.count_nonzero(region))
     stride = max(1, math.ceil(math.sqrt(n / max_points)))
     gy, gx = np.nonzero(region[::stride, ::stride])
     if stride == 1:
@@ -337,13 +340,22 @@ class StereoPerception:
         valid = disp >= 0
         unknown_fraction = 1.0 - float(np.count_nonzero(valid)) / disp.size
 
-        d_near_fixed = _DISP_SCALE * fb / cfg.threshold_m
-        near = (disp >= d_near_fixed).view(np.uint8)
+        # Integer disparities: d >= x  <=>  d >= ceil(x), compared in int16 (no float copy).
+        near = (disp >= math.ceil(_DISP_SCALE * fb / cfg.threshold_m)).view(np.uint8)
+        if cv2.countNonZero(near) == 0:  # the common empty frame: nothing to open or label
+            return PerceptionResult(frame.sequence, frame.capture_ns, (), unknown_fraction)
         if cfg.opening_px > 1:
             near = cv2.morphologyEx(near, cv2.MORPH_OPEN, self._kernel)
         # Blobs on a 2x subsampled mask: 4x cheaper labelling; areas count 4 pixels each.
         near_half = np.ascontiguousarray(near[::2, ::2])
-        n_labels, labels, stats, _ = cv2.connectedComponentsWithStats(near_half, connectivity=8)
+        # Label only the bounding box of the mask (same components, same raster-order labels);
+        # stats are shifted back to the half-resolution image, labels stay box-relative.
+        bx, by, bw, bh = cv2.boundingRect(near_half)
+        if bw == 0:
+            return PerceptionResult(frame.sequence, frame.capture_ns, (), unknown_fraction)
+        n_labels, labels, stats, _ = cv2.connectedComponentsWithStats(
+            near_half[by : by + bh, bx : bx + bw], connectivity=8
+        )
         min_area = max(1, math.ceil(cfg.min_blob_fraction * width * height / 4.0))
         blobs = [i for i in range(1, n_labels) if stats[i, cv2.CC_STAT_AREA] >= min_area]
         if not blobs:
@@ -354,17 +366,23 @@ class StereoPerception:
         # fill, and the sphere fit samples at most ``max_points`` of them anyway.
         d_far = fb / (cfg.threshold_m + cfg.extent_margin_m)
         disp_half = disp[::2, ::2]
-        disp_px = disp_half.astype(np.float32) * (1.0 / _DISP_SCALE)
-        disp_px[disp_px < d_far] = -1.0e6  # invalid and far pixels stop the fill
+        disp_px = disp_half.astype(np.float32)
+        disp_px *= 1.0 / _DISP_SCALE
+        # Invalid and far pixels stop the fill: d / 16 < float32(d_far), in integers.
+        disp_px[disp_half < math.ceil(_DISP_SCALE * float(np.float32(d_far)))] = -1.0e6
         h_half, w_half = disp_px.shape
         fill = np.zeros((h_half + 2, w_half + 2), np.uint8)
         step_px = cfg.continuity_rel * fb / cfg.threshold_m
         regions: list[tuple[int, tuple[int, int, int, int], int]] = []
         # Largest blob first, so the obstacle numbering is deterministic and meaningful.
         for label in sorted(blobs, key=lambda i: (-stats[i, cv2.CC_STAT_AREA], i)):
-            x0, y0, w, h = stats[label, :4]
+            lx0, ly0, w, h = stats[label, :4]
+            x0 = lx0 + bx
+            y0 = ly0 + by
             sub_disp = np.where(
-                labels[y0 : y0 + h, x0 : x0 + w] == label, disp_half[y0 : y0 + h, x0 : x0 + w], -1
+                labels[ly0 : ly0 + h, lx0 : lx0 + w] == label,
+                disp_half[y0 : y0 + h, x0 : x0 + w],
+                -1,
             )
             iy, ix = np.unravel_index(int(np.argmax(sub_disp)), sub_disp.shape)
             seed = (int(x0 + ix), int(y0 + iy))  # nearest pixel of the blob
@@ -383,7 +401,8 @@ class StereoPerception:
         for value, (x0, y0, w, h), n_half in regions:
             region = (fill[y0 + 1 : y0 + h + 1, x0 + 1 : x0 + w + 1] == value).view(np.uint8)
             n_near = 4 * int(np.count_nonzero(region & near_half[y0 : y0 + h, x0 : x0 + w]))
-            xs, ys, n_grid = _sample_region(region, self.config.max_points)
+            # n_half (the fill's area) is the region's pixel count: later fills never overwrite.
+            xs, ys, n_grid = _sample_region(region, self.config.max_points, n_half)
             xs += x0
             ys += y0
             truncated = bool(
@@ -451,7 +470,8 @@ class StereoPerception:
         sin_a = math.sin(half_angle)
         radius_fit_m = nearest_m * sin_a / (1.0 - sin_a)
         center_cam = mean_bearing * (nearest_m + radius_fit_m)
-        offsets = bearings * range_m[:, None] - center_cam
+        offsets = np.multiply(bearings, range_m[:, None])
+        offsets -= center_cam
         farthest_m = math.sqrt(float(np.einsum("ij,ij->i", offsets, offsets).max()))
         raw_radius_m = max(radius_fit_m, farthest_m)
         center_ned = points_ned_from_cam(center_cam, pos_ned_m, R_ned_from_frd, k.baseline_m)
