@@ -20,11 +20,11 @@ from __future__ import annotations
 import json
 import logging
 import os
-import signal
 import sys
-import threading
 from collections.abc import Sequence
 from pathlib import Path
+
+from protocols.process import run_until_signalled
 
 __all__ = ["main", "run"]
 
@@ -36,25 +36,9 @@ def run(config, ready_file: Path | None = None) -> int:
     test for it); it is removed at exit.
     """
     from companion.service import CompanionService
-    from protocols.readiness import announce_ready, withdraw_ready
 
-    stop = threading.Event()
-
-    def _on_signal(signum, _frame) -> None:
-        logging.getLogger("companion").info("signal %d: stopping", signum)
-        stop.set()
-
-    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     service = CompanionService(config)
-    try:
-        service.open()
-        announce_ready(service.readiness_line(), ready_file)
-        service.run(stop.is_set)
-    finally:
-        withdraw_ready(ready_file)
-        stats = service.close()
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+    stats = run_until_signalled(service, log_name="companion", ready_file=ready_file)
     print("COMPANION STATS " + json.dumps(stats, sort_keys=True), flush=True)
     if service.fatal is not None:
         print(f"companion: {service.fatal}", file=sys.stderr, flush=True)

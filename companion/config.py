@@ -54,7 +54,8 @@ from companion.clock_model import FrameClock
 from companion.guidance import GuidanceConfig
 from companion.perception import PerceptionConfig
 from protocols.keys import validate_vehicle_id
-from protocols.signing import SIGNING_KEY_ENV, SigningKey
+from protocols.process import add_signing_arguments, add_zenoh_arguments, signing_key_text
+from protocols.signing import SigningKey
 from protocols.zenoh_session import ZenohSettings as ZenohConfig
 
 __all__ = [
@@ -302,9 +303,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--baud", type=int, help="serial baud rate")
     p.add_argument("--system-id", type=int, help="our MAVLink system id (default 1)")
     p.add_argument("--component-id", type=int, help="our MAVLink component id (default 196)")
-    p.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT")
-    p.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT")
-    p.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 config file")
+    add_zenoh_arguments(
+        p,
+        listen_default="e.g. for a stereo camera to connect to",
+        connect_help="router or plant-sim/stereo-camera; default tcp/127.0.0.1:7447",
+    )
     p.add_argument("--vehicle-id", help="vehicle id of the Zenoh keys")
     p.add_argument(
         "--goal",
@@ -323,12 +326,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--threshold-m", type=float, help="obstacle detection range [m]")
     p.add_argument("--safety-margin-m", type=float, help="boundary inflation margin [m]")
-    p.add_argument(
-        "--signing-key",
-        metavar="HEX|PASSPHRASE",
-        help=f"MAVLink 2 signing key (prefer --signing-key-file or ${SIGNING_KEY_ENV})",
-    )
-    p.add_argument("--signing-key-file", type=Path, help="file holding the signing key")
+    add_signing_arguments(p)
     p.add_argument(
         "--takeoff-alt",
         type=float,
@@ -375,16 +373,10 @@ def config_from_args(
     if args.waypoint:
         d.pop("goal_ned_m", None)
         d["waypoints_ned_m"] = [list(w) for w in args.waypoint]
-    key_text = None
-    if args.signing_key_file is not None:
-        try:
-            key_text = args.signing_key_file.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise ConfigError(f"cannot read --signing-key-file: {exc.strerror}") from None
-    elif args.signing_key:
-        key_text = args.signing_key
-    elif env.get(SIGNING_KEY_ENV):
-        key_text = env[SIGNING_KEY_ENV]
+    try:
+        key_text = signing_key_text(args, env)
+    except OSError as exc:
+        raise ConfigError(f"cannot read --signing-key-file: {exc.strerror}") from None
     _merge(
         d,
         "mavlink",

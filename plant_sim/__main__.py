@@ -18,16 +18,19 @@ import dataclasses
 import logging
 import math
 import os
-import signal
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["build_parser", "config_from_args", "main", "run"]
+from protocols.process import (
+    add_signing_arguments,
+    add_zenoh_arguments,
+    run_until_signalled,
+    signing_key_text,
+)
 
-_KEY_ENV = "STEREO_AVOID_SIGNING_KEY"
+__all__ = ["build_parser", "config_from_args", "main", "run"]
 
 
 def _speedup(text: str) -> float:
@@ -58,21 +61,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="MAVLink endpoint, repeatable: udpin:HOST:PORT | udpout:HOST:PORT "
         "(default udpin:0.0.0.0:14550)",
     )
-    p.add_argument(
-        "--zenoh-listen",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="Zenoh listen endpoint, repeatable (default tcp/127.0.0.1:7447)",
+    add_zenoh_arguments(
+        p,
+        listen_default="default tcp/127.0.0.1:7447",
+        connect_help="router or companion",
     )
-    p.add_argument(
-        "--zenoh-connect",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="Zenoh endpoint to connect to (router or companion), repeatable",
-    )
-    p.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 config file (routers, TLS, ACL)")
     p.add_argument("--no-camera", action="store_true", help="do not render or publish frames")
     p.add_argument("--camera-rate-hz", type=float, help="override the scenario's camera rate")
     p.add_argument("--vehicle-id", help="override the scenario's vehicle id (Zenoh keys)")
@@ -90,12 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="start disarmed on the ground below the start point",
     )
-    p.add_argument(
-        "--signing-key",
-        metavar="HEX|PASSPHRASE",
-        help=f"MAVLink 2 signing key (prefer --signing-key-file or ${_KEY_ENV})",
-    )
-    p.add_argument("--signing-key-file", type=Path, help="file holding the signing key")
+    add_signing_arguments(p)
     p.add_argument(
         "--log-dir",
         type=Path,
@@ -148,13 +136,7 @@ def config_from_args(args: argparse.Namespace):
     listen = tuple(args.zenoh_listen)
     if not listen and not args.zenoh_connect and args.zenoh_config is None:
         listen = ("tcp/127.0.0.1:7447",)
-    key_text = None
-    if args.signing_key_file is not None:
-        key_text = args.signing_key_file.read_text(encoding="utf-8")
-    elif args.signing_key:
-        key_text = args.signing_key
-    elif os.environ.get(_KEY_ENV):
-        key_text = os.environ[_KEY_ENV]
+    key_text = signing_key_text(args)
     log_dir = None
     if not args.no_logs:
         log_dir = args.log_dir or Path("runs") / time.strftime("plant_sim-%Y%m%d-%H%M%S")
@@ -182,25 +164,8 @@ def run(config, ready_file: Path | None = None) -> int:
     bound, and the file is removed at exit (container healthchecks test for it).
     """
     from plant_sim.service import PlantService, stats_line
-    from protocols.readiness import announce_ready, withdraw_ready
 
-    stop = threading.Event()
-
-    def _on_signal(signum, _frame) -> None:
-        logging.getLogger("plant_sim").info("signal %d: stopping", signum)
-        stop.set()
-
-    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    service = PlantService(config)
-    try:
-        service.open()
-        announce_ready(service.readiness_line(), ready_file)
-        service.run(stop.is_set)
-    finally:
-        withdraw_ready(ready_file)
-        stats = service.close()
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+    stats = run_until_signalled(PlantService(config), log_name="plant_sim", ready_file=ready_file)
     print(stats_line(stats), flush=True)
     return 0
 

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
+from protocols.process import add_zenoh_arguments
 from protocols.zenoh_session import ZenohSettings, zenoh_config
 
 if TYPE_CHECKING:  # numpy & co. load inside main(), after OPENBLAS_NUM_THREADS is set
@@ -207,21 +208,11 @@ def _common_options() -> argparse.ArgumentParser:
     )
     g.add_argument("--output-size", type=_size, metavar="WxH", help="rectified size per eye")
     z = p.add_argument_group("zenoh")
-    z.add_argument(
-        "--zenoh-listen",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help=f"listen endpoint, repeatable (default {_DEFAULT_LISTEN} when none is given)",
+    add_zenoh_arguments(
+        z,
+        listen_default=f"default {_DEFAULT_LISTEN} when none is given",
+        connect_help="router or companion",
     )
-    z.add_argument(
-        "--zenoh-connect",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="endpoint to connect to (router or companion), repeatable",
-    )
-    z.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 config file (routers, TLS, ACL)")
     z.add_argument("--vehicle-id", default="sim1", help="key chunk (default sim1)")
     o = p.add_argument_group("run")
     o.add_argument(
