@@ -25,6 +25,10 @@ Pipeline for one rectified frame (:meth:`StereoPerception.process`):
    of ``R`` and the distance from that centre to the farthest measured point (so the sphere
    encloses every point); the boundary adds ``vehicle_radius_m + safety_margin_m``.
 
+The per-obstacle steps (seed search, region sampling, sphere fit) are small numba kernels,
+one pass over the pixels or samples each instead of a dozen numpy temporaries; they are
+compiled (or loaded from numba's cache) when the first :class:`StereoPerception` is built.
+
 Unknown space: pixels without a valid disparity (textureless, occluded, or the left band of
 ``num_disparities`` columns the right image cannot see) are never treated as free. They are
 never obstacles either (there is no range to put them at); instead :class:`PerceptionResult`
@@ -37,11 +41,13 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
 
 import cv2
+import numba
 import numpy as np
 
 from protocols.camera import StereoIntrinsics, points_ned_from_cam
@@ -57,6 +63,7 @@ __all__ = [
 
 _DISP_SCALE = 16  # OpenCV disparities are fixed point with 4 fractional bits
 _REFERENCE_WIDTH_PX = 320  # the paper's camera; block size scales from it
+_NO_EDGE = np.zeros((0, 2), np.int32)  # no contour samples (stride 1: the grid is every pixel)
 
 
 class Matcher(enum.Enum):
@@ -228,27 +235,190 @@ class PerceptionResult:
     unknown_fraction: float
 
 
-def _sample_region(
-    region: np.ndarray, max_points: int, n: int | None = None
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """Pixel coordinates (x, y, n_grid) of a region: a regular grid, then its outer contour.
+def _sample_stride(n_pixels: int, max_points: int) -> int:
+    """Grid stride for about ``max_points`` samples of a region of ``n_pixels`` pixels."""
+    return max(1, math.ceil(math.sqrt(n_pixels / max_points)))
 
-    The contour carries the angular extremes and the farthest points exactly; the grid
-    (stride chosen for about ``max_points`` samples) carries the mean bearing and the
-    nearest range; the first ``n_grid`` samples are the grid. Keeps the per-obstacle cost flat
-    however large the obstacle looks. ``n`` is the region's pixel count when already known.
+
+def _region_contour(fill: np.ndarray, value: int, rect: tuple[int, int, int, int]) -> np.ndarray:
+    """Outer contour pixels (x, y) of fill region ``value`` in ``rect``, shape (n, 2), int32.
+
+    Coordinates are relative to the rect's corner; ``fill`` is the flood-fill mask (one pixel
+    of padding on every side).
     """
-    if n is None:
-        n = int(np.count_nonzero(region))
-    stride = max(1, math.ceil(math.sqrt(n / max_points)))
-    gy, gx = np.nonzero(region[::stride, ::stride])
-    if stride == 1:
-        return gx.astype(np.intp), gy.astype(np.intp), len(gx)
+    x0, y0, w, h = rect
+    region = (fill[y0 + 1 : y0 + h + 1, x0 + 1 : x0 + w + 1] == value).view(np.uint8)
     contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    edge = np.concatenate([c.reshape(-1, 2) for c in contours], axis=0)
-    xs = np.concatenate((gx * stride, edge[:, 0])).astype(np.intp)
-    ys = np.concatenate((gy * stride, edge[:, 1])).astype(np.intp)
-    return xs, ys, len(gx)
+    return np.concatenate([c.reshape(-1, 2) for c in contours], axis=0)
+
+
+@numba.njit(cache=True)
+def _blob_seeds(labels, disp, n_labels):
+    """Nearest pixel of every label: its largest disparity, the first in raster order on ties.
+
+    ``labels`` (int32) and ``disp`` (int16, the same shape) cover the same box; returns
+    (seed_x, seed_y) indexed by label, box-relative (label 0, the background, is unused).
+    Equals ``argmax(where(labels == label, disp, -1))`` over the label's bounding box, since a
+    blob's pixels are near ones (disparity > 0).
+    """
+    best = np.full(n_labels, -1, np.int32)
+    seed_x = np.zeros(n_labels, np.intp)
+    seed_y = np.zeros(n_labels, np.intp)
+    for y in range(labels.shape[0]):
+        for x in range(labels.shape[1]):
+            label = labels[y, x]
+            if label > 0 and disp[y, x] > best[label]:
+                best[label] = disp[y, x]
+                seed_x[label] = x
+                seed_y[label] = y
+    return seed_x, seed_y
+
+
+@numba.njit(cache=True)
+def _region_samples(fill, value, x0, y0, w, h, stride, edge, near, disp_px):
+    """Sample points of one flood-fill region and its count of near pixels.
+
+    The region is ``fill[y0 + 1 + j, x0 + 1 + i] == value`` for ``0 <= i < w, 0 <= j < h``
+    (``fill`` has one pixel of padding). Samples are the regular grid of the rect with step
+    ``stride`` (raster order, as ``np.nonzero(region[::stride, ::stride])``), then the
+    rect-relative outer contour points ``edge`` (shape (m, 2), x then y; empty when
+    ``stride == 1``: the grid is then every pixel). The grid carries the mean bearing and the
+    nearest range; the contour carries the angular extremes and the farthest points exactly.
+
+    Returns
+    -------
+    xs, ys : int arrays
+        Sample coordinates in the ``fill``-less image (``near``/``disp_px`` indices).
+    disp : float64 array
+        ``disp_px`` at the samples [px].
+    n_grid : int
+        The first ``n_grid`` samples are the grid.
+    n_near : int
+        Region pixels that are set in ``near``.
+    """
+    n_max = ((h + stride - 1) // stride) * ((w + stride - 1) // stride) + edge.shape[0]
+    xs = np.empty(n_max, np.intp)
+    ys = np.empty(n_max, np.intp)
+    n = 0
+    n_near = 0
+    for j in range(h):
+        on_grid_row = j % stride == 0
+        for i in range(w):
+            if fill[y0 + 1 + j, x0 + 1 + i] == value:
+                if near[y0 + j, x0 + i]:
+                    n_near += 1
+                if on_grid_row and i % stride == 0:
+                    xs[n] = x0 + i
+                    ys[n] = y0 + j
+                    n += 1
+    n_grid = n
+    for e in range(edge.shape[0]):
+        xs[n] = x0 + edge[e, 0]
+        ys[n] = y0 + edge[e, 1]
+        n += 1
+    disp = np.empty(n)
+    for s in range(n):
+        disp[s] = disp_px[ys[s], xs[s]]
+    return xs[:n], ys[:n], disp, n_grid, n_near
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _fit_sphere(xs, ys, n_grid, disp, fx, fy, cx, cy, fb, cap_depth_m, max_half_angle_rad):
+    """Blind-spot sphere (Fig. 4, see the module docstring) of sampled region pixels.
+
+    ``xs``, ys`` are pixel coordinates, ``disp`` their disparities [px] (all > 0), the first
+    ``n_grid`` samples the regular grid (they alone give the centre bearing); ``fx .. cy``
+    the left camera's intrinsics [px], ``fb`` focal length × baseline [m·px]. One pass per
+    quantity over the points, no temporaries but the bearings and ranges.
+
+    Returns
+    -------
+    nearest_m : float
+        1st percentile of the ranges [m] (the nearest surface, robust to a few outliers).
+    center_cam : numpy.ndarray
+        Sphere centre in the left camera frame [m], shape (3,).
+    raw_radius_m : float
+        ``max(R, distance from the centre to the farthest point)`` [m].
+    """
+    n = xs.shape[0]
+    inv_fx = 1.0 / fx
+    inv_fy = 1.0 / fy
+    bearings = np.empty((n, 3))
+    range_m = np.empty(n)
+    for s in range(n):
+        xn = (xs[s] - cx) * inv_fx
+        yn = (ys[s] - cy) * inv_fy
+        norm = math.sqrt(xn * xn + yn * yn + 1.0)
+        range_m[s] = (fb * norm) / disp[s]  # Eq. (27) depth times ray length
+        bearings[s, 0] = xn / norm
+        bearings[s, 1] = yn / norm
+        bearings[s, 2] = 1.0 / norm
+    rank = int(0.01 * (n - 1))
+    nearest_m = np.partition(range_m, rank)[rank]
+    # Centre bearing: the mean bearing of the nearest cap (grid samples within cap_depth_m
+    # of the nearest surface); a sphere's nearest cap is centred on the camera→centre line,
+    # so this stays unbiased when the image border cuts the silhouette. No cap: whole grid.
+    cap_m = nearest_m + max(cap_depth_m, 0.03 * nearest_m)
+    axis = np.zeros(3)
+    in_cap = 0
+    for s in range(n_grid):
+        if range_m[s] <= cap_m:
+            in_cap += 1
+            for c in range(3):
+                axis[c] += bearings[s, c]
+    if in_cap == 0:
+        for s in range(n_grid):
+            for c in range(3):
+                axis[c] += bearings[s, c]
+    axis /= math.sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2])
+    # Angular half-width about the axis: the widest sample.
+    cos_min = np.inf
+    for s in range(n):
+        cos_s = bearings[s, 0] * axis[0] + bearings[s, 1] * axis[1] + bearings[s, 2] * axis[2]
+        cos_min = min(cos_min, cos_s)
+    half_angle = min(math.acos(min(1.0, max(-1.0, cos_min))), max_half_angle_rad)
+    sin_a = math.sin(half_angle)
+    radius_fit_m = nearest_m * sin_a / (1.0 - sin_a)
+    center_cam = axis * (nearest_m + radius_fit_m)
+    # Enclose every measured point.
+    farthest_sq = 0.0
+    for s in range(n):
+        d_sq = 0.0
+        for c in range(3):
+            d = bearings[s, c] * range_m[s] - center_cam[c]
+            d_sq += d * d
+        farthest_sq = max(farthest_sq, d_sq)
+    return nearest_m, center_cam, max(radius_fit_m, math.sqrt(farthest_sq))
+
+
+@functools.cache
+def _warm_up() -> None:
+    """Run every per-obstacle step once per process, on a tiny input with the argument types
+    :meth:`StereoPerception.process` uses: compiles (or loads from numba's cache) the kernels
+    and pays OpenCV's first-call costs, so the first frame with an obstacle does not
+    (~20 ms from numba's cache, ~1 ms in OpenCV)."""
+    mask = np.zeros((4, 4), np.uint8)
+    mask[1:3, 1:3] = 1
+    cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    _, labels, _, _ = cv2.connectedComponentsWithStats(mask[1:3, 1:3], connectivity=8)
+    disp = np.full((3, 3), 16, np.int16)
+    _blob_seeds(labels, disp[1:, 1:], 2)  # a strided view, like the labelled box
+    fill = np.zeros((4, 4), np.uint8)
+    disp_px = np.ones((2, 2), np.float32)
+    cv2.floodFill(
+        disp_px,
+        fill,
+        (0, 0),
+        0,
+        loDiff=0.5,
+        upDiff=0.5,
+        flags=8 | cv2.FLOODFILL_MASK_ONLY | (1 << 8),
+    )
+    for edge in (_NO_EDGE, _region_contour(fill, 1, (0, 0, 2, 2))):
+        xs, ys, disp_s, n_grid, _ = _region_samples(
+            fill, 1, 0, 0, 2, 2, 1, edge, mask[1:3, 1:3].copy(), disp_px
+        )
+    _fit_sphere(2 * xs, 2 * ys, n_grid, disp_s, 1.0, 1.0, 0.0, 0.0, 1.0, 0.1, 1.0)
 
 
 def _auto_block_size(width_px: int) -> int:
@@ -274,6 +444,7 @@ class StereoPerception:
         self._kernel = cv2.getStructuringElement(
             cv2.MORPH_RECT, (self.config.opening_px, self.config.opening_px)
         )
+        _warm_up()
 
     def num_disparities(self, intrinsics: StereoIntrinsics) -> int:
         """Disparity search range [px]: ``f·b / min_range_m`` rounded up to a multiple of 16."""
@@ -374,18 +545,10 @@ class StereoPerception:
         fill = np.zeros((h_half + 2, w_half + 2), np.uint8)
         step_px = cfg.continuity_rel * fb / cfg.threshold_m
         regions: list[tuple[int, tuple[int, int, int, int], int]] = []
+        seed_x, seed_y = _blob_seeds(labels, disp_half[by : by + bh, bx : bx + bw], n_labels)
         # Largest blob first, so the obstacle numbering is deterministic and meaningful.
         for label in sorted(blobs, key=lambda i: (-stats[i, cv2.CC_STAT_AREA], i)):
-            lx0, ly0, w, h = stats[label, :4]
-            x0 = lx0 + bx
-            y0 = ly0 + by
-            sub_disp = np.where(
-                labels[ly0 : ly0 + h, lx0 : lx0 + w] == label,
-                disp_half[y0 : y0 + h, x0 : x0 + w],
-                -1,
-            )
-            iy, ix = np.unravel_index(int(np.argmax(sub_disp)), sub_disp.shape)
-            seed = (int(x0 + ix), int(y0 + iy))  # nearest pixel of the blob
+            seed = (int(bx + seed_x[label]), int(by + seed_y[label]))  # nearest blob pixel
             if fill[seed[1] + 1, seed[0] + 1] or len(regions) >= 254:
                 continue  # same surface as an earlier blob (one obstacle), or too many
             value = len(regions) + 1
@@ -398,13 +561,14 @@ class StereoPerception:
         # Columns the right image cannot see at the largest disparity, plus half a block.
         band_px = n_disp + (cfg.block_size_px or _auto_block_size(width)) // 2
         obstacles = []
-        for value, (x0, y0, w, h), n_half in regions:
-            region = (fill[y0 + 1 : y0 + h + 1, x0 + 1 : x0 + w + 1] == value).view(np.uint8)
-            n_near = 4 * int(np.count_nonzero(region & near_half[y0 : y0 + h, x0 : x0 + w]))
+        for value, rect, n_half in regions:
+            x0, y0, w, h = rect
             # n_half (the fill's area) is the region's pixel count: later fills never overwrite.
-            xs, ys, n_grid = _sample_region(region, self.config.max_points, n_half)
-            xs += x0
-            ys += y0
+            stride = _sample_stride(n_half, cfg.max_points)
+            edge = _region_contour(fill, value, rect) if stride > 1 else _NO_EDGE
+            xs, ys, disp_samples, n_grid, n_near = _region_samples(
+                fill, value, x0, y0, w, h, stride, edge, near_half, disp_px
+            )
             truncated = bool(
                 2 * x0 <= band_px + 2
                 or y0 <= 0
@@ -416,12 +580,12 @@ class StereoPerception:
                     2 * xs,
                     2 * ys,
                     n_grid,
-                    disp_px[ys, xs].astype(np.float64),
+                    disp_samples,
                     k,
                     pos_ned_m,
                     R_ned_from_frd,
                     4 * n_half,
-                    n_near,
+                    4 * n_near,
                     truncated,
                 )
             )
@@ -445,35 +609,19 @@ class StereoPerception:
     ) -> Obstacle:
         """Safety sphere of one region (Fig. 4 blind-spot model, see the module docstring)."""
         cfg = self.config
-        xn = (xs - k.cx_px) * (1.0 / k.fx_px)
-        yn = (ys - k.cy_px) * (1.0 / k.fy_px)
-        norm = np.sqrt(xn * xn + yn * yn + 1.0)
-        range_m = (k.focal_baseline_m_px * norm) / disp_px  # Eq. (27) depth times ray length
-        bearings = np.empty((len(xs), 3))
-        bearings[:, 0] = xn / norm
-        bearings[:, 1] = yn / norm
-        bearings[:, 2] = 1.0 / norm
-        # Nearest surface: the 1st percentile of the ranges, robust to a few outliers.
-        rank = int(0.01 * (len(range_m) - 1))
-        nearest_m = float(np.partition(range_m, rank)[rank])
-        # Centre bearing: the mean bearing of the nearest cap (grid samples within
-        # cap_depth_m of the nearest surface). A sphere's nearest cap is centred on the
-        # camera→centre line, so this stays unbiased when the image border cuts the
-        # silhouette (a pitched camera), where the mean over the whole region does not.
-        grid_bearings = bearings[:n_grid]
-        cap = range_m[:n_grid] <= nearest_m + max(cfg.cap_depth_m, 0.03 * nearest_m)
-        axis = (grid_bearings[cap] if np.any(cap) else grid_bearings).sum(axis=0)
-        axis /= math.sqrt(float(axis @ axis))
-        cos_min = min(1.0, max(-1.0, float((bearings @ axis).min())))
-        half_angle = min(math.acos(cos_min), math.radians(cfg.max_half_angle_deg))
-        mean_bearing = axis
-        sin_a = math.sin(half_angle)
-        radius_fit_m = nearest_m * sin_a / (1.0 - sin_a)
-        center_cam = mean_bearing * (nearest_m + radius_fit_m)
-        offsets = np.multiply(bearings, range_m[:, None])
-        offsets -= center_cam
-        farthest_m = math.sqrt(float(np.einsum("ij,ij->i", offsets, offsets).max()))
-        raw_radius_m = max(radius_fit_m, farthest_m)
+        nearest_m, center_cam, raw_radius_m = _fit_sphere(
+            xs,
+            ys,
+            n_grid,
+            disp_px,
+            float(k.fx_px),
+            float(k.fy_px),
+            float(k.cx_px),
+            float(k.cy_px),
+            float(k.focal_baseline_m_px),
+            float(cfg.cap_depth_m),
+            math.radians(cfg.max_half_angle_deg),
+        )
         center_ned = points_ned_from_cam(center_cam, pos_ned_m, R_ned_from_frd, k.baseline_m)
         center_ned.flags.writeable = False
         return Obstacle(

@@ -203,3 +203,97 @@ def test_threshold_is_configurable(renderer):
     assert _see(renderer, StereoPerception(), world, pos, LEVEL).obstacles == ()
     far = _see(renderer, StereoPerception(PerceptionConfig(threshold_m=6.0)), world, pos, LEVEL)
     assert len(far.obstacles) == 1
+
+
+# --- compiled kernels against the numpy formulation they replace ---------------------------
+
+
+def _reference_fit(xs, ys, n_grid, disp, fx, fy, cx, cy, fb, cap_depth_m, max_half_angle):
+    """The blind-spot sphere fit written with numpy (the pre-numba implementation)."""
+    xn = (xs - cx) * (1.0 / fx)
+    yn = (ys - cy) * (1.0 / fy)
+    norm = np.sqrt(xn * xn + yn * yn + 1.0)
+    range_m = (fb * norm) / disp
+    bearings = np.stack((xn / norm, yn / norm, 1.0 / norm), axis=1)
+    rank = int(0.01 * (len(range_m) - 1))
+    nearest_m = float(np.partition(range_m, rank)[rank])
+    grid = bearings[:n_grid]
+    cap = range_m[:n_grid] <= nearest_m + max(cap_depth_m, 0.03 * nearest_m)
+    axis = (grid[cap] if np.any(cap) else grid).sum(axis=0)
+    axis /= math.sqrt(float(axis @ axis))
+    cos_min = min(1.0, max(-1.0, float((bearings @ axis).min())))
+    sin_a = math.sin(min(math.acos(cos_min), max_half_angle))
+    radius_fit_m = nearest_m * sin_a / (1.0 - sin_a)
+    center = axis * (nearest_m + radius_fit_m)
+    offsets = bearings * range_m[:, None] - center
+    farthest_m = math.sqrt(float(np.einsum("ij,ij->i", offsets, offsets).max()))
+    return nearest_m, center, max(radius_fit_m, farthest_m)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_compiled_sphere_fit_equals_numpy_reference(seed):
+    from companion.perception import _fit_sphere
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(16, 3000))
+    n_grid = int(rng.integers(1, n + 1))
+    xs = 2 * rng.integers(0, 320, n)
+    ys = 2 * rng.integers(0, 240, n)
+    # Mostly a smooth surface, a few outliers, sometimes a far cap (no grid sample in it).
+    disp = rng.uniform(18.0, 60.0) + rng.normal(0.0, 2.0, n).clip(-10.0, 10.0)
+    if seed % 3 == 0:
+        disp[:n_grid] = 15.0
+    args = (xs, ys, n_grid, disp, 320.0, 321.0, 319.5, 239.5, 21.6, 0.1, math.radians(64.0))
+    nearest, center, radius = _fit_sphere(*args)
+    ref_nearest, ref_center, ref_radius = _reference_fit(*args)
+    assert nearest == ref_nearest  # the same order statistic
+    np.testing.assert_allclose(center, ref_center, rtol=1e-12, atol=1e-12)
+    assert radius == pytest.approx(ref_radius, rel=1e-12, abs=1e-12)
+
+
+@pytest.mark.parametrize("stride", [1, 2, 3])
+def test_region_samples_and_seeds_equal_numpy_reference(stride):
+    import cv2
+
+    from companion.perception import _blob_seeds, _region_contour, _region_samples
+
+    rng = np.random.default_rng(stride)
+    h, w = 40, 50
+    disp = rng.integers(-16, 900, (h, w)).astype(np.int16)
+    near = (rng.random((h, w)) < 0.5).astype(np.uint8)
+    disp_px = disp.astype(np.float32) / 16.0
+    # Two overlapping-box regions (values 1 and 2) in a padded fill mask.
+    fill = np.zeros((h + 2, w + 2), np.uint8)
+    yy, xx = np.mgrid[0:h, 0:w]
+    fill[1:-1, 1:-1][(xx - 20) ** 2 + (yy - 18) ** 2 < 15**2] = 1
+    fill[1:-1, 1:-1][((xx - 38) ** 2 + (yy - 25) ** 2 < 10**2) & (fill[1:-1, 1:-1] == 0)] = 2
+    for value in (1, 2):
+        ys_r, xs_r = np.nonzero(fill[1:-1, 1:-1] == value)
+        x0, y0 = int(xs_r.min()), int(ys_r.min())
+        rect = (x0, y0, int(xs_r.max()) - x0 + 1, int(ys_r.max()) - y0 + 1)
+        region = fill[y0 + 1 : y0 + rect[3] + 1, x0 + 1 : x0 + rect[2] + 1] == value
+        edge = _region_contour(fill, value, rect) if stride > 1 else np.zeros((0, 2), np.int32)
+        xs, ys, d, n_grid, n_near = _region_samples(
+            fill, value, x0, y0, rect[2], rect[3], stride, edge, near, disp_px
+        )
+        gy, gx = np.nonzero(region[::stride, ::stride])
+        ref_xs = np.concatenate((gx * stride, edge[:, 0])) + x0
+        ref_ys = np.concatenate((gy * stride, edge[:, 1])) + y0
+        assert n_grid == len(gx)
+        np.testing.assert_array_equal(xs, ref_xs)
+        np.testing.assert_array_equal(ys, ref_ys)
+        np.testing.assert_array_equal(d, disp_px[ref_ys, ref_xs].astype(np.float64))
+        assert n_near == np.count_nonzero(region & (near[y0 : y0 + rect[3], x0 : x0 + rect[2]] > 0))
+        if stride > 1:
+            contours, _ = cv2.findContours(
+                region.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
+            )
+            assert len(edge) == sum(len(c) for c in contours)
+    # Seeds: the first largest disparity of each label in raster order (ties included).
+    n_labels, labels = cv2.connectedComponents(near, connectivity=8)
+    tied = np.minimum(disp, 400).astype(np.int16)
+    seed_x, seed_y = _blob_seeds(labels, tied, n_labels)
+    for label in range(1, n_labels):
+        iy, ix = np.unravel_index(int(np.argmax(np.where(labels == label, tied, -1))), tied.shape)
+        if tied[iy, ix] >= 0:  # (perception's blobs are near pixels: disparity > 0)
+            assert (seed_x[label], seed_y[label]) == (ix, iy)
