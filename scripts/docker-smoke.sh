@@ -22,7 +22,7 @@ bash scripts/setup.sh
 file=docker/compose.yaml
 "${compose[@]}" -f "$file" config >/dev/null
 rm -rf runs/compose && mkdir -p runs/compose && chmod a+rwx runs/compose
-export SPEEDUP=${SPEEDUP:-4} SIM_DURATION_S=${SIM_DURATION_S:-45}
+export SPEEDUP=${SPEEDUP:-4} SIM_DURATION_S=${SIM_DURATION_S:-60}
 trap '"${compose[@]}" -f "$file" down --remove-orphans >/dev/null 2>&1 || true' EXIT
 "${compose[@]}" -f "$file" up --build --abort-on-container-exit --exit-code-from plant-sim
 .venv/bin/python - <<'PY'
