@@ -17,16 +17,23 @@ import math
 
 import numpy as np
 
+#: Unit quaternion (w, x, y, z).
+Quat = tuple[float, float, float, float]
+
 __all__ = [
     "T_PAPER_NED",
+    "Quat",
     "euler123_from_rotation",
     "euler321_from_rotation",
     "mavlink_euler_from_paper_euler",
     "ned_from_paper",
     "paper_euler_from_mavlink_euler",
     "paper_from_ned",
+    "quat_from_euler321",
+    "quat_slerp",
     "rotation_123",
     "rotation_321",
+    "rotation_from_quat",
     "rotation_ned_from_paper",
     "rotation_paper_from_ned",
     "rx",
@@ -121,3 +128,45 @@ def paper_euler_from_mavlink_euler(
     """MAVLink (roll, pitch, yaw) 3-2-1 in NED/FRD → paper 1-2-3 angles (z-up)."""
     R_paper = rotation_paper_from_ned(rotation_321(roll_rad, pitch_rad, yaw_rad))
     return euler123_from_rotation(R_paper)
+
+
+def quat_from_euler321(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Quat:
+    """Unit quaternion of ``Rz(yaw) Ry(pitch) Rx(roll)`` (MAVLink ATTITUDE)."""
+    cr, sr = math.cos(roll_rad / 2), math.sin(roll_rad / 2)
+    cp, sp = math.cos(pitch_rad / 2), math.sin(pitch_rad / 2)
+    cy, sy = math.cos(yaw_rad / 2), math.sin(yaw_rad / 2)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
+def rotation_from_quat(q: Quat) -> np.ndarray:
+    """Rotation matrix (body → NED) of a unit quaternion (w, x, y, z)."""
+    w, x, y, z = q
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def quat_slerp(q0: Quat, q1: Quat, u: float) -> Quat:
+    """Spherical linear interpolation, ``u`` in [0, 1], along the shorter arc."""
+    dot = sum(a * b for a, b in zip(q0, q1, strict=True))
+    if dot < 0.0:
+        q1 = (-q1[0], -q1[1], -q1[2], -q1[3])
+        dot = -dot
+    if dot > 0.9995:  # nearly parallel: normalised lerp is exact to 1e-7
+        q = tuple(a + u * (b - a) for a, b in zip(q0, q1, strict=True))
+    else:
+        theta = math.acos(min(1.0, dot))
+        s0 = math.sin((1 - u) * theta) / math.sin(theta)
+        s1 = math.sin(u * theta) / math.sin(theta)
+        q = tuple(s0 * a + s1 * b for a, b in zip(q0, q1, strict=True))
+    n = math.sqrt(sum(c * c for c in q))
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)

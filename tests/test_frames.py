@@ -98,3 +98,30 @@ def test_thrust_direction_of_known_attitudes():
     thrust_ned = R @ np.array([0.0, 0.0, -1.0])
     assert thrust_ned[0] == pytest.approx(math.sin(0.2))  # pushes north
     assert thrust_ned[2] == pytest.approx(-math.cos(0.2))  # and up
+
+
+def test_quaternion_of_mavlink_attitude_is_the_same_rotation():
+    """The companion interpolates ATTITUDE as quaternions: same convention as rotation_321."""
+    rng = np.random.default_rng(RNG_SEED + 2)
+    for roll, pitch, yaw in _random_angles(rng, 300):
+        q = frames.quat_from_euler321(roll, pitch, yaw)
+        assert sum(c * c for c in q) == pytest.approx(1.0, abs=1e-12)
+        np.testing.assert_allclose(
+            frames.rotation_from_quat(q), frames.rotation_321(roll, pitch, yaw), atol=1e-12
+        )
+
+
+def test_slerp_ends_and_midpoint():
+    q0 = frames.quat_from_euler321(0.0, 0.0, 0.2)
+    q1 = frames.quat_from_euler321(0.0, 0.0, 1.0)
+    np.testing.assert_allclose(frames.quat_slerp(q0, q1, 0.0), q0, atol=1e-12)
+    np.testing.assert_allclose(frames.quat_slerp(q0, q1, 1.0), q1, atol=1e-12)
+    mid = frames.rotation_from_quat(frames.quat_slerp(q0, q1, 0.5))
+    np.testing.assert_allclose(mid, frames.rotation_321(0.0, 0.0, 0.6), atol=1e-12)
+    # the shorter arc across ±180°: halfway between 170° and −170° is 180°
+    a = frames.quat_from_euler321(0.0, 0.0, math.radians(170))
+    b = frames.quat_from_euler321(0.0, 0.0, math.radians(-170))
+    _, _, yaw = frames.euler321_from_rotation(
+        frames.rotation_from_quat(frames.quat_slerp(a, b, 0.5))
+    )
+    assert abs(math.remainder(yaw - math.pi, 2 * math.pi)) < 1e-9
