@@ -3,100 +3,39 @@
 from __future__ import annotations
 
 import contextlib
-import json
-import os
-import queue
 import re
-import signal
-import socket
-import subprocess
-import sys
-import tempfile
-import threading
 import time
-from pathlib import Path
 
 from pymavlink import mavutil
 
-REPO = Path(__file__).resolve().parents[1]
+from plant_sim.lockstep.sil import ChildProcess, free_port
+
+__all__ = ["READY_RE", "PlantProcess", "command", "connect", "free_port", "recv"]
+
 READY_RE = re.compile(r"^PLANT_SIM READY mavlink=(\S+) zenoh=(\S+) key=(\S+) speedup=(\S+)")
 
 
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    """A port the OS reports free on 127.0.0.1 (bind to 0, read it, close)."""
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class PlantProcess:
-    """A plant-sim child process with its stdout lines queued and stderr in a file."""
+class PlantProcess(ChildProcess):
+    """A ``python -m plant_sim`` child (see :class:`plant_sim.lockstep.sil.ChildProcess`)
+    that knows its readiness line, its STATS line and its MAVLink port."""
 
     def __init__(self, args: list[str], env: dict | None = None) -> None:
-        self._stderr = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 (closed in close())
-        full_env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", **(env or {})}
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "plant_sim", *args],
-            cwd=REPO,
-            stdout=subprocess.PIPE,
-            stderr=self._stderr,
-            text=True,
-            env=full_env,
-        )
-        self.lines: queue.Queue[str] = queue.Queue()
-        self.stdout_lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
+        super().__init__("plant-sim", "plant_sim", args, env)
         self.ready: re.Match | None = None
         self.mavlink_port: int | None = None
         self.clients: list = []  # pymavlink connections closed by close()
 
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.stdout_lines.append(line.rstrip("\n"))
-            self.lines.put(line.rstrip("\n"))
-
     def wait_ready(self, timeout_s: float = 60.0) -> re.Match:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None and self.lines.empty():
-                raise AssertionError(f"plant-sim exited ({self.proc.returncode})\n{self.logs()}")
-            try:
-                line = self.lines.get(timeout=0.2)
-            except queue.Empty:
-                continue
-            m = READY_RE.match(line)
-            if m:
-                self.ready = m
-                port = re.search(r"udpin:[^,]*:(\d+)", m.group(1))
-                self.mavlink_port = int(port.group(1)) if port else None
-                return m
-        raise AssertionError(f"no readiness line within {timeout_s} s\n{self.logs()}")
+        m = self.wait_line(READY_RE.pattern, timeout_s)
+        self.ready = m
+        port = re.search(r"udpin:[^,]*:(\d+)", m.group(1))
+        self.mavlink_port = int(port.group(1)) if port else None
+        return m
 
     def stop(self, timeout_s: float = 15.0) -> dict | None:
         """SIGTERM, wait, return the parsed STATS line (None if absent)."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=timeout_s)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=5)
-        self._reader.join(timeout=5)
-        for line in self.stdout_lines:
-            if line.startswith("PLANT_SIM STATS "):
-                return json.loads(line[len("PLANT_SIM STATS ") :])
-        return None
-
-    def logs(self) -> str:
-        self._stderr.seek(0)
-        err = self._stderr.read()
-        return (
-            "--- plant-sim stdout ---\n"
-            + "\n".join(self.stdout_lines)
-            + ("\n--- plant-sim stderr ---\n" + err[-6000:])
-        )
+        super().stop(timeout_s)
+        return self.stats("PLANT_SIM STATS ")
 
     def client(self, **kw):
         """An unconnected pymavlink client to this plant's udpin port, closed by close()."""
@@ -108,14 +47,7 @@ class PlantProcess:
         for m in self.clients:
             with contextlib.suppress(OSError):
                 m.close()
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(timeout=5)
-        self._reader.join(timeout=5)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
-        with contextlib.suppress(OSError):
-            self._stderr.close()
+        super().close()
 
 
 def connect(plant: PlantProcess, *, key: bytes | None = None, sysid: int = 255, compid: int = 190):

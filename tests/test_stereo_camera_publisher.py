@@ -4,13 +4,10 @@ rectified intrinsics, signals, one-line errors, and replayed pairs driving perce
 from __future__ import annotations
 
 import json
-import os
-import queue
 import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -23,6 +20,7 @@ import zenoh
 from companion.camera.__main__ import main
 from companion.camera.calibration import Rectifier, load_calibration
 from companion.perception import StereoPerception
+from plant_sim.lockstep.sil import ChildProcess, free_port
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import Sphere, World
 from protocols import stereo_frame
@@ -35,47 +33,17 @@ K_TINY = np.array([[60.0, 0.0, 31.5], [0.0, 60.0, 23.5], [0.0, 0.0, 1.0]])
 
 
 def _free_tcp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port(socket.SOCK_STREAM)
 
 
-class CameraProcess:
-    """A ``python -m companion.camera`` child with stdout lines queued and stderr in a file."""
+class CameraProcess(ChildProcess):
+    """A ``python -m companion.camera`` child (see :class:`ChildProcess`)."""
 
     def __init__(self, args: list[str]) -> None:
-        self._stderr = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 (closed in close())
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "companion.camera", *args],
-            cwd=REPO,
-            stdout=subprocess.PIPE,
-            stderr=self._stderr,
-            text=True,
-            env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},
-        )
-        self.lines: queue.Queue[str] = queue.Queue()
-        self.stdout_lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.stdout_lines.append(line.rstrip("\n"))
-            self.lines.put(line.rstrip("\n"))
+        super().__init__("stereo-camera", "companion.camera", args)
 
     def wait_ready(self, timeout_s: float = 20.0) -> str:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            try:
-                line = self.lines.get(timeout=0.1)
-            except queue.Empty:
-                if self.proc.poll() is not None and self.lines.empty():
-                    raise AssertionError(f"exited {self.proc.returncode}\n{self.logs()}") from None
-                continue
-            if line.startswith("STEREO_CAMERA READY "):
-                return line
-        raise AssertionError(f"no readiness line within {timeout_s} s\n{self.logs()}")
+        return self.wait_line(r"^STEREO_CAMERA READY ", timeout_s).string
 
     def wait_exit(self, timeout_s: float = 15.0) -> tuple[int, dict | None]:
         try:
@@ -83,32 +51,10 @@ class CameraProcess:
         except subprocess.TimeoutExpired:
             raise AssertionError(f"still running after {timeout_s} s\n{self.logs()}") from None
         self._reader.join(timeout=5)
-        stats = None
-        for line in self.stdout_lines:
-            if line.startswith("STEREO_CAMERA STATS "):
-                stats = json.loads(line[len("STEREO_CAMERA STATS ") :])
-        return code, stats
+        return code, self.stats("STEREO_CAMERA STATS ")
 
     def stderr(self) -> str:
-        self._stderr.seek(0)
-        return self._stderr.read()
-
-    def logs(self) -> str:
-        return (
-            "--- stdout ---\n"
-            + "\n".join(self.stdout_lines)
-            + "\n--- stderr ---\n"
-            + (self.stderr()[-6000:])
-        )
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(timeout=5)
-        self._reader.join(timeout=5)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
-        self._stderr.close()
+        return self.stderr_text()
 
 
 class Subscriber:
