@@ -85,6 +85,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_signing_arguments(p)
     p.add_argument(
+        "--signing-state",
+        type=Path,
+        metavar="FILE",
+        help="where the signing replay-protection timestamps survive restarts (default "
+        "$XDG_STATE_HOME/stereo-avoid/plant-sim-signing-<key id>.json)",
+    )
+    p.add_argument(
         "--log-dir",
         type=Path,
         help="directory for plant_sim.tlog and truth.csv (default runs/plant_sim-<time>)",
@@ -137,6 +144,10 @@ def config_from_args(args: argparse.Namespace):
     if not listen and not args.zenoh_connect and args.zenoh_config is None:
         listen = ("tcp/127.0.0.1:7447",)
     key_text = signing_key_text(args)
+    signing_key = SigningKey.from_text(key_text) if key_text is not None else None
+    signing_state = args.signing_state
+    if signing_key is not None and signing_state is None:
+        signing_state = default_signing_state(signing_key)
     log_dir = None
     if not args.no_logs:
         log_dir = args.log_dir or Path("runs") / time.strftime("plant_sim-%Y%m%d-%H%M%S")
@@ -149,12 +160,25 @@ def config_from_args(args: argparse.Namespace):
             listen=listen, connect=tuple(args.zenoh_connect), config_file=args.zenoh_config
         ),
         speedup=args.speedup,
-        signing_key=SigningKey.from_text(key_text) if key_text is not None else None,
+        signing_key=signing_key,
+        signing_state=signing_state,
         log_dir=log_dir,
         autopilot_rate_hz=args.autopilot_rate_hz,
         truth_rate_hz=args.truth_rate_hz,
         duration_s=args.duration,
     )
+
+
+def default_signing_state(key) -> Path:
+    """Per-key state file under ``$XDG_STATE_HOME`` (``~/.local/state``); the key id is a
+    hash of a hash, so the file name reveals nothing of the key."""
+    import hashlib
+
+    base = os.environ.get("XDG_STATE_HOME") or os.path.join(
+        os.path.expanduser("~"), ".local", "state"
+    )
+    key_id = hashlib.sha256(hashlib.sha256(key.secret).digest()).hexdigest()[:16]
+    return Path(base) / "stereo-avoid" / f"plant-sim-signing-{key_id}.json"
 
 
 def run(config, ready_file: Path | None = None) -> int:

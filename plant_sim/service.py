@@ -7,6 +7,11 @@ the next event is due. Incoming messages are queued and executed at the next aut
 tick, as a real autopilot's scheduler does, so a command takes effect at the same
 simulation time at any ``--speedup`` (TIMESYNC is answered at once). Telemetry samples
 are taken at ticks, stamped with simulation time.
+
+Hostile input: every message passes a per-peer rate limit before it is queued
+(:mod:`plant_sim.autopilot.ratelimit`); a parameter list is sent a few parameters per tick
+whatever the number of requests; one handler's exception is caught, counted by message
+type, logged once per kind and, for a command, answered with MAV_RESULT_FAILED.
 """
 
 from __future__ import annotations
@@ -25,7 +30,14 @@ from plant_sim.autopilot import commands as cmds
 from plant_sim.autopilot.link import EndpointSpec, MavlinkLink
 from plant_sim.autopilot.modes import FlightModeMachine, GuidedTarget, Kinematics, ModeTimings
 from plant_sim.autopilot.params import ParamTable, timings_from_params
-from plant_sim.autopilot.setpoints import SetpointError, VehiclePose, decode_position_target
+from plant_sim.autopilot.ratelimit import RequestLimiter
+from plant_sim.autopilot.setpoints import (
+    SetpointError,
+    VehiclePose,
+    check_target_range,
+    decode_global_target,
+    decode_position_target,
+)
 from plant_sim.autopilot.telemetry import (
     MESSAGE_IDS,
     StreamScheduler,
@@ -52,6 +64,10 @@ _SEVERITY_WARNING = mavlink.MAV_SEVERITY_WARNING
 _SEVERITY_INFO = mavlink.MAV_SEVERITY_INFO
 # messages handled at once (not queued for the next tick)
 _IMMEDIATE = frozenset({"TIMESYNC", "HEARTBEAT"})
+# parameters sent per autopilot tick while a PARAM_REQUEST_LIST is served (50 Hz: 1000/s)
+_PARAMS_PER_TICK = 20
+# the inbox holds at most this many messages for the next tick; the oldest are dropped
+_INBOX_MAX = 2000
 
 
 @dataclass(frozen=True)
@@ -68,6 +84,7 @@ class PlantConfig:
     truth_rate_hz: float = 50.0  # ground-truth rows per simulation second (≤ autopilot rate)
     duration_s: float | None = None  # stop after this much simulation time
     heartbeat_period_s: float = 1.0  # wall time
+    signing_state: Path | None = None  # replay-protection timestamps kept across restarts
 
     def __post_init__(self) -> None:
         if not self.mavlink:
@@ -136,6 +153,7 @@ class PlantService:
             signing_key=config.signing_key,
             on_send=self._tlog_write,
             on_receive=self._tlog_write,
+            signing_state=config.signing_state,
         )
         self.publisher: StereoPublisher | None = None
         if sc.camera.enabled:
@@ -152,7 +170,16 @@ class PlantService:
         self._tilt_sat_prev = False
         self._tilt_sat_last_text_s = -math.inf
         self._refusal_last_text: dict[str, float] = {}
-        self.counters = {"commands": 0, "setpoints": 0, "setpoints_refused": 0, "foreign": 0}
+        self.limiter = RequestLimiter()
+        self._param_sends: dict[tuple[int, int], int] = {}  # requester → next index
+        self.handler_errors: dict[str, int] = {}
+        self.counters = {
+            "commands": 0,
+            "setpoints": 0,
+            "setpoints_refused": 0,
+            "foreign": 0,
+            "inbox_overflow": 0,
+        }
         self._wall_start = time.monotonic()
         self._run_wall_start: float | None = None
         self._run_sim_start = 0.0
@@ -213,6 +240,8 @@ class PlantService:
             "pace_slips": self.pacer.stats.slips,
             "mavlink_sent": self.link.sent_frames,
             "link": self.link.stats.as_dict(),
+            "rate_limited": dict(self.limiter.dropped),
+            "handler_errors": dict(self.handler_errors),
             "min_clearance_m": None
             if self._truth is None or not math.isfinite(self._truth.min_clearance_m)
             else round(self._truth.min_clearance_m, 4),
@@ -275,7 +304,8 @@ class PlantService:
         kin = self._kinematics(snap)
         inbox, self._inbox = self._inbox, []
         for msg in inbox:
-            self._dispatch(msg, kin, snap)
+            self._dispatch_safely(msg, kin, snap)
+        self._send_param_batch()
         for notice in self.machine.update(kin):
             self._statustext(notice, _SEVERITY_INFO)
         self._apply_machine()
@@ -344,14 +374,51 @@ class PlantService:
 
     # ---- input ---------------------------------------------------------------------
     def _receive(self) -> None:
+        now = time.monotonic()
         for msg in self.link.poll():
             if not self._addressed_to_us(msg):
                 self.counters["foreign"] += 1
                 continue
-            if msg.get_type() in _IMMEDIATE:
-                self._dispatch(msg, None, None)
+            mtype = msg.get_type()
+            if not self.limiter.allow((msg.get_srcSystem(), msg.get_srcComponent()), mtype, now):
+                self._log_once(f"rate:{mtype}", "rate limit: dropping %s floods", mtype)
+                continue
+            if mtype in _IMMEDIATE:
+                self._dispatch_safely(msg, None, None)
             else:
+                if len(self._inbox) >= _INBOX_MAX:
+                    self._inbox.pop(0)
+                    self.counters["inbox_overflow"] += 1
                 self._inbox.append(msg)
+
+    def _dispatch_safely(self, msg, kin: Kinematics | None, snap: VehicleState | None) -> None:
+        """Run one handler; an exception is counted, logged once per kind, never fatal."""
+        try:
+            self._dispatch(msg, kin, snap)
+        except Exception as exc:  # a handler bug must not take the autopilot down
+            mtype = msg.get_type()
+            kind = f"{mtype}:{type(exc).__name__}"
+            self.handler_errors[kind] = self.handler_errors.get(kind, 0) + 1
+            self._log_once(
+                f"handler:{kind}",
+                "handler for %s failed (%s: %s); message dropped",
+                mtype,
+                type(exc).__name__,
+                exc,
+            )
+            if mtype in ("COMMAND_LONG", "COMMAND_INT") and snap is not None:
+                src = (msg.get_srcSystem(), msg.get_srcComponent())
+                failed = cmds.CommandOutcome(cmds.MavResult.FAILED, "Command failed")
+                self._ack(int(getattr(msg, "command", 0)) & 0xFFFF, failed, src, snap)
+
+    def _log_once(self, kind: str, fmt: str, *args) -> None:
+        """Log the first occurrence of ``kind`` at WARNING, later ones at DEBUG."""
+        seen = self._refusal_last_text
+        if f"log:{kind}" in seen:
+            _log.debug(fmt, *args)
+            return
+        seen[f"log:{kind}"] = 0.0
+        _log.warning(fmt, *args)
 
     def _addressed_to_us(self, msg) -> bool:
         sysid = getattr(msg, "target_system", 0)
@@ -376,20 +443,18 @@ class PlantService:
         elif mtype == "SET_MODE":
             outcome = cmds.handle_set_mode(msg.base_mode, msg.custom_mode, self.machine, kin)
             self._ack(mavlink.MAVLINK_MSG_ID_SET_MODE, outcome, src, snap)
-        elif mtype == "SET_POSITION_TARGET_LOCAL_NED":
+        elif mtype in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
             self._position_target(msg, kin)
-        elif mtype == "SET_POSITION_TARGET_GLOBAL_INT":
-            self.counters["setpoints_refused"] += 1
-            self._refusal("global", "SET_POSITION_TARGET_GLOBAL_INT unsupported", kin.time_s)
         elif mtype == "PARAM_REQUEST_LIST":
-            for i in range(len(self.params)):
-                self._param_value(i)
+            # one transfer per requester; repeated requests while it runs change nothing
+            self._param_sends.setdefault(src, 0)
         elif mtype == "PARAM_REQUEST_READ":
             index = msg.param_index
-            if index < 0:
+            if index == -1:
                 index = self.params.index_of(_param_name(msg.param_id))
             if index is None or not 0 <= index < len(self.params):
-                self._statustext(f"Unknown parameter {_param_name(msg.param_id)}")
+                name = _param_name(msg.param_id)
+                self._refusal("param_read", f"Unknown parameter {name}", kin.time_s)
             else:
                 self._param_value(index)
         elif mtype == "PARAM_SET":
@@ -407,7 +472,7 @@ class PlantService:
         elif mtype == "MISSION_COUNT":
             ok = msg.count == 0
             if not ok:
-                self._statustext("Missions are not supported")
+                self._refusal("mission", "Missions are not supported", kin.time_s)
             self.link.send(
                 mavlink.MAVLink_mission_ack_message(
                     src[0],
@@ -417,13 +482,19 @@ class PlantService:
                 )
             )
         elif mtype == "REQUEST_DATA_STREAM":
+            rate = float(msg.req_message_rate)
+            if not 0.0 <= rate <= self.config.autopilot_rate_hz:
+                self._refusal("stream", f"REQUEST_DATA_STREAM: bad rate {rate:g}", kin.time_s)
+                return
             self.scheduler.request_data_stream(
                 msg.req_stream_id, float(msg.req_message_rate), bool(msg.start_stop), kin.time_s
             )
 
     def _command(self, msg, kin: Kinematics, snap: VehicleState, src) -> None:
         self.counters["commands"] += 1
+        frame = None
         if msg.get_type() == "COMMAND_INT":
+            frame = msg.frame
             params = (
                 msg.param1,
                 msg.param2,
@@ -450,6 +521,8 @@ class PlantService:
             kin,
             arming_checks=self.params.value("ARMING_CHECK") != 0,
             known_message_ids=_KNOWN_MSG_IDS,
+            frame=frame,
+            earth=self.telemetry.earth,
         )
         self._ack(msg.command, outcome, src, snap)
         if outcome.set_interval is not None:
@@ -462,7 +535,7 @@ class PlantService:
 
     def _ack(self, command: int, outcome: cmds.CommandOutcome, src, snap: VehicleState) -> None:
         if outcome.text:
-            self._statustext(outcome.text)
+            self._refusal(f"command:{command}", outcome.text, snap.time_s)
         if outcome.result is cmds.MavResult.UNSUPPORTED:
             _log.info("command %d from %s unsupported", command, src)
         self.link.send(
@@ -470,17 +543,36 @@ class PlantService:
         )
 
     def _position_target(self, msg, kin: Kinematics) -> None:
+        """SET_POSITION_TARGET_LOCAL_NED or _GLOBAL_INT: decode, range-check, fly."""
         self.counters["setpoints"] += 1
+        pose = VehiclePose(kin.pos_ned_m, kin.yaw_rad)
+        vel = (msg.vx, msg.vy, msg.vz)
+        home = self.machine.home_ned_m
         try:
-            target: GuidedTarget = decode_position_target(
-                msg.type_mask,
-                msg.coordinate_frame,
-                (msg.x, msg.y, msg.z),
-                (msg.vx, msg.vy, msg.vz),
-                msg.yaw,
-                msg.yaw_rate,
-                VehiclePose(kin.pos_ned_m, kin.yaw_rad),
-            )
+            if msg.get_type() == "SET_POSITION_TARGET_GLOBAL_INT":
+                target: GuidedTarget = decode_global_target(
+                    msg.type_mask,
+                    msg.coordinate_frame,
+                    (msg.lat_int, msg.lon_int),
+                    msg.alt,
+                    vel,
+                    msg.yaw,
+                    msg.yaw_rate,
+                    pose,
+                    self.telemetry.earth,
+                    home[2],
+                )
+            else:
+                target = decode_position_target(
+                    msg.type_mask,
+                    msg.coordinate_frame,
+                    (msg.x, msg.y, msg.z),
+                    vel,
+                    msg.yaw,
+                    msg.yaw_rate,
+                    pose,
+                )
+            check_target_range(target, home)
         except SetpointError as exc:
             self.counters["setpoints_refused"] += 1
             self._refusal("decode", f"Target refused: {exc}", kin.time_s)
@@ -489,6 +581,20 @@ class PlantService:
         if reason is not None:
             self.counters["setpoints_refused"] += 1
             self._refusal("guided", reason, kin.time_s)
+
+    def _send_param_batch(self) -> None:
+        """Serve running PARAM_REQUEST_LIST transfers, a few parameters per tick in all."""
+        budget = _PARAMS_PER_TICK
+        n = len(self.params)
+        while budget > 0 and self._param_sends:
+            src, index = next(iter(self._param_sends.items()))
+            del self._param_sends[src]
+            stop = min(n, index + budget)
+            for i in range(index, stop):
+                self._param_value(i)
+            budget -= stop - index
+            if stop < n:
+                self._param_sends[src] = stop  # back of the queue: requesters take turns
 
     def _param_value(self, index: int) -> None:
         spec, value = self.params.entry(index)
@@ -502,7 +608,7 @@ class PlantService:
         name = _param_name(msg.param_id)
         reason = self.params.set(name, float(msg.param_value))
         if reason is not None:
-            self._statustext(reason)
+            self._refusal("param_set", reason, self.quad.time_s)
         index = self.params.index_of(name)
         if index is not None:
             self._param_value(index)  # echo: the new value, or the unchanged one if refused

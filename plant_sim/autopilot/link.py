@@ -14,6 +14,17 @@ timestamp is consulted or updated, so a forged frame with a huge timestamp canno
 genuine stream (pymavlink's own ``check_signature`` updates the timestamp first). Outgoing
 frames are signed with the same key. Keys never reach logs: :class:`SigningKey` has no key
 in its ``repr``.
+
+Replay protection survives a restart, as the MAVLink signing spec asks: the newest accepted
+timestamp of every stream is saved to a state file (atomically, at most once a second and
+at close) and loaded at start, so a signed frame captured before the restart is refused
+instead of being accepted once as a "new stream" within its one-minute window.
+
+Routing, as ArduPilot does it: a frame that is broadcast (no target, or target system 0) or
+addressed to another system/component is forwarded unchanged to the other peers (so a
+ground station sees the companion's heartbeat and a second companion on the same ids is
+seen by the first). Frames addressed to this autopilot are never forwarded; each source
+has a forwarding budget.
 """
 
 from __future__ import annotations
@@ -22,16 +33,20 @@ import dataclasses
 import errno
 import hashlib
 import hmac
+import json
 import logging
+import os
 import select
 import socket
 import struct
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from plant_sim.autopilot.ratelimit import TokenBucket
 from protocols.signing import SigningKey
 
 __all__ = [
@@ -40,7 +55,9 @@ __all__ = [
     "LinkStats",
     "MavlinkLink",
     "SignatureVerifier",
+    "load_signing_state",
     "parse_endpoint",
+    "save_signing_state",
     "signing_timestamp_now",
     "split_frames",
 ]
@@ -117,6 +134,8 @@ class LinkStats:
     replay_refused: int = 0
     foreign_target: int = 0  # valid frames addressed to another system/component
     socket_errors: int = 0
+    forwarded: int = 0  # frames routed to the other peers
+    forward_limited: int = 0  # frames not routed: the source's budget was spent
 
     @property
     def signing_refused(self) -> int:
@@ -174,10 +193,20 @@ class SignatureVerifier:
     3. only then record the timestamp.
     """
 
-    def __init__(self, key: SigningKey, clock_unix_s: Callable[[], float] = time.time) -> None:
+    def __init__(
+        self,
+        key: SigningKey,
+        clock_unix_s: Callable[[], float] = time.time,
+        last_timestamps: dict[tuple[int, int, int], int] | None = None,
+    ) -> None:
         self._key = key
         self._clock = clock_unix_s
-        self._last: dict[tuple[int, int, int], int] = {}
+        self._last: dict[tuple[int, int, int], int] = dict(last_timestamps or {})
+
+    @property
+    def last_timestamps(self) -> dict[tuple[int, int, int], int]:
+        """Newest accepted timestamp per (link id, system, component) stream."""
+        return dict(self._last)
 
     def verify(self, frame: bytes) -> str | None:
         """None if ``frame`` is acceptable, else "unsigned" / "bad_signature" / "replay"."""
@@ -198,6 +227,42 @@ class SignatureVerifier:
             return "replay"
         self._last[stream] = timestamp
         return None
+
+
+def load_signing_state(path: Path) -> dict[tuple[int, int, int], int]:
+    """Per-stream timestamps saved by :func:`save_signing_state`; {} if there is no file.
+
+    Raises
+    ------
+    ValueError
+        For a file that exists but cannot be read as a signing state (naming the path):
+        starting without it would silently reopen the replay window.
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return {}
+    try:
+        doc = json.loads(text)
+        streams = doc["streams"]
+        out = {}
+        for key, ts in streams.items():
+            link_id, sysid, compid = (int(x) for x in key.split(":"))
+            if not isinstance(ts, int) or ts < 0:
+                raise ValueError(f"bad timestamp {ts!r}")
+            out[(link_id, sysid, compid)] = ts
+        return out
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise ValueError(f"signing state file {path}: unreadable ({exc}); remove it") from None
+
+
+def save_signing_state(path: Path, last: dict[tuple[int, int, int], int]) -> None:
+    """Write the per-stream timestamps atomically (temporary file + rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    doc = {"version": 1, "streams": {f"{a}:{b}:{c}": ts for (a, b, c), ts in last.items()}}
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(doc), encoding="utf-8")
+    os.replace(tmp, path)
 
 
 @dataclass
@@ -232,6 +297,8 @@ class MavlinkLink:
         on_send: Callable[[bytes], None] | None = None,
         on_receive: Callable[[bytes], None] | None = None,
         log_interval_s: float = 5.0,
+        signing_state: Path | None = None,
+        forward_rate_per_s: float = 200.0,
     ) -> None:
         if not specs:
             raise ValueError("at least one MAVLink endpoint is needed")
@@ -241,7 +308,12 @@ class MavlinkLink:
         self.component_id = component_id
         self.stats = LinkStats()
         self._signing_key = signing_key
-        self._verifier = SignatureVerifier(signing_key) if signing_key is not None else None
+        self._verifier: SignatureVerifier | None = None
+        self._signing_state = signing_state if signing_key is not None else None
+        self._saved_state: dict[tuple[int, int, int], int] = {}
+        self._next_state_save_s = 0.0
+        self._forward_rate = forward_rate_per_s
+        self._forward_buckets: dict[tuple[int, int], TokenBucket] = {}
         self._encoder = mavlink.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
         if signing_key is not None:
             self._encoder.signing.secret_key = signing_key.secret
@@ -258,7 +330,21 @@ class MavlinkLink:
 
     # ---- lifecycle ----------------------------------------------------------------
     def open(self) -> None:
-        """Create and bind the sockets."""
+        """Load the signing state, create and bind the sockets.
+
+        Raises
+        ------
+        ValueError
+            For an unreadable signing state file.
+        OSError
+            For an endpoint that cannot be bound.
+        """
+        if self._signing_key is not None:
+            last = {}
+            if self._signing_state is not None:
+                last = load_signing_state(self._signing_state)
+                self._saved_state = dict(last)
+            self._verifier = SignatureVerifier(self._signing_key, last_timestamps=last)
         for spec in self._specs:
             family = (
                 socket.AF_INET6 if ":" in spec.host and spec.host.count(":") > 1 else socket.AF_INET
@@ -278,9 +364,26 @@ class MavlinkLink:
             self._endpoints.append(_Endpoint(spec, sock))
 
     def close(self) -> None:
+        self._save_signing_state(force=True)
         for ep in self._endpoints:
             ep.sock.close()
         self._endpoints.clear()
+
+    def _save_signing_state(self, *, force: bool = False) -> None:
+        if self._verifier is None or self._signing_state is None:
+            return
+        now = time.monotonic()
+        if not force and now < self._next_state_save_s:
+            return
+        self._next_state_save_s = now + 1.0
+        last = self._verifier.last_timestamps
+        if last == self._saved_state:
+            return
+        try:
+            save_signing_state(self._signing_state, last)
+            self._saved_state = last
+        except OSError as exc:
+            _log.error("cannot save the signing state to %s: %s", self._signing_state, exc)
 
     @property
     def bound_urls(self) -> list[str]:
@@ -347,13 +450,14 @@ class MavlinkLink:
                     break
                 budget -= 1
                 self.stats.datagrams += 1
-                accepted = self._handle_datagram(data, out)
+                accepted = self._handle_datagram(data, out, (ep, addr), now)
                 if accepted and ep.spec.kind == "udpin":
                     ep.peers[addr] = now
         self._maybe_log(now)
+        self._save_signing_state()
         return out
 
-    def _handle_datagram(self, data: bytes, out: list) -> bool:
+    def _handle_datagram(self, data: bytes, out: list, origin, now: float) -> bool:
         stats = self.stats
         accepted = False
         for kind, _offset, chunk in split_frames(data):
@@ -367,7 +471,41 @@ class MavlinkLink:
             if msg is not None:
                 out.append(msg)
                 accepted = True
+                if self._should_forward(msg):
+                    self._forward(msg, chunk, origin, now)
         return accepted
+
+    def _should_forward(self, msg) -> bool:
+        sysid = getattr(msg, "target_system", 0)
+        compid = getattr(msg, "target_component", 0)
+        if sysid == 0:
+            return True
+        return sysid != self.system_id or compid not in (0, self.component_id)
+
+    def _forward(self, msg, frame: bytes, origin, now: float) -> None:
+        """Send ``frame`` unchanged to every other endpoint and peer, within the budget."""
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        bucket = self._forward_buckets.get(src)
+        if bucket is None:
+            if len(self._forward_buckets) >= 64:
+                self._forward_buckets.clear()
+            bucket = TokenBucket(self._forward_rate, 2 * self._forward_rate, now)
+            self._forward_buckets[src] = bucket
+        if not bucket.take(now):
+            self.stats.forward_limited += 1
+            return
+        origin_ep, origin_addr = origin
+        for ep in self._endpoints:
+            for addr in ep.destinations(now):
+                if ep is origin_ep and addr == origin_addr:
+                    continue
+                if ep.spec.kind == "udpout" and ep is origin_ep:
+                    continue
+                try:
+                    ep.sock.sendto(frame, addr)
+                    self.stats.forwarded += 1
+                except OSError:
+                    self.send_errors += 1
 
     def _accept_frame(self, frame: bytes):
         stats = self.stats

@@ -8,6 +8,12 @@ are ignored (the plant's tracker has no acceleration input), acceleration-only t
 refused. Frames: LOCAL_NED (1); LOCAL_OFFSET_NED (7: position relative to the vehicle,
 velocity NED); BODY_NED (8) and BODY_OFFSET_NED (9: position and velocity in the vehicle's
 heading frame, position relative to the vehicle), as ArduCopter reads them.
+
+SET_POSITION_TARGET_GLOBAL_INT (:func:`decode_global_target`) takes the same type_mask;
+latitude/longitude in degE7 are projected onto LOCAL_NED around the origin, altitude frames
+GLOBAL_INT (AMSL) and GLOBAL_RELATIVE_ALT_INT (above home). Every target is range-checked
+(:func:`check_target_range`): a position more than ``MAX_TARGET_RANGE_M`` from home or a
+speed over ``MAX_TARGET_SPEED_MPS`` is refused, never flown.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from plant_sim.autopilot.geodesy import FlatEarth, valid_lat_lon_e7
 from plant_sim.autopilot.modes import GuidedTarget
 
 __all__ = [
@@ -23,8 +30,12 @@ __all__ = [
     "MASK_VEL",
     "MASK_YAW",
     "MASK_YAW_RATE",
+    "MAX_TARGET_RANGE_M",
+    "MAX_TARGET_SPEED_MPS",
     "SetpointError",
     "VehiclePose",
+    "check_target_range",
+    "decode_global_target",
     "decode_position_target",
     "type_mask_for",
 ]
@@ -40,6 +51,16 @@ MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_LOCAL_OFFSET_NED = 7
 MAV_FRAME_BODY_NED = 8
 MAV_FRAME_BODY_OFFSET_NED = 9
+MAV_FRAME_GLOBAL_INT = 5
+MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
+
+#: Targets farther than this from home are refused (a geofence-like sanity bound) [m]
+MAX_TARGET_RANGE_M = 10_000.0
+#: Velocity targets faster than this are refused [m/s]
+MAX_TARGET_SPEED_MPS = 50.0
+#: Yaw-rate targets faster than this are refused [rad/s] (ArduCopter's ATC_RATE_Y_MAX: 360°/s)
+MAX_TARGET_YAW_RATE_RADPS = 2.0 * math.pi
+
 _FRAMES = {
     MAV_FRAME_LOCAL_NED: "LOCAL_NED",
     MAV_FRAME_LOCAL_OFFSET_NED: "LOCAL_OFFSET_NED",
@@ -121,6 +142,57 @@ def decode_position_target(
         vel_ned_mps=vel_ned,
         yaw_rad=yaw,
         yaw_rate_radps=float(yaw_rate_radps) if use_yaw_rate else None,
+    )
+
+
+def check_target_range(target: GuidedTarget, home_ned_m) -> None:
+    """Raise :class:`SetpointError` for a target outside the sane envelope around home."""
+    if target.pos_ned_m is not None:
+        d = math.dist(target.pos_ned_m, home_ned_m)
+        if not d <= MAX_TARGET_RANGE_M:
+            raise SetpointError(f"position {d:.0f} m from home (limit {MAX_TARGET_RANGE_M:g} m)")
+    if target.vel_ned_mps is not None:
+        speed = math.hypot(*target.vel_ned_mps)
+        if not speed <= MAX_TARGET_SPEED_MPS:
+            raise SetpointError(f"speed {speed:g} m/s (limit {MAX_TARGET_SPEED_MPS:g} m/s)")
+    if target.yaw_rate_radps is not None and not (
+        abs(target.yaw_rate_radps) <= MAX_TARGET_YAW_RATE_RADPS
+    ):
+        raise SetpointError(f"yaw rate {target.yaw_rate_radps:g} rad/s")
+
+
+def decode_global_target(
+    type_mask: int,
+    coordinate_frame: int,
+    lat_lon_e7: tuple[int, int],
+    alt_m: float,
+    vel: tuple[float, float, float],
+    yaw_rad: float,
+    yaw_rate_radps: float,
+    pose: VehiclePose,
+    earth: FlatEarth,
+    home_down_m: float,
+) -> GuidedTarget:
+    """SET_POSITION_TARGET_GLOBAL_INT → LOCAL_NED :class:`GuidedTarget` (velocity in NED).
+
+    Raises
+    ------
+    SetpointError
+        For an unsupported frame, an invalid latitude/longitude or what
+        :func:`decode_position_target` refuses.
+    """
+    if coordinate_frame not in (MAV_FRAME_GLOBAL_INT, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT):
+        raise SetpointError(f"unsupported coordinate_frame {coordinate_frame}")
+    pos = (0.0, 0.0, 0.0)
+    if _group(type_mask, MASK_POS, "position"):
+        lat_e7, lon_e7 = lat_lon_e7
+        if not valid_lat_lon_e7(lat_e7, lon_e7) or not math.isfinite(alt_m):
+            raise SetpointError(f"invalid location {lat_e7}, {lon_e7}, {alt_m!r}")
+        north, east = earth.ned_from_lat_lon(lat_e7 * 1e-7, lon_e7 * 1e-7)
+        ref_down = earth.alt_amsl_m if coordinate_frame == MAV_FRAME_GLOBAL_INT else home_down_m
+        pos = (north, east, ref_down - alt_m)
+    return decode_position_target(
+        type_mask, MAV_FRAME_LOCAL_NED, pos, vel, yaw_rad, yaw_rate_radps, pose
     )
 
 

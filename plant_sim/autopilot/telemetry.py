@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from plant_sim.autopilot.geodesy import FlatEarth
 from plant_sim.autopilot.modes import FlightMode, FlightModeMachine
 from plant_sim.autopilot.setpoints import type_mask_for
 from plant_sim.vehicle import Setpoint, VehicleState
@@ -81,7 +82,6 @@ AUTOPILOT_CAPABILITIES = (
     | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
 )
 
-_EARTH_RADIUS_M = 6378137.0
 # ArduCopter 4.5.0, official: major << 24 | minor << 16 | patch << 8 | FIRMWARE_VERSION_TYPE
 _FLIGHT_SW_VERSION = (4 << 24) | (5 << 16) | (0 << 8) | 255
 
@@ -179,16 +179,14 @@ class TelemetryBuilder:
 
     def __init__(self, identity: VehicleIdentity) -> None:
         self.identity = identity
-        self._cos_lat = math.cos(math.radians(identity.origin_lat_deg))
+        self.earth = FlatEarth(
+            identity.origin_lat_deg, identity.origin_lon_deg, identity.origin_alt_amsl_m
+        )
 
     # ---- geodesy -------------------------------------------------------------------
     def geodetic(self, pos_ned_m) -> tuple[int, int, int]:
         """(lat degE7, lon degE7, alt mm AMSL) of a LOCAL_NED point (flat earth)."""
-        ident = self.identity
-        lat = ident.origin_lat_deg + math.degrees(pos_ned_m[0] / _EARTH_RADIUS_M)
-        lon = ident.origin_lon_deg + math.degrees(pos_ned_m[1] / (_EARTH_RADIUS_M * self._cos_lat))
-        alt_m = ident.origin_alt_amsl_m - pos_ned_m[2]
-        return round(lat * 1e7), round(lon * 1e7), round(alt_m * 1000.0)
+        return self.earth.geodetic_e7(pos_ned_m)
 
     # ---- messages ------------------------------------------------------------------
     def heartbeat(self, machine: FlightModeMachine) -> mavlink.MAVLink_heartbeat_message:
