@@ -43,7 +43,8 @@ class TokenBucket:
 
 @dataclass(frozen=True)
 class RateLimits:
-    """Budgets [requests/s] and bursts; every type not listed in ``costs`` costs 1."""
+    """Budgets [requests/s] and bursts; every type not listed in ``costs`` costs 1 token
+    of the peer's bucket; the shared bucket counts each message as 1."""
 
     # a companion at 30 Hz of frames and --speedup 10 sends ~300 setpoints/s of wall time
     per_peer_rate: float = 1000.0
@@ -88,7 +89,8 @@ class RequestLimiter:
             self._peers.move_to_end(peer)
         if self._total is None:
             self._total = TokenBucket(lim.total_rate, lim.total_burst, now_s)
-        if bucket.take(now_s, cost) and self._total.take(now_s, cost):
+        # the shared budget counts messages: expensive types are a per-peer matter
+        if bucket.take(now_s, cost) and self._total.take(now_s):
             return True
         self.dropped[msg_type] = self.dropped.get(msg_type, 0) + 1
         return False
