@@ -23,7 +23,15 @@ import enum
 from collections import deque
 from dataclasses import dataclass
 
-__all__ = ["AutopilotClock", "ClockModel", "FrameClock", "SyncResult", "SyncSample"]
+__all__ = [
+    "AutopilotClock",
+    "BootTime",
+    "BootTimeMonitor",
+    "ClockModel",
+    "FrameClock",
+    "SyncResult",
+    "SyncSample",
+]
 
 
 class FrameClock(enum.Enum):
@@ -190,11 +198,84 @@ class ClockModel:
             return int(host_ns)
         return newest_observed_ns
 
-    def now_autopilot_ns(self, host_ns: int) -> int | None:
-        return self.autopilot.autopilot_from_host(host_ns)
+    def frame_time_plausible(
+        self, capture_ns: int, host_ns: int, newest_telemetry_ns: int | None, window_ns: int
+    ) -> bool:
+        """True when ``capture_ns`` lies within ``window_ns`` of the frame clock's "now".
+
+        "Now" comes from the clock model alone, never from frames: the host clock for
+        host-stamped frames, the newest autopilot telemetry stamp for autopilot-stamped
+        ones (False before there is any). A frame outside the window (stamped 0, 2^63−1,
+        seconds off) is refused, so it cannot move the clock or look like a reboot.
+        """
+        now = host_ns if self.frame_clock is FrameClock.HOST else newest_telemetry_ns
+        if now is None:
+            return False
+        return abs(int(capture_ns) - int(now)) <= window_ns
 
     def frame_to_autopilot_ns(self, frame_ns: int) -> int | None:
         """Inverse of :meth:`frame_ns_from_autopilot_ns` (setpoint timestamps)."""
         if self.frame_clock is FrameClock.AUTOPILOT:
             return int(frame_ns)
         return self.autopilot.autopilot_from_host(frame_ns)
+
+
+class BootTime(enum.Enum):
+    """What :meth:`BootTimeMonitor.check` decided for one telemetry timestamp."""
+
+    ACCEPT = "accept"
+    DROP = "drop"  # implausible against the current time base: ignore the message
+    REBOOT = "reboot"  # confirmed: the autopilot's clock restarted
+
+
+class BootTimeMonitor:
+    """Plausibility of the autopilot's ``time_boot_ms``, and confirmed reboots.
+
+    A timestamp is *consistent* when it lies between ``backstep_ms`` before the newest one
+    and as far ahead as the host time elapsed since (× the autopilot clock rate, × 2, plus
+    ``slack_ms``) allows. Consistent stamps are accepted. An inconsistent one is dropped,
+    unless ``confirm`` inconsistent stamps in a row agree with each other: then they are a
+    new time base — a reboot when they went backwards. So one forged or corrupt stamp (0,
+    2^32−1, far ahead) neither resets the mission nor moves the clock.
+
+    Parameters are in milliseconds of autopilot time; ``host_s`` and ``rate`` (autopilot
+    seconds per host second) are passed in by the caller.
+    """
+
+    def __init__(self, *, backstep_ms: int = 500, slack_ms: int = 2000, confirm: int = 3) -> None:
+        self.backstep_ms = backstep_ms
+        self.slack_ms = slack_ms
+        self.confirm = confirm
+        self.reset()
+
+    def reset(self) -> None:
+        self.last_ms: int | None = None
+        self._last_host_s = 0.0
+        self._candidates: list[tuple[int, float]] = []
+        self.dropped = 0
+
+    def _consistent(self, t_ms: int, ref_ms: int, ref_host_s: float, host_s: float, rate: float):
+        ahead = max(0.0, host_s - ref_host_s) * max(rate, 1.0) * 2000.0 + self.slack_ms
+        return ref_ms - self.backstep_ms <= t_ms <= ref_ms + ahead
+
+    def check(self, time_boot_ms: int, host_s: float, rate: float = 1.0) -> BootTime:
+        t = int(time_boot_ms)
+        if self.last_ms is None:
+            self.last_ms, self._last_host_s = t, host_s
+            return BootTime.ACCEPT
+        if self._consistent(t, self.last_ms, self._last_host_s, host_s, rate):
+            self.last_ms = max(self.last_ms, t)
+            self._last_host_s = host_s
+            self._candidates.clear()
+            return BootTime.ACCEPT
+        cands = self._candidates
+        if cands and not self._consistent(t, cands[-1][0], cands[-1][1], host_s, rate):
+            cands.clear()
+        cands.append((t, host_s))
+        if len(cands) < self.confirm:
+            self.dropped += 1
+            return BootTime.DROP
+        went_back = t < self.last_ms
+        self.last_ms, self._last_host_s = max(c[0] for c in cands), host_s
+        cands.clear()
+        return BootTime.REBOOT if went_back else BootTime.ACCEPT

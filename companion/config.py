@@ -30,6 +30,7 @@ optional, and an unknown key anywhere is an error that names it (``link.rate`` �
     frame_timeout_s = 0.3                # frame clock (simulation time in the SIL)
     telemetry_timeout_s = 0.3
     link_timeout_s = 1.5                 # wall time without any message → link lost
+    frame_time_window_s = 2.0            # capture time this far from the clock: refused
 
     [perception]                         # companion.perception.PerceptionConfig fields
     [guidance]                           # companion.guidance.GuidanceConfig fields
@@ -142,6 +143,7 @@ class FailsafeConfig:
     link_timeout_s: float = 1.5  # wall time without any autopilot message → link lost
     max_pose_extrapolation_s: float = 0.05  # frames newer than the newest pose by ≤ this
     pose_history_s: float = 2.0  # how far back poses are kept
+    frame_time_window_s: float = 2.0  # frames stamped farther than this from now: refused
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

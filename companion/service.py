@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import random
 import select
 import sys
 import time
@@ -31,7 +32,14 @@ import numpy as np
 import zenoh
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.clock_model import ClockModel, FrameClock, SyncResult, SyncSample
+from companion.clock_model import (
+    BootTime,
+    BootTimeMonitor,
+    ClockModel,
+    FrameClock,
+    SyncResult,
+    SyncSample,
+)
 from companion.config import CompanionConfig
 from companion.failsafe import FailsafeMonitor, Health
 from companion.frames_sub import FrameSubscriber, LatestFrameSlot
@@ -66,6 +74,7 @@ from companion.link.takeoff import (
 from companion.pipeline import AvoidancePipeline
 from companion.pose_history import PoseHistory, PoseStatus
 from companion.status import StatusPublisher, status_document
+from companion.takeover import SETPOINT_MESSAGES, TakeoverGuard
 from protocols.keys import companion_status_key, stereo_key
 from protocols.stereo_frame import StereoFrame
 from protocols.zenoh_session import zenoh_config
@@ -81,6 +90,8 @@ _STREAMS = (
 _SEV_INFO = mavlink.MAV_SEVERITY_INFO
 _SEV_WARNING = mavlink.MAV_SEVERITY_WARNING
 _REBOOT_BACKSTEP_MS = 500  # time_boot_ms going back this far: the autopilot restarted
+_MAX_TIMESYNC_PENDING = 32  # our outstanding TIMESYNC requests (replies must match one)
+_IN_CONTROL_STATES = frozenset({mavlink.MAV_STATE_ACTIVE, mavlink.MAV_STATE_CRITICAL})
 
 
 class CompanionService:
@@ -133,7 +144,19 @@ class CompanionService:
             "mode_releases": 0,
             "pipeline_errors": 0,
             "frames_during_takeoff": 0,
+            "frames_implausible_time": 0,
+            "telemetry_implausible_time": 0,
+            "telemetry_out_of_range": 0,
+            "timesync_unmatched": 0,
+            "handler_errors": 0,
+            "takeover_refusals": 0,
         }
+        self.instance_id = random.SystemRandom().getrandbits(32)
+        link_ids = (link.system_id, link.component_id)
+        self.takeover = TakeoverGuard(link_ids, self.instance_id)
+        self._takeover_blocked = False
+        self._timesync_pending: list[int] = []
+        self._handler_error_kinds: set[str] = set()
         self._reset_vehicle_state()
         self._link_up = False
         self._last_rx_s = -math.inf
@@ -209,6 +232,7 @@ class CompanionService:
             cfg.failsafe.frame_timeout_s, cfg.failsafe.telemetry_timeout_s
         )
         self._last_boot_ms: int | None = None
+        self.boot_time = BootTimeMonitor(backstep_ms=_REBOOT_BACKSTEP_MS)
         self._newest_frame_ns: int | None = None  # processed
         self._newest_seen_ns: int | None = None  # newest frame-clock stamp observed
         self._last_capture_ns: int | None = None
@@ -246,53 +270,121 @@ class CompanionService:
         target_sys = self.config.link.target_system
         target_comp = self.config.link.target_component
         for msg in self.link.poll():
-            if msg.get_srcSystem() != target_sys:
-                continue
-            mtype = msg.get_type()
-            from_autopilot = msg.get_srcComponent() == target_comp
+            try:
+                self._on_message(msg, now_s, target_sys, target_comp)
+            except Exception as exc:  # one handler's bug must not stop the companion
+                self._handler_error(msg, exc)
+
+    def _handler_error(self, msg, exc: Exception) -> None:
+        self.counters["handler_errors"] += 1
+        kind = f"{msg.get_type()}:{type(exc).__name__}"
+        if kind not in self._handler_error_kinds:
+            self._handler_error_kinds.add(kind)
+            _log.error(
+                "handling %s failed (%s: %s); message dropped", kind, type(exc).__name__, exc
+            )
+
+    def _on_message(self, msg, now_s: float, target_sys: int, target_comp: int) -> None:
+        mtype = msg.get_type()
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        cfg = self.config.link
+        if src == (cfg.system_id, cfg.component_id):
             if mtype == "HEARTBEAT":
-                if from_autopilot and is_autopilot_heartbeat(msg.autopilot, msg.type):
-                    self._on_link_alive(now_s)
-                    self._on_heartbeat(msg, now_s)
-                continue
-            if not from_autopilot:
-                continue
-            self._on_link_alive(now_s)
-            if self._takeoff_busy():
-                self._takeoff_input(msg, mtype, now_s)
-            if mtype == "LOCAL_POSITION_NED":
-                if self._check_boot_time(msg.time_boot_ms, now_s):
-                    t = self.clock.frame_ns_from_boot_ms(msg.time_boot_ms)
-                    if t is None:
-                        self.counters["telemetry_unmapped"] += 1
-                    elif self.poses.add_position(
-                        t, (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz)
-                    ):
-                        self._observe(t)
-            elif mtype == "ATTITUDE":
-                if self._check_boot_time(msg.time_boot_ms, now_s):
-                    t = self.clock.frame_ns_from_boot_ms(msg.time_boot_ms)
-                    if t is None:
-                        self.counters["telemetry_unmapped"] += 1
-                    elif self.poses.add_attitude(t, msg.roll, msg.pitch, msg.yaw):
-                        self._observe(t)
-            elif mtype == "TIMESYNC":
-                self._on_timesync(msg, now_s)
-            elif mtype == "COMMAND_ACK":
-                self._on_ack(msg, now_s)
-            elif mtype == "STATUSTEXT":
-                _log.info("autopilot: %s", _statustext(msg))
+                self.takeover.on_twin_heartbeat(
+                    now_s,
+                    msg.custom_mode,
+                    msg.system_status in _IN_CONTROL_STATES,
+                    self._state() is CompanionState.ACTIVE,
+                )
+                self._check_takeover(now_s)
+            return
+        if mtype in SETPOINT_MESSAGES and getattr(msg, "target_system", 0) == target_sys:
+            self.takeover.on_foreign_setpoint(now_s, src)
+            self._check_takeover(now_s)
+            return
+        if msg.get_srcSystem() != target_sys:
+            return
+        from_autopilot = msg.get_srcComponent() == target_comp
+        if mtype == "HEARTBEAT":
+            if from_autopilot and is_autopilot_heartbeat(msg.autopilot, msg.type):
+                self._on_link_alive(now_s)
+                self._on_heartbeat(msg, now_s)
+            return
+        if not from_autopilot:
+            return
+        self._on_link_alive(now_s)
+        if self._takeoff_busy() and not (
+            mtype == "LOCAL_POSITION_NED" and not _in_range((msg.z,), _MAX_POS_M)
+        ):
+            self._takeoff_input(msg, mtype, now_s)
+        if mtype == "LOCAL_POSITION_NED":
+            pos, vel = (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz)
+            if not _in_range(pos, _MAX_POS_M) or not _in_range(vel, _MAX_SPEED_MPS):
+                self._count_drop("telemetry_out_of_range", "LOCAL_POSITION_NED", pos + vel)
+            elif self._check_boot_time(msg.time_boot_ms, now_s):
+                t = self.clock.frame_ns_from_boot_ms(msg.time_boot_ms)
+                if t is None:
+                    self.counters["telemetry_unmapped"] += 1
+                elif self.poses.add_position(t, pos, vel):
+                    self._observe(t)
+        elif mtype == "ATTITUDE":
+            angles = (msg.roll, msg.pitch, msg.yaw)
+            if not _in_range(angles, 2.0 * math.pi):
+                self._count_drop("telemetry_out_of_range", "ATTITUDE", angles)
+            elif self._check_boot_time(msg.time_boot_ms, now_s):
+                t = self.clock.frame_ns_from_boot_ms(msg.time_boot_ms)
+                if t is None:
+                    self.counters["telemetry_unmapped"] += 1
+                elif self.poses.add_attitude(t, *angles):
+                    self._observe(t)
+        elif mtype == "TIMESYNC":
+            self._on_timesync(msg, now_s)
+        elif mtype == "COMMAND_ACK":
+            self._on_ack(msg, now_s)
+        elif mtype == "STATUSTEXT":
+            _log.info("autopilot: %s", _statustext(msg))
 
     def _observe(self, t_ns: int) -> None:
         if self._newest_seen_ns is None or t_ns > self._newest_seen_ns:
             self._newest_seen_ns = t_ns
 
     def _check_boot_time(self, time_boot_ms: int, now_s: float) -> bool:
-        last = self._last_boot_ms
-        if last is not None and time_boot_ms < last - _REBOOT_BACKSTEP_MS:
+        """Plausible autopilot time (True), an implausible stamp (dropped, False), or a
+        confirmed reboot (state reset, then True: the stamp starts the new time base)."""
+        last = self.boot_time.last_ms
+        verdict = self.boot_time.check(time_boot_ms, now_s, self.clock.autopilot.rate)
+        if verdict is BootTime.DROP:
+            self._count_drop("telemetry_implausible_time", "time_boot_ms", (last, time_boot_ms))
+            return False
+        if verdict is BootTime.REBOOT:
             self._autopilot_restarted(now_s, f"time_boot_ms {last} → {time_boot_ms}")
-        self._last_boot_ms = time_boot_ms
+            self.boot_time.check(time_boot_ms, now_s, self.clock.autopilot.rate)
+        self._last_boot_ms = self.boot_time.last_ms
         return True
+
+    def _count_drop(self, counter: str, what: str, values) -> None:
+        self.counters[counter] += 1
+        self._drop_log(
+            counter, "%s: dropped %s %s (%d so far)", counter, what, values, self.counters[counter]
+        )
+
+    def _check_takeover(self, now_s: float) -> None:
+        """Refuse to steer, loudly, while another setpoint source is around."""
+        state = self.takeover.state(now_s)
+        if state.blocked == self._takeover_blocked:
+            return
+        self._takeover_blocked = state.blocked
+        if state.blocked:
+            self.counters["takeover_refusals"] += 1
+            _log.error("not steering: %s; waiting until we are alone", state.reason)
+            self._notice("Avoidance refused: another setpoint source", _SEV_WARNING)
+            self._event("takeover", blocked=True, reason=state.reason)
+        else:
+            _log.warning(
+                "no other setpoint source for %.0f s: steering allowed again", self.takeover.quiet_s
+            )
+            self._notice("Avoidance: alone again, steering allowed")
+            self._event("takeover", blocked=False, reason="")
 
     def _on_link_alive(self, now_s: float) -> None:
         self._last_rx_s = now_s
@@ -437,6 +529,10 @@ class CompanionService:
         if msg.tc1 == 0:  # the autopilot asks for our time
             self.link.send(timesync_reply(now_ns, msg.ts1))
             return
+        if msg.ts1 not in self._timesync_pending:
+            self.counters["timesync_unmatched"] += 1  # not an answer to a request of ours
+            return
+        self._timesync_pending.remove(msg.ts1)
         result = self.clock.autopilot.add_sample(SyncSample(msg.ts1, msg.tc1, now_ns))
         if result is SyncResult.REBOOT:
             self._autopilot_restarted(now_s, "TIMESYNC went backwards")
@@ -466,7 +562,8 @@ class CompanionService:
     def _timers(self, now_s: float) -> None:
         cfg = self.config.link
         if now_s >= self._next_heartbeat_s:
-            self.link.send(heartbeat_message(self._state()))
+            self.link.send(heartbeat_message(self._state(), self.instance_id))
+            self._check_takeover(now_s)
             self._next_heartbeat_s = now_s + cfg.heartbeat_period_s
             self._report_refusals(now_s)
         if self._link_up and now_s - self._last_rx_s > self.config.failsafe.link_timeout_s:
@@ -475,7 +572,10 @@ class CompanionService:
             self._report_silence(now_s)
             return
         if now_s >= self._next_timesync_s:
-            self.link.send(timesync_request(time.monotonic_ns()))
+            stamp = time.monotonic_ns()
+            self._timesync_pending.append(stamp)
+            del self._timesync_pending[:-_MAX_TIMESYNC_PENDING]
+            self.link.send(timesync_request(stamp))
             self._next_timesync_s = now_s + cfg.timesync_period_s
         if now_s >= self._next_stream_request_s and self._streams_acked < len(_STREAMS):
             self._streams_acked = 0
@@ -567,17 +667,20 @@ class CompanionService:
     # ---- frames --------------------------------------------------------------------
     def _on_frame(self, frame: StereoFrame, recv_ns: int) -> None:
         t_start = time.monotonic_ns()
-        self._observe(frame.capture_ns)
+        window_ns = round(self.config.failsafe.frame_time_window_s * 1e9)
+        if not self.clock.frame_time_plausible(
+            frame.capture_ns, t_start, self.poses.newest_ns, window_ns
+        ):
+            # frames never move the clock nor reset the mission: only telemetry may
+            self._count_drop("frames_implausible_time", "frame", (frame.sequence, frame.capture_ns))
+            return
         if self._takeoff_busy():
+            self._observe(frame.capture_ns)
             self.counters["frames_during_takeoff"] += 1  # not steering before the climb
             return
         if self._last_capture_ns is not None and frame.capture_ns <= self._last_capture_ns:
-            if frame.capture_ns < self._last_capture_ns - 1_000_000_000:
-                # plant-sim restarted: its clock began again
-                self._autopilot_restarted(time.monotonic(), "frame capture time went back")
-            else:
-                self.counters["frames_stale"] += 1
-                return
+            self.counters["frames_stale"] += 1
+            return
         lookup = self.poses.at(frame.capture_ns)
         if not lookup.status.usable:
             self.counters[f"pose_{lookup.status.value}"] += 1
@@ -592,12 +695,13 @@ class CompanionService:
         if lookup.status is PoseStatus.EXTRAPOLATED:
             self.counters["pose_extrapolated"] += 1
         self._last_capture_ns = frame.capture_ns
+        self._observe(frame.capture_ns)
         pose = lookup.pose
         assert pose is not None
         self._advance_waypoint(pose.pos_ned_m)
         try:
             out = self.pipeline.process(frame, pose)
-        except (ValueError, ArithmeticError) as exc:  # cv2.error is an Exception subclass
+        except Exception as exc:  # a bad frame must never stop the companion (cv2.error too)
             self.counters["pipeline_errors"] += 1
             self._drop_log("pipeline", "frame %d: pipeline error %s", frame.sequence, exc)
             return
@@ -608,7 +712,12 @@ class CompanionService:
         t_computed = time.monotonic_ns()
         sent_ns = None
         target = PositionTarget(tuple(float(x) for x in g.setpoint_ned_m), float(g.yaw_rad))
-        if self.modes.steering and self.failsafe.status.health.ok and self.policy is not None:
+        if (
+            self.modes.steering
+            and self.failsafe.status.health.ok
+            and self.policy is not None
+            and not self._takeover_blocked
+        ):
             now_s = time.monotonic()
             if self.policy.on_new_target(target, now_s):
                 sent_ns = self._send_target(target, now_s, frame.capture_ns)
@@ -695,7 +804,7 @@ class CompanionService:
 
     def _resend_now(self, now_s: float) -> None:
         """Keep-alive / PX4 stream / hold: (re)send the appropriate target."""
-        if self.policy is None:
+        if self.policy is None or self._takeover_blocked:
             return
         if self.modes.streaming_hold or (
             self.modes.steering and not self.failsafe.status.health.ok and self._must_stream()
@@ -786,6 +895,8 @@ class CompanionService:
     def _state(self) -> CompanionState:
         if not self._link_up:
             return CompanionState.LINK_LOST if self.counters["link_losses"] else CompanionState.BOOT
+        if self._takeover_blocked:
+            return CompanionState.STANDBY
         if self.modes.phase is ControlPhase.HOLD:
             return CompanionState.HOLD
         if self.modes.steering and self.failsafe.status.health.ok:
@@ -835,9 +946,19 @@ class CompanionService:
         )
 
 
+_MAX_POS_M = 1e5  # |LOCAL_NED| beyond this is not a position of a multirotor
+_MAX_SPEED_MPS = 300.0
+
+
+def _in_range(values, bound: float) -> bool:
+    return all(math.isfinite(v) and abs(v) <= bound for v in values)
+
+
 def _statustext(msg) -> str:
+    """The STATUSTEXT's text, printable ASCII only (raw bytes never reach the log)."""
     text = msg.text if isinstance(msg.text, str) else msg.text.decode("ascii", "replace")
-    return text.rstrip("\x00")
+    text = text.split("\x00", 1)[0]
+    return "".join(c if " " <= c <= "~" else "?" for c in text)
 
 
 def _age(value: float | None) -> str:

@@ -173,10 +173,12 @@ class MavlinkConnection:
                 else:
                     c.bad_data += 1
                 continue
-            if msg.get_srcSystem() == self.system_id and (
-                msg.get_srcComponent() == self.component_id
+            if (
+                msg.get_srcSystem() == self.system_id
+                and msg.get_srcComponent() == self.component_id
+                and mtype != "HEARTBEAT"
             ):
-                continue  # our own frames echoed back
+                continue  # our own frames echoed back (heartbeats: see companion.takeover)
             c.messages += 1
             out.append(msg)
         return out

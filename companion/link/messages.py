@@ -51,9 +51,18 @@ def mav_state(state: CompanionState) -> int:
     }[state]
 
 
-def heartbeat_message(state: CompanionState) -> mavlink.MAVLink_heartbeat_message:
+def heartbeat_message(
+    state: CompanionState, instance_id: int = 0
+) -> mavlink.MAVLink_heartbeat_message:
+    """Our HEARTBEAT; ``custom_mode`` carries this process's random instance id, so a second
+    companion on the same ids can be told from an echo of our own (companion.takeover)."""
     return _M.MAVLink_heartbeat_message(
-        _M.MAV_TYPE_ONBOARD_CONTROLLER, _M.MAV_AUTOPILOT_INVALID, 0, 0, mav_state(state), 3
+        _M.MAV_TYPE_ONBOARD_CONTROLLER,
+        _M.MAV_AUTOPILOT_INVALID,
+        0,
+        instance_id & 0xFFFFFFFF,
+        mav_state(state),
+        3,
     )
 
 

@@ -189,12 +189,12 @@ def _reposition(params, frame, machine, kin, earth: FlatEarth) -> CommandOutcome
     change_mode = bool(flags & REPOSITION_CHANGE_MODE)
     if machine.mode is not FlightMode.GUIDED and not change_mode:
         return _refuse(MavResult.DENIED, f"Reposition: not in GUIDED (mode {machine.mode.name})")
+    if not (math.isfinite(x) and math.isfinite(y)):
+        return _bad("Reposition", "position", (x, y))
     if frame is None:  # COMMAND_LONG: degrees, altitude above home
-        if not (math.isfinite(x) and math.isfinite(y)):
-            return _bad("Reposition", "position", (x, y))
         lat_e7, lon_e7, frame = round(x * 1e7), round(y * 1e7), 3
     else:
-        lat_e7, lon_e7 = int(x), int(y)
+        lat_e7, lon_e7 = round(x), round(y)
     if not valid_lat_lon_e7(lat_e7, lon_e7) or not math.isfinite(alt):
         return _bad("Reposition", "location", (lat_e7, lon_e7, alt))
     if frame in _FRAMES_AMSL:
