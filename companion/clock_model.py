@@ -200,17 +200,18 @@ class ClockModel:
 
     def frame_time_plausible(
         self, capture_ns: int, host_ns: int, newest_telemetry_ns: int | None, window_ns: int
-    ) -> bool:
+    ) -> bool | None:
         """True when ``capture_ns`` lies within ``window_ns`` of the frame clock's "now".
 
         "Now" comes from the clock model alone, never from frames: the host clock for
         host-stamped frames, the newest autopilot telemetry stamp for autopilot-stamped
-        ones (False before there is any). A frame outside the window (stamped 0, 2^63−1,
-        seconds off) is refused, so it cannot move the clock or look like a reboot.
+        ones (None — no verdict, the frame cannot be placed — before there is any). A frame
+        outside the window (stamped 0, 2^63−1, seconds off) is refused, so it cannot move
+        the clock or look like a reboot.
         """
         now = host_ns if self.frame_clock is FrameClock.HOST else newest_telemetry_ns
         if now is None:
-            return False
+            return None
         return abs(int(capture_ns) - int(now)) <= window_ns
 
     def frame_to_autopilot_ns(self, frame_ns: int) -> int | None:

@@ -17,6 +17,7 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import zenoh
@@ -37,6 +38,7 @@ class FrameCounters:
     malformed: int = 0  # refused by the decoder
     superseded: int = 0  # replaced by a newer frame before the service took them
     taken: int = 0  # handed to the service
+    implausible_time: int = 0  # capture time outside the clock's window: refused at intake
 
 
 class LatestFrameSlot:
@@ -82,13 +84,24 @@ class LatestFrameSlot:
 
 
 class FrameSubscriber:
-    """Declares the Zenoh subscriber on ``key`` and feeds ``slot``."""
+    """Declares the Zenoh subscriber on ``key`` and feeds ``slot``.
+
+    ``accept_capture_ns`` (optional, called on Zenoh's thread) refuses frames whose capture
+    time is implausible before they reach the slot, so a hostile stream cannot evict the
+    genuine newest frame; refusals are counted and logged like malformed payloads.
+    """
 
     def __init__(
-        self, session: zenoh.Session, key: str, slot: LatestFrameSlot, log_period_s: float = 2.0
+        self,
+        session: zenoh.Session,
+        key: str,
+        slot: LatestFrameSlot,
+        log_period_s: float = 2.0,
+        accept_capture_ns: Callable[[int], bool] | None = None,
     ) -> None:
         self.key = key
         self.slot = slot
+        self._accept = accept_capture_ns
         self._session = session
         self._sub = None
         self._log_period_s = log_period_s
@@ -120,11 +133,19 @@ class FrameSubscriber:
             return
         with self._count_lock:
             c.decoded += 1
+        if self._accept is not None and not self._accept(frame.capture_ns):
+            with self._count_lock:
+                c.implausible_time += 1
+            self._malformed(
+                f"capture time {frame.capture_ns} ns outside the clock window", count=False
+            )
+            return
         self.slot.put(frame)
 
-    def _malformed(self, reason: str) -> None:
+    def _malformed(self, reason: str, *, count: bool = True) -> None:
         with self._count_lock:
-            self.slot.counters.malformed += 1
+            if count:
+                self.slot.counters.malformed += 1
             self._unlogged += 1
             now = time.monotonic()
             if now - self._last_log_s < self._log_period_s:
@@ -133,7 +154,7 @@ class FrameSubscriber:
             n, self._unlogged = self._unlogged, 0
             total = self.slot.counters.malformed
         _log.warning(
-            "dropped %d malformed frame payload(s) on %s (total %d), latest: %s",
+            "dropped %d frame payload(s) on %s (malformed in total: %d), latest: %s",
             n,
             self.key,
             total,

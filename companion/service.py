@@ -175,7 +175,9 @@ class CompanionService:
         """Open MAVLink and Zenoh, warm up OpenCV so the first frame is on time."""
         self.link.open()
         self._session = zenoh.open(zenoh_config(self.config.zenoh))
-        self._subscriber = FrameSubscriber(self._session, self.frame_key, self.slot)
+        self._subscriber = FrameSubscriber(
+            self._session, self.frame_key, self.slot, accept_capture_ns=self._frame_time_plausible
+        )
         self._subscriber.open()
         self._status = StatusPublisher(self._session, self.status_key)
         self._status.open()
@@ -211,6 +213,8 @@ class CompanionService:
             "frames_decoded": f.decoded,
             "frames_malformed": f.malformed,
             "frames_superseded": f.superseded,
+            "frames_implausible_at_intake": f.implausible_time,
+            "frames_before_clock": f.no_clock,
             "mavlink": self.link.counters.as_dict(),
             "phase": self.modes.phase.value,
             "flavour": None if self.policy is None else self.policy.flavour.value,
@@ -232,6 +236,7 @@ class CompanionService:
             cfg.failsafe.frame_timeout_s, cfg.failsafe.telemetry_timeout_s
         )
         self._last_boot_ms: int | None = None
+        self._telemetry_newest_ns: int | None = None  # read by the Zenoh thread too
         self.boot_time = BootTimeMonitor(backstep_ms=_REBOOT_BACKSTEP_MS)
         self._newest_frame_ns: int | None = None  # processed
         self._newest_seen_ns: int | None = None  # newest frame-clock stamp observed
@@ -327,6 +332,7 @@ class CompanionService:
                     self.counters["telemetry_unmapped"] += 1
                 elif self.poses.add_position(t, pos, vel):
                     self._observe(t)
+                    self._telemetry_newest_ns = self.poses.newest_ns
         elif mtype == "ATTITUDE":
             angles = (msg.roll, msg.pitch, msg.yaw)
             if not _in_range(angles, 2.0 * math.pi):
@@ -337,12 +343,20 @@ class CompanionService:
                     self.counters["telemetry_unmapped"] += 1
                 elif self.poses.add_attitude(t, *angles):
                     self._observe(t)
+                    self._telemetry_newest_ns = self.poses.newest_ns
         elif mtype == "TIMESYNC":
             self._on_timesync(msg, now_s)
         elif mtype == "COMMAND_ACK":
             self._on_ack(msg, now_s)
         elif mtype == "STATUSTEXT":
             _log.info("autopilot: %s", _statustext(msg))
+
+    def _frame_time_plausible(self, capture_ns: int) -> bool | None:
+        """Capture time within the window around the clock model's now (any thread)."""
+        window_ns = round(self.config.failsafe.frame_time_window_s * 1e9)
+        return self.clock.frame_time_plausible(
+            capture_ns, time.monotonic_ns(), self._telemetry_newest_ns, window_ns
+        )
 
     def _observe(self, t_ns: int) -> None:
         if self._newest_seen_ns is None or t_ns > self._newest_seen_ns:
@@ -667,10 +681,7 @@ class CompanionService:
     # ---- frames --------------------------------------------------------------------
     def _on_frame(self, frame: StereoFrame, recv_ns: int) -> None:
         t_start = time.monotonic_ns()
-        window_ns = round(self.config.failsafe.frame_time_window_s * 1e9)
-        if not self.clock.frame_time_plausible(
-            frame.capture_ns, t_start, self.poses.newest_ns, window_ns
-        ):
+        if self._frame_time_plausible(frame.capture_ns) is False:
             # frames never move the clock nor reset the mission: only telemetry may
             self._count_drop("frames_implausible_time", "frame", (frame.sequence, frame.capture_ns))
             return

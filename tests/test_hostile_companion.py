@@ -1,0 +1,187 @@
+"""The companion under hostile input, as real processes on 127.0.0.1 (issue 10).
+
+Frames stamped far from the clock, a second companion on the same autopilot, and fuzzed
+MAVLink from the autopilot's own address: nothing a peer sends may crash the companion,
+freeze it, reset its mission or let two companions steer one vehicle.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import socket
+import time
+
+import pytest
+from _hostile import HostileMavlink
+from test_companion_sil import Forwarder, Rig, _flight_verdict
+
+from plant_sim.lockstep.sil import ChildProcess, free_port
+from protocols import stereo_frame
+
+_S = 1_000_000_000
+
+
+@pytest.fixture
+def rig(tmp_path):
+    r = Rig(tmp_path)
+    yield r
+    r.close()
+
+
+class StampForger(Forwarder):
+    """Relays the plant's frames and, after every ``every``-th one, the same frame stamped
+    0, 2^63−1, 10 s in the past and 10 s in the future (one of them in turn)."""
+
+    def __init__(self, rig: Rig, every: int) -> None:
+        self.every = every
+        self.forged = 0
+        super().__init__(rig)
+
+    def _run(self) -> None:
+        import queue
+
+        n = 0
+        while not self.stop_flag.is_set():
+            try:
+                payload = self.q.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            self.pub.put(payload)
+            self.forwarded += 1
+            n += 1
+            if n % self.every:
+                continue
+            frame = stereo_frame.decode(payload)
+            stamp = (0, 2**63 - 1, frame.capture_ns - 10 * _S, frame.capture_ns + 10 * _S)[
+                self.forged % 4
+            ]
+            forged = dataclasses.replace(frame, capture_ns=max(0, stamp))
+            self.pub.put(stereo_frame.encode(forged))
+            self.forged += 1
+
+
+def _fly(rig: Rig, run: str, forger_every: int | None):
+    companion = rig.companion("--vehicle-id", "fwd")
+    plant = rig.plant(connect=False, run=run)
+    fwd = StampForger(rig, forger_every) if forger_every else Forwarder(rig)
+    try:
+        rig.wait_event(companion, "goal_reached", 90)
+    finally:
+        fwd.close()
+    plant.stop()
+    companion.stop()
+    v, _ = _flight_verdict(rig, companion, run)
+    return v, companion.stats("COMPANION STATS "), fwd
+
+
+@pytest.mark.slow
+def test_frames_stamped_far_from_the_clock_are_refused_and_change_nothing(tmp_path):
+    clean_rig = Rig(tmp_path / "clean")
+    try:
+        clean, _, _ = _fly(clean_rig, "run0", None)
+    finally:
+        clean_rig.close()
+    rig = Rig(tmp_path / "forged")
+    try:
+        v, stats, fwd = _fly(rig, "run0", forger_every=3)
+    finally:
+        rig.close()
+    assert fwd.forged >= 100, fwd.forged
+    refused = stats["frames_implausible_at_intake"] + stats["frames_implausible_time"]
+    assert refused == fwd.forged, (stats, fwd.forged)
+    assert stats["autopilot_restarts"] == 0 and stats["waypoint"] == 0
+    assert stats["hold_commands"] == 0, stats
+    assert v.reached_goal and not v.collided, v
+    assert abs(v.min_surface_distance_m - clean.min_surface_distance_m) <= 0.1, (v, clean)
+    assert abs(v.sim_time_s - clean.sim_time_s) <= 2.0, (v, clean)
+
+
+def test_two_companions_on_one_autopilot_only_one_steers(rig):
+    first = rig.companion()
+    plant = rig.plant()
+    rig.wait_event(first, "steering", 30)
+    second = ChildProcess(
+        "companion-2",
+        "companion",
+        [
+            "--mavlink",
+            f"udpout:127.0.0.1:{rig.mav_port}",
+            "--zenoh-connect",
+            rig.plant_zenoh,
+            "--zenoh-listen",
+            f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}",
+            "--vehicle-id",
+            "sim1",
+            "--goal",
+            "20",
+            "5",
+            "-7",
+        ],
+    )
+    rig.children.append(second)
+    second.wait_line(r"^COMPANION READY ", 60)
+    blocked = rig.wait_event(second, "takeover", 10, cond=lambda f: f["blocked"])
+    assert "another companion" in blocked["reason"]
+    rig.wait_event(first, "goal_reached", 60)
+    time.sleep(1.0)
+    second.stop()
+    first.stop()
+    plant.stop()
+    s2 = second.stats("COMPANION STATS ")
+    s1 = first.stats("COMPANION STATS ")
+    assert s2["setpoints_sent"] == 0, (s2, rig.logs())
+    assert s2["frames_processed"] > 0  # it saw the world and would have steered
+    assert s1["takeover_refusals"] == 0 and s1["setpoints_sent"] > 0
+    assert "another setpoint source" in second.stderr_text() or blocked
+    assert not first.events("takeover")
+
+
+#: every message type the companion reads from the link
+COMPANION_INPUT_TYPES = (
+    "heartbeat",
+    "local_position_ned",
+    "attitude",
+    "timesync",
+    "command_ack",
+    "statustext",
+    "extended_sys_state",
+    "home_position",
+    "global_position_int",
+    "set_position_target_local_ned",
+    "set_position_target_global_int",
+)
+
+
+def test_fuzzed_autopilot_messages_then_a_normal_flight(rig):
+    """20,000 hostile messages from the autopilot's address (every type the companion
+    reads), then the real autopilot appears on the same port: the same companion process
+    flies the paper scenario to the goal."""
+    fake = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    fake.bind(("127.0.0.1", rig.mav_port))
+    companion = rig.companion()
+    try:
+        fake.settimeout(10.0)
+        _data, companion_addr = fake.recvfrom(65535)  # its heartbeat
+        gen = HostileMavlink(
+            COMPANION_INPUT_TYPES,
+            target=(1, 196),
+            seed=11,
+            commands=(176, 511, 400, 22),
+            sources=((1, 1),) * 8 + ((1, 196), (255, 190)),
+        )
+        t0 = time.monotonic()
+        for i, frame in enumerate(gen.frames(20_000)):
+            fake.sendto(frame, companion_addr)
+            if i % 200 == 199:
+                time.sleep(max(0.0, t0 + (i + 1) / 4000.0 - time.monotonic()))
+                assert companion.proc.poll() is None, rig.logs()
+    finally:
+        fake.close()
+    rig.plant()
+    rig.wait_event(companion, "goal_reached", 90)
+    assert companion.proc.poll() is None
+    companion.stop()
+    stats = companion.stats("COMPANION STATS ")
+    assert stats["handler_errors"] == 0, stats
+    assert stats["mavlink"]["messages"] >= 15_000, stats
+    assert "\x07" not in companion.stderr_text()  # raw STATUSTEXT bytes never reach the log
