@@ -39,6 +39,7 @@ class FrameCounters:
     superseded: int = 0  # replaced by a newer frame before the service took them
     taken: int = 0  # handed to the service
     implausible_time: int = 0  # capture time outside the clock's window: refused at intake
+    no_clock: int = 0  # arrived before telemetry gave the clock a "now": dropped
 
 
 class LatestFrameSlot:
@@ -86,8 +87,9 @@ class LatestFrameSlot:
 class FrameSubscriber:
     """Declares the Zenoh subscriber on ``key`` and feeds ``slot``.
 
-    ``accept_capture_ns`` (optional, called on Zenoh's thread) refuses frames whose capture
-    time is implausible before they reach the slot, so a hostile stream cannot evict the
+    ``accept_capture_ns`` (optional, called on Zenoh's thread: True, False, or None when
+    there is no clock yet) refuses frames whose capture time is implausible before they
+    reach the slot, so a hostile stream cannot evict the
     genuine newest frame; refusals are counted and logged like malformed payloads.
     """
 
@@ -97,7 +99,7 @@ class FrameSubscriber:
         key: str,
         slot: LatestFrameSlot,
         log_period_s: float = 2.0,
-        accept_capture_ns: Callable[[int], bool] | None = None,
+        accept_capture_ns: Callable[[int], bool | None] | None = None,
     ) -> None:
         self.key = key
         self.slot = slot
@@ -133,7 +135,12 @@ class FrameSubscriber:
             return
         with self._count_lock:
             c.decoded += 1
-        if self._accept is not None and not self._accept(frame.capture_ns):
+        verdict = True if self._accept is None else self._accept(frame.capture_ns)
+        if verdict is None:
+            with self._count_lock:
+                c.no_clock += 1  # no telemetry yet to place it: not an attack, not logged
+            return
+        if not verdict:
             with self._count_lock:
                 c.implausible_time += 1
             self._malformed(
