@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+import zenoh
 
 from companion.config import build_parser as companion_parser
 from companion.config import config_from_args as companion_config
@@ -44,10 +45,11 @@ def _mounted(service: dict, container_path: str) -> Path:
 def test_services_build_and_files_exist(compose):
     services = compose["services"]
     assert set(services) >= {"plant-sim", "companion"}
-    build = services["plant-sim"]["build"]
+    build = services["companion"]["build"]
     assert (COMPOSE.parent / build["context"] / build["dockerfile"]).is_file()
     assert services["companion"]["image"] == services["plant-sim"]["image"]
-    assert services["companion"]["depends_on"]["plant-sim"]["condition"] == "service_healthy"
+    # the companion listens (Zenoh with authentication, MAVLink): it is up first
+    assert services["plant-sim"]["depends_on"]["companion"]["condition"] == "service_healthy"
 
 
 def test_entry_points_are_the_ones_the_tests_run():
@@ -66,7 +68,11 @@ def test_plant_sim_command_is_accepted_and_reads_the_mounted_scenario(compose):
     config = plant_config(args)  # raises on anything plant-sim would refuse
     assert config.scenario == paper_scenario()
     assert load_scenario(args.scenario) == paper_scenario()
-    assert [e.kind for e in config.mavlink] == ["udpin", "udpout"]
+    assert config.mavlink[0].url == "udpout:companion:14550"
+    assert config.zenoh.connect == ("tcp/companion:7447",)
+    zenoh_file = _mounted(service, str(config.zenoh.config_file))
+    zenoh.Config.from_file(str(zenoh_file))  # a config Zenoh accepts
+    assert '"plant-sim"' in zenoh_file.read_text()  # the user the companion admits
     ready = str(args.ready_file)
     assert service["healthcheck"]["test"] == ["CMD", "test", "-f", ready]
 
@@ -79,8 +85,12 @@ def test_companion_command_is_accepted_and_reads_the_mounted_config(compose):
     args.config = _mounted(service, str(args.config))
     config = companion_config(args)
     assert config.waypoints_ned_m == ((0.0, 0.0, -7.0),)
-    assert config.link.url == "udpout:plant-sim:14550"
-    assert config.zenoh.connect == ("tcp/plant-sim:7447",)
+    assert config.link.url == "udpin:0.0.0.0:14550"
+    assert config.zenoh.listen == ("tcp/0.0.0.0:7447",)
+    zenoh_file = _mounted(service, str(config.zenoh.config_file))
+    text = zenoh_file.read_text()
+    assert "/config/zenoh/credentials.txt" in text and 'default_permission: "deny"' in text
+    assert _mounted(service, "/config/zenoh/credentials.txt").is_file()
     assert service["healthcheck"]["test"] == ["CMD", "test", "-f", str(args.ready_file)]
 
 
