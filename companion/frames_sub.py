@@ -22,9 +22,10 @@ from dataclasses import dataclass
 
 import zenoh
 
+from protocols.keys import ALL_STEREO_KEYS, vehicle_of_stereo_key
 from protocols.stereo_frame import FrameDecodeError, StereoFrame, decode
 
-__all__ = ["FrameCounters", "FrameSubscriber", "LatestFrameSlot"]
+__all__ = ["FrameCounters", "FrameSubscriber", "LatestFrameSlot", "PublisherProbe"]
 
 _log = logging.getLogger("companion.frames")
 
@@ -167,3 +168,41 @@ class FrameSubscriber:
             total,
             reason,
         )
+
+
+class PublisherProbe:
+    """Which vehicle ids publish stereo frames, while ours has none (a wrong ``--vehicle-id``).
+
+    Subscribes to every vehicle's stereo key and records the vehicle ids seen (payloads are
+    not decoded). Declared only while the companion gets no frames on its own key, so it
+    costs nothing in normal operation; :meth:`close` undeclares it.
+    """
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self._session = session
+        self._sub = None
+        self._lock = threading.Lock()
+        self._seen: set[str] = set()
+
+    @property
+    def active(self) -> bool:
+        return self._sub is not None
+
+    def open(self) -> None:
+        if self._sub is None:
+            self._sub = self._session.declare_subscriber(ALL_STEREO_KEYS, self._on_sample)
+
+    def _on_sample(self, sample) -> None:
+        vehicle = vehicle_of_stereo_key(str(sample.key_expr))
+        if vehicle is not None:
+            with self._lock:
+                self._seen.add(vehicle)
+
+    def vehicles(self) -> list[str]:
+        with self._lock:
+            return sorted(self._seen)
+
+    def close(self) -> None:
+        if self._sub is not None:
+            self._sub.undeclare()
+            self._sub = None

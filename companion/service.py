@@ -42,7 +42,7 @@ from companion.clock_model import (
 )
 from companion.config import CompanionConfig
 from companion.failsafe import FailsafeMonitor, Health
-from companion.frames_sub import FrameSubscriber, LatestFrameSlot
+from companion.frames_sub import FrameSubscriber, LatestFrameSlot, PublisherProbe
 from companion.link.connection import MavlinkConnection
 from companion.link.flavour import (
     Flavour,
@@ -128,6 +128,10 @@ class CompanionService:
         self.policy: SetpointPolicy | None = None
         self._session: zenoh.Session | None = None
         self._subscriber: FrameSubscriber | None = None
+        self._probe: PublisherProbe | None = None
+        self._frames_seen = 0
+        self._frames_silent_since_s = 0.0
+        self._frames_silence_reported_s = -math.inf
         self._status: StatusPublisher | None = None
         self.counters: dict[str, int] = {
             "frames_processed": 0,
@@ -179,6 +183,9 @@ class CompanionService:
             self._session, self.frame_key, self.slot, accept_capture_ns=self._frame_time_plausible
         )
         self._subscriber.open()
+        self._probe = PublisherProbe(self._session)
+        self._probe.open()  # until our own frames arrive: who publishes, if not us?
+        self._frames_silent_since_s = time.monotonic()
         self._status = StatusPublisher(self._session, self.status_key)
         self._status.open()
 
@@ -194,6 +201,8 @@ class CompanionService:
 
     def close(self) -> dict[str, Any]:
         stats = self.stats()
+        if self._probe is not None:
+            self._probe.close()
         if self._subscriber is not None:
             self._subscriber.close()
         if self._status is not None:
@@ -575,6 +584,7 @@ class CompanionService:
     # ---- timers --------------------------------------------------------------------
     def _timers(self, now_s: float) -> None:
         cfg = self.config.link
+        self._watch_frames(now_s)
         if now_s >= self._next_heartbeat_s:
             self.link.send(heartbeat_message(self._state(), self.instance_id))
             self._check_takeover(now_s)
@@ -664,6 +674,32 @@ class CompanionService:
             hint,
         )
         self._event("no_autopilot", silent_s=round(silent, 1), signing=self.link.signing)
+
+    def _watch_frames(self, now_s: float) -> None:
+        """No frames on our key for a while: say so, and which vehicle ids do publish."""
+        received = self.slot.counters.received
+        if received != self._frames_seen:
+            self._frames_seen = received
+            self._frames_silent_since_s = now_s
+            if self._probe is not None and self._probe.active:
+                self._probe.close()
+            return
+        silent = now_s - self._frames_silent_since_s
+        if silent < 5.0 or now_s - self._frames_silence_reported_s < 10.0:
+            return
+        self._frames_silence_reported_s = now_s
+        if self._probe is not None and not self._probe.active:
+            self._probe.open()
+            return  # give it a moment to see what is published
+        others = self._probe.vehicles() if self._probe is not None else []
+        hint = (
+            f"frames are published for vehicle id(s) {', '.join(others)}: check --vehicle-id"
+            if others
+            else "nothing publishes stereo frames that this session can see: check the camera "
+            "(stereo-camera / plant-sim), the Zenoh endpoints and credentials"
+        )
+        _log.warning("no stereo frames on %s for %.0f s; %s", self.frame_key, silent, hint)
+        self._event("no_frames", key=self.frame_key, silent_s=round(silent, 1), publishers=others)
 
     def _report_refusals(self, now_s: float) -> None:
         refused = self.link.counters.signing_refused

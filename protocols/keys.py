@@ -4,10 +4,19 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["ROOT", "companion_status_key", "stereo_key", "validate_vehicle_id"]
+__all__ = [
+    "ALL_STEREO_KEYS",
+    "ROOT",
+    "companion_status_key",
+    "stereo_key",
+    "validate_vehicle_id",
+    "vehicle_of_stereo_key",
+]
 
 #: First chunk of every key expression of the project.
 ROOT = "stereo_avoid"
+#: Stereo frames of every vehicle (diagnostics: which vehicle ids are publishing)
+ALL_STEREO_KEYS = f"{ROOT}/*/stereo"
 
 _VEHICLE_ID = re.compile(r"^[A-Za-z0-9_\-]+$")
 
@@ -36,3 +45,16 @@ def stereo_key(vehicle_id: str) -> str:
 def companion_status_key(vehicle_id: str) -> str:
     """Key of the companion's status: ``stereo_avoid/<vehicle_id>/companion/status``."""
     return f"{ROOT}/{validate_vehicle_id(vehicle_id)}/companion/status"
+
+
+def vehicle_of_stereo_key(key: str) -> str | None:
+    """The vehicle id of a stereo-frame key (``stereo_avoid/<id>/stereo``), else None."""
+    parts = str(key).split("/")
+    if (
+        len(parts) == 3
+        and parts[0] == ROOT
+        and parts[2] == "stereo"
+        and _VEHICLE_ID.match(parts[1])
+    ):
+        return parts[1]
+    return None

@@ -185,3 +185,12 @@ def test_fuzzed_autopilot_messages_then_a_normal_flight(rig):
     assert stats["handler_errors"] == 0, stats
     assert stats["mavlink"]["messages"] >= 15_000, stats
     assert "\x07" not in companion.stderr_text()  # raw STATUSTEXT bytes never reach the log
+
+
+def test_a_wrong_vehicle_id_is_named_with_the_ones_that_publish(rig):
+    companion = rig.companion("--vehicle-id", "sim9")
+    rig.plant()  # publishes for vehicle sim1
+    ev = rig.wait_event(companion, "no_frames", 20)
+    assert ev["key"] == "stereo_avoid/sim9/stereo"
+    assert ev["publishers"] == ["sim1"], ev
+    assert "check --vehicle-id" in companion.stderr_text()
