@@ -556,7 +556,7 @@ class MavlinkLink:
         delta = {
             k: cur[k] - prev[k]
             for k in cur
-            if cur[k] != prev[k] and k not in ("datagrams", "frames_ok")
+            if cur[k] != prev[k] and k not in ("datagrams", "frames_ok", "forwarded")
         }
         if delta:
             _log.warning(
