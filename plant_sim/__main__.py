@@ -59,7 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         metavar="URL",
         help="MAVLink endpoint, repeatable: udpin:HOST:PORT | udpout:HOST:PORT "
-        "(default udpin:0.0.0.0:14550)",
+        "(default udpin:127.0.0.1:14550: this host only; other interfaces need an explicit "
+        "URL, and MAVLink signing is advised there)",
     )
     add_zenoh_arguments(
         p,
@@ -139,7 +140,7 @@ def config_from_args(args: argparse.Namespace):
         scenario = dataclasses.replace(
             scenario, start=dataclasses.replace(scenario.start, airborne=False)
         )
-    endpoints = tuple(parse_endpoint(u) for u in (args.mavlink or ["udpin:0.0.0.0:14550"]))
+    endpoints = tuple(parse_endpoint(u) for u in (args.mavlink or ["udpin:127.0.0.1:14550"]))
     listen = tuple(args.zenoh_listen)
     if not listen and not args.zenoh_connect and args.zenoh_config is None:
         listen = ("tcp/127.0.0.1:7447",)

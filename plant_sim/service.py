@@ -197,6 +197,14 @@ class PlantService:
                 self.config.scenario.vehicle.body_radius_m,
             )
         self.link.open()
+        if self.config.signing_key is None:
+            for spec in self.config.mavlink:
+                if spec.kind == "udpin" and spec.host not in ("127.0.0.1", "localhost", "::1"):
+                    _log.warning(
+                        "MAVLink on %s without signing: anyone who reaches this address can "
+                        "command the vehicle (give --signing-key, or bind 127.0.0.1)",
+                        spec.url,
+                    )
         if self.publisher is not None:
             self.publisher.warm_up()
             self.publisher.open()
