@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import hashlib
+import hmac
 
-__all__ = ["SIGNING_KEY_ENV", "SigningKey"]
+__all__ = ["SIGNING_KEY_ENV", "SigningKey", "signature_valid"]
+
+_IFLAG_SIGNED = 0x01
 
 #: Environment variable either process reads the key from (keeps it off command lines).
 SIGNING_KEY_ENV = "STEREO_AVOID_SIGNING_KEY"
@@ -55,3 +58,15 @@ class SigningKey:
 
     def __hash__(self) -> int:
         return hash(self._secret)
+
+
+def signature_valid(secret: bytes, frame: bytes | bytearray) -> bool:
+    """True if ``frame`` (one whole MAVLink 2 frame) carries a valid signature for ``secret``.
+
+    The signature is the first 6 bytes of SHA-256(secret + frame without those 6 bytes);
+    compared in constant time. Checked before any replay state is touched (both processes).
+    """
+    if len(frame) < 25 or frame[0] != 0xFD or not frame[2] & _IFLAG_SIGNED:
+        return False
+    expected = hashlib.sha256(bytes(secret) + bytes(frame[:-6])).digest()[:6]
+    return hmac.compare_digest(expected, bytes(frame[-6:]))

@@ -18,7 +18,6 @@ from companion.config import (
     config_from_dict,
 )
 from companion.failsafe import FailsafeMonitor, Health, assess
-from companion.link.connection import signature_valid
 from companion.link.flavour import (
     Flavour,
     control_mode,
@@ -37,6 +36,7 @@ from companion.link.setpoints import (
 )
 from companion.pose_history import PoseHistory, PoseStatus
 from protocols.frames import euler321_from_rotation, rotation_321
+from protocols.signing import signature_valid
 
 MS = 1_000_000
 

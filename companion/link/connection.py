@@ -18,8 +18,6 @@ Network I/O happens in :meth:`open`, never in ``__init__``. The key never reache
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import hmac
 import logging
 import os
 import types
@@ -29,11 +27,11 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.config import SigningKey
+from protocols.signing import signature_valid
 
 __all__ = ["LinkCounters", "MavlinkConnection", "signature_valid"]
 
 _log = logging.getLogger("companion.link")
-_IFLAG_SIGNED = 0x01
 
 
 @dataclass
@@ -48,14 +46,6 @@ class LinkCounters:
 
     def as_dict(self) -> dict[str, int]:
         return dataclasses.asdict(self)
-
-
-def signature_valid(secret: bytes, frame: bytes | bytearray) -> bool:
-    """True if ``frame`` (a whole MAVLink 2 frame) carries a valid signature for ``secret``."""
-    if len(frame) < 25 or frame[0] != 0xFD or not frame[2] & _IFLAG_SIGNED:
-        return False
-    expected = hashlib.sha256(bytes(secret) + bytes(frame[:-6])).digest()[:6]
-    return hmac.compare_digest(expected, bytes(frame[-6:]))
 
 
 def _safe_check_signature(original):

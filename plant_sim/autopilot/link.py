@@ -31,8 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 import errno
-import hashlib
-import hmac
 import json
 import logging
 import os
@@ -47,7 +45,7 @@ from pathlib import Path
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from plant_sim.autopilot.ratelimit import TokenBucket
-from protocols.signing import SigningKey
+from protocols.signing import SigningKey, signature_valid
 
 __all__ = [
     "PEER_TIMEOUT_S",
@@ -212,8 +210,7 @@ class SignatureVerifier:
         """None if ``frame`` is acceptable, else "unsigned" / "bad_signature" / "replay"."""
         if frame[0] != _V2 or not frame[2] & _IFLAG_SIGNED or len(frame) < 25:
             return "unsigned"
-        expected = hashlib.sha256(self._key.secret + frame[:-6]).digest()[:6]
-        if not hmac.compare_digest(expected, frame[-6:]):
+        if not signature_valid(self._key.secret, frame):
             return "bad_signature"
         link_id = frame[-13]
         tlow, thigh = struct.unpack_from("<IH", frame, len(frame) - 12)
