@@ -40,6 +40,7 @@ from plant_sim.truth_log import TruthLogWriter
 from plant_sim.vehicle import Quadrotor, VehicleState
 from protocols.keys import stereo_key
 from protocols.signing import SigningKey
+from protocols.statustext import statustext_chunks
 from protocols.zenoh_session import ZenohSettings
 
 __all__ = ["PlantConfig", "PlantService"]
@@ -152,6 +153,7 @@ class PlantService:
         self._tilt_sat_prev = False
         self._tilt_sat_last_text_s = -math.inf
         self._refusal_last_text: dict[str, float] = {}
+        self._text_id = 0  # id of the last chunked STATUSTEXT (1..255)
         self.counters = {"commands": 0, "setpoints": 0, "setpoints_refused": 0, "foreign": 0}
         self._wall_start = time.monotonic()
         self._run_wall_start: float | None = None
@@ -329,10 +331,12 @@ class PlantService:
             self._tlog.write(frame)
 
     def _statustext(self, text: str, severity: int = _SEVERITY_WARNING) -> None:
+        """STATUSTEXT; longer than 50 characters: MAVLink 2 chunks (id, chunk_seq)."""
         _log.info("STATUSTEXT: %s", text)
-        self.link.send(
-            mavlink.MAVLink_statustext_message(severity, text[:50].encode("ascii", "replace"))
-        )
+        if len(text) > 50:
+            self._text_id = self._text_id % 255 + 1
+        for text_id, seq, chunk in statustext_chunks(text, self._text_id or 1):
+            self.link.send(mavlink.MAVLink_statustext_message(severity, chunk, text_id, seq))
 
     def _refusal(self, key: str, text: str, sim_s: float) -> None:
         """STATUSTEXT for a repeated refusal at most once per second of simulation time."""
