@@ -17,7 +17,10 @@ companion therefore runs with ``--frame-clock autopilot`` (its poses come from t
 ``time_boot_ms``); no TIMESYNC mapping sits between the two. Stamping with the host clock
 instead would put the render's wall latency, times the SITL speed-up, between the pose
 and the stamp. The frame of capture time t leaves at most one telemetry period after t
-(autopilot time) plus the render: the camera's own latency.
+(autopilot time) plus the render: the camera's own latency. When the process falls
+behind (several capture times due at once, e.g. a loaded machine and a fast SITL
+``--speedup``) it renders only the newest and counts the others as dropped, like a camera
+that drops frames, rather than deliver a backlog of stale ones.
 
 Coordinates: the scenario (obstacles, goal, ground) is in the autopilot's LOCAL_NED
 (origin = its EKF origin, ArduPilot/PX4 SITL: home), shifted by ``offset_ned_m``:
@@ -139,6 +142,7 @@ class CameraOnlyService:
         self.counters = {
             "frames_published": 0,
             "frames_skipped": 0,
+            "frames_dropped_late": 0,  # several capture times due at once: older ones dropped
             "truth_rows": 0,
             "samples_rejected": 0,
             "autopilot_restarts": 0,
@@ -374,7 +378,11 @@ class CameraOnlyService:
     # ---- output --------------------------------------------------------------------
     def _render_due(self) -> None:
         if self.publisher is not None:
-            for t in self.track.due_frames():
+            due = self.track.due_frames()
+            if len(due) > 1:  # fell behind: like a camera, deliver the newest, drop the rest
+                self.counters["frames_dropped_late"] += len(due) - 1
+                due = due[-1:]
+            for t in due:
                 pose = self.track.at(t)
                 if pose is None:
                     continue
