@@ -109,13 +109,14 @@ def _port_free(port: int, kind: int) -> bool:
 
 
 def free_sitl_instance(rng: random.Random | None = None, tries: int = 200) -> int:
-    """An instance number N whose SITL ports are free: TCP 5760..5763 + 10N (serial
-    ports) and UDP 5501..5503 + 10N (simulator I/O)."""
+    """An instance number N (SITL keeps it in 8 bits: 0..255) whose SITL ports are free:
+    TCP 5760..5763 + 10N (serial ports), UDP 5501..5503 + 10N (simulator I/O) and
+    9005 + 10N (IRLock)."""
     rng = rng or random.Random()
     for _ in range(tries):
-        n = rng.randrange(20, 400)
+        n = rng.randrange(20, 256)
         tcp = [5760 + 10 * n + k for k in range(4)]
-        udp = [5501 + 10 * n + k for k in range(3)]
+        udp = [5501 + 10 * n + k for k in range(3)] + [9005 + 10 * n]
         if all(_port_free(p, socket.SOCK_STREAM) for p in tcp) and all(
             _port_free(p, socket.SOCK_DGRAM) for p in udp
         ):
