@@ -86,6 +86,14 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="start disarmed on the ground below the start point",
     )
+    p.add_argument(
+        "--autopilot-flavour",
+        choices=["ardupilot", "px4"],
+        default="ardupilot",
+        help="look like an ArduCopter (default) or a PX4 multicopter: PX4 heartbeat and "
+        "main/sub modes, OFFBOARD only after a > 2 Hz setpoint stream, offboard-loss "
+        "failsafe after COM_OF_LOSS_T (1 s) to Hold, NAV_TAKEOFF in AMSL",
+    )
     add_signing_arguments(p)
     p.add_argument(
         "--log-dir",
@@ -154,6 +162,7 @@ def _camera_only_config(args: argparse.Namespace, scenario):
             ("--speedup", args.speedup != 1.0),
             ("--duration", args.duration is not None),
             ("--start-on-ground", args.start_on_ground),
+            ("--autopilot-flavour", args.autopilot_flavour != "ardupilot"),
             ("--signing-key/--signing-key-file", signing_key_text(args) is not None),
         )
         if given
@@ -233,6 +242,7 @@ def config_from_args(args: argparse.Namespace):
         autopilot_rate_hz=args.autopilot_rate_hz,
         truth_rate_hz=args.truth_rate_hz,
         duration_s=args.duration,
+        autopilot_flavour=args.autopilot_flavour,
     )
 
 

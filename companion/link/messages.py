@@ -81,9 +81,10 @@ def set_message_interval(
 def set_mode_command(
     target_system: int, target_component: int, mode: ModeRequest
 ) -> mavlink.MAVLink_command_long_message:
-    """MAV_CMD_DO_SET_MODE (176) with base_mode and custom_mode."""
+    """MAV_CMD_DO_SET_MODE (176): base_mode and custom_mode (ArduPilot) or main and sub
+    mode (PX4), see :attr:`ModeRequest.command_params`."""
     return command_long(
-        target_system, target_component, _M.MAV_CMD_DO_SET_MODE, mode.base_mode, mode.custom_mode
+        target_system, target_component, _M.MAV_CMD_DO_SET_MODE, *mode.command_params
     )
 
 

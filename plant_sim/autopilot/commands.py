@@ -100,7 +100,7 @@ def handle_command(
     """
     p1, p2, _p3, _p4, _p5, _p6, p7 = params
     if command == MavCmd.COMPONENT_ARM_DISARM:
-        force = round(p2) == FORCE_ARM_MAGIC
+        force = math.isfinite(p2) and round(p2) == FORCE_ARM_MAGIC  # MAVSDK sends NaN
         if p1 == 1.0:
             reason = machine.arm(kin, force=force, checks_enabled=arming_checks)
             return _ok() if reason is None else _refuse(MavResult.FAILED, reason)
