@@ -16,8 +16,10 @@ speed-up is the one at real time (``benchmarks/bench_sitl.py`` checks it).
 from __future__ import annotations
 
 import os
+import socket
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,6 +32,7 @@ from plant_sim.lockstep.sitl import (
     SitlOptions,
     SitlRig,
     find_arducopter_sitl,
+    free_sitl_instance,
     run_sitl_sil,
 )
 
@@ -37,8 +40,6 @@ M = mavlink
 SPEEDUP = 3.0
 CLEARANCE_M = 0.5  # from the sphere's surface to the vehicle's centre
 LOITER, GUIDED = 5, 4
-
-pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
@@ -57,6 +58,24 @@ def sitl_binary():
     return binary
 
 
+def test_the_sitl_binary_is_found_from_the_environment_first(tmp_path):
+    fake = tmp_path / "arducopter"
+    fake.write_text("#!/bin/sh\n")
+    assert find_arducopter_sitl({ARDUCOPTER_SITL_ENV: str(fake)}) != fake.resolve()  # not +x
+    fake.chmod(0o755)
+    assert find_arducopter_sitl({ARDUCOPTER_SITL_ENV: str(fake)}) == fake.resolve()
+
+
+def test_a_free_sitl_instance_has_its_ports_free():
+    n = free_sitl_instance()
+    assert 0 <= n <= 255  # SITL keeps -I in 8 bits
+    for port in range(5760 + 10 * n, 5764 + 10 * n):
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", port))
+    with pytest.raises(ValueError, match="bad SITL parameter"):
+        SitlOptions(binary=Path("x"), params=(("wpnav speed", 1.0),))
+
+
 def _fly(binary, out_dir, params=()) -> object:
     lines: list[str] = []
     try:
@@ -68,6 +87,7 @@ def _fly(binary, out_dir, params=()) -> object:
         print("\n".join(lines))  # progress, shown when the test fails
 
 
+@pytest.mark.slow
 def test_paper_scene_on_arducopter_sitl_at_wpnav_speed_100(sitl_binary, tmp_path):
     """Takeoff by the companion at home to 7 m, goal 20 m north, the 1.5 m sphere 10 m
     north: with GUIDED targets flown at ≤ 1 m/s the companion side-steps the sphere."""
@@ -85,6 +105,7 @@ def test_paper_scene_on_arducopter_sitl_at_wpnav_speed_100(sitl_binary, tmp_path
     assert truth["armed"][0] == 0
 
 
+@pytest.mark.slow
 @pytest.mark.xfail(
     strict=True,
     raises=AssertionError,  # a run that cannot fly at all is an error, not this failure
@@ -162,6 +183,7 @@ def _first_after(rig, n_before: int, phase: str, timeout_s: float = 20.0) -> dic
     raise AssertionError(f"no phase {phase!r} within {timeout_s} s\n{rig.logs()}")
 
 
+@pytest.mark.slow
 def test_loiter_takeover_on_arducopter_sitl_releases_then_resumes_in_guided(sitl_binary, tmp_path):
     """A ground station on SERIAL2 switches to LOITER mid-flight: the companion stops
     steering (no setpoint while the pilot has it) and ArduCopter holds position; back in

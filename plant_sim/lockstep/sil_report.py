@@ -109,12 +109,13 @@ def fly_sitl_and_report(
         vehicle=sc.vehicle,
         control=sc.control,
         detect_threshold_m=RunConfig().perception.threshold_m,
-        as_json=as_json,
-        stdout=log if as_json else sys.stdout,
+        as_json=False,
+        stdout=log,
         other_files=[("truth", sil.truth_path), ("figures", out_dir / "sitl_figures.json")],
     )
-    if as_json:
-        print(json.dumps({"figures": result.figures}), file=sys.stdout)
+    if as_json:  # one document: the verdict with the SITL figures
+        fields = json.loads((out_dir / "verdict.json").read_text())
+        print(json.dumps({**fields, "figures": result.figures}, indent=2), file=sys.stdout)
     else:
         for key, value in result.figures.items():
             print(f"  {key:24s} {value}", file=sys.stdout)
