@@ -141,10 +141,15 @@ class PoseTrack:
         if newest is None:
             return [], 0
         oldest = max(self._pos[0][0], self._att[0][0])
+        # never walk a gap time by time: a clock jump (hostile or corrupt time_boot_ms)
+        # would make that loop endless; jump to the first time still worth looking at
+        lower = math.ceil(max(oldest, newest - self.horizon_s) * rate_hz - 1e-9)
         k = self._next.get(rate_hz)
-        if k is None:
-            k = math.ceil(oldest * rate_hz - 1e-9)
         due, skipped = [], 0
+        if k is None:
+            k = lower
+        elif k < lower:
+            skipped, k = lower - k, lower
         while True:
             t = k / rate_hz
             if t > newest + 1e-12:

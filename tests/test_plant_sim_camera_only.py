@@ -69,6 +69,18 @@ def test_capture_times_inside_a_gap_are_skipped_and_counted():
     assert track.frames_skipped == 29
 
 
+def test_a_huge_clock_jump_is_skipped_not_walked():
+    track = PoseTrack(30.0)
+    _feed(track, 0.0)
+    _feed(track, 0.02)
+    assert track.due_frames() == [0.0]
+    _feed(track, 1e9)  # time_boot_ms jumps by 31 years
+    t0 = time.monotonic()
+    due = track.due_frames()
+    assert time.monotonic() - t0 < 0.1
+    assert due == [1e9] and track.frames_skipped > 10**10
+
+
 def test_bad_samples_are_refused_never_crash():
     track = PoseTrack(30.0)
     assert not track.add_position(math.nan, (0, 0, 0), (0, 0, 0))
