@@ -10,7 +10,9 @@ Three processes, all on 127.0.0.1, all stopped at the end:
   (plant-sim), SERIAL2 on 5763+10N (free for a ground station), ``--speedup K``,
   parameters ``copter.parm`` then the extra file(s) (later files win);
 * the companion: ``--takeoff-alt 7 --frame-clock autopilot --goal 20 0 -7``; it waits for
-  the EKF origin, GPS and camera frames, switches to GUIDED, arms, takes off and steers;
+  the EKF origin, GPS and camera frames, switches to GUIDED, arms, takes off and steers
+  (SITL boots at ``SIM_SPEEDUP`` ``boot_speedup``, set through SERIAL2, and is brought
+  back to ``speedup`` when the takeoff starts);
 * ``plant-sim --pose-from tcp:…:5762+10N``: renders the scene (a 1.5 m sphere 10 m north
   of home at 7 m) from SITL's pose and writes the ground truth.
 
@@ -218,6 +220,10 @@ class SitlOptions:
     binary: Path
     out_dir: Path = Path("runs/sitl")
     speedup: float = 5.0  # SITL --speedup
+    # SIM_SPEEDUP while SITL boots (EKF origin, GPS: ~42 s of its time), back to
+    # ``speedup`` when the companion starts its takeoff; 0: off. (MAVProxy's
+    # sitl_autospeedup module does the same.)
+    boot_speedup: float = 10.0
     params_files: tuple[Path, ...] = ()  # extra parameter files (after copter.parm)
     params: tuple[tuple[str, float], ...] = ()  # extra parameters (written to a file)
     takeoff_alt_m: float = 7.0
@@ -310,10 +316,38 @@ class SitlRig:
             ],
         )
         self.plant.wait_line(r"^PLANT_SIM READY ", 60.0)
+        if o.boot_speedup > o.speedup:
+            self._set_sim_speedup(o.boot_speedup)
         self.say(
             f"ArduCopter SITL -I{instance} at {o.speedup:g}x (companion on "
             f"{self.sitl.url(0)}, plant-sim camera-only on {self.sitl.url(1)})"
         )
+
+    def _set_sim_speedup(self, speedup: float, timeout_s: float = 10.0) -> None:
+        """PARAM_SET SIM_SPEEDUP through SERIAL2 (connect, confirm by PARAM_VALUE, close)."""
+        from pymavlink import mavutil
+
+        assert self.sitl is not None
+        gcs = mavutil.mavlink_connection(
+            self.sitl.url(2), source_system=255, source_component=190, dialect="ardupilotmega"
+        )
+        try:
+            deadline = time.monotonic() + timeout_s
+            if gcs.wait_heartbeat(timeout=timeout_s) is None:
+                raise RuntimeError(f"no heartbeat on {self.sitl.url(2)}\n{self.logs()}")
+            while time.monotonic() < deadline:
+                gcs.mav.param_set_send(1, 1, b"SIM_SPEEDUP", float(speedup), 9)  # REAL32
+                echo = gcs.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
+                if (
+                    echo is not None
+                    and echo.param_id == "SIM_SPEEDUP"
+                    and abs(echo.param_value - speedup) < 1e-3
+                ):
+                    self.say(f"SITL SIM_SPEEDUP {speedup:g}")
+                    return
+            raise RuntimeError(f"SITL did not take SIM_SPEEDUP {speedup:g}\n{self.logs()}")
+        finally:
+            gcs.close()
 
     def gcs_url(self) -> str:
         """A free SITL serial port for a ground station (SERIAL2)."""
@@ -349,8 +383,18 @@ class SitlRig:
         raise TimeoutError(f"no companion event {name!r} within {timeout_s:.0f} s\n{self.logs()}")
 
     def wait_steering(self) -> float:
-        """Wait for the first setpoint after the takeoff; its autopilot time [s]."""
-        ev = self.wait_event("steering", self.options.startup_timeout_s)
+        """Wait for the first setpoint after the takeoff; its autopilot time [s]. A boot
+        speed-up ends when the companion starts its takeoff (the flight runs at
+        ``speedup``)."""
+        o = self.options
+        if o.boot_speedup > o.speedup:
+            self.wait_event(
+                "takeoff",
+                o.startup_timeout_s,
+                cond=lambda f: f.get("step") not in ("probe", "wait"),
+            )
+            self._set_sim_speedup(o.speedup)
+        ev = self.wait_event("steering", o.startup_timeout_s)
         self.t0_s = float(ev.get("autopilot_time_s") or 0.0)
         self.say(f"companion steering at t={self.t0_s:.2f} s (autopilot time)")
         return self.t0_s
