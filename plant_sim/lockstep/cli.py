@@ -117,9 +117,10 @@ def _parser() -> argparse.ArgumentParser:
     sil.add_argument("--json", action="store_true", help="print the verdict as JSON")
     sil.add_argument(
         "--autopilot",
-        choices=["plant-sim", "arducopter-sitl"],
+        choices=["plant-sim", "plant-sim-px4", "arducopter-sitl"],
         default="plant-sim",
-        help="plant-sim (default), or ArduPilot's ArduCopter SITL ($ARDUCOPTER_SITL or "
+        help="plant-sim as an ArduCopter (default) or as a PX4 (plant-sim-px4: the "
+        "companion's OFFBOARD path), or ArduPilot's ArduCopter SITL ($ARDUCOPTER_SITL or "
         "../shared/ardupilot-sitl/arducopter) with plant-sim as the camera only; "
         "--speedup is then SITL's",
     )
@@ -151,7 +152,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.autopilot_params:
             print("stereo-avoid sil: --autopilot-params needs --autopilot", file=sys.stderr)
             return 2
-        return fly_sil_and_report(args.scenario, args.speedup, args.out, args.json)
+        plant_args = ("--autopilot-flavour", "px4") if args.autopilot == "plant-sim-px4" else ()
+        return fly_sil_and_report(args.scenario, args.speedup, args.out, args.json, plant_args)
     if args.command == "replay":
         out = args.out or Path(f"runs/replay-{args.seed}")
         return _fly_and_report(random_scene(args.seed), out, args.json)

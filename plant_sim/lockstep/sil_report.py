@@ -14,7 +14,13 @@ from plant_sim.scenario import load_scenario, paper_scenario
 __all__ = ["fly_sil_and_report", "fly_sitl_and_report"]
 
 
-def fly_sil_and_report(scenario: Path | None, speedup: float, out_dir: Path, as_json: bool) -> int:
+def fly_sil_and_report(
+    scenario: Path | None,
+    speedup: float,
+    out_dir: Path,
+    as_json: bool,
+    plant_args: tuple[str, ...] = (),
+) -> int:
     """Fly, report, write files; exit status 0 when passed, 1 otherwise, 2 on bad input."""
     log = sys.stderr if as_json else sys.stdout
     if not speedup > 0:
@@ -28,7 +34,10 @@ def fly_sil_and_report(scenario: Path | None, speedup: float, out_dir: Path, as_
     print(f"flying SIL at {speedup:g}x: plant-sim + companion on loopback", file=log)
     try:
         result = run_sil(
-            SilOptions(scenario_path=scenario, speedup=speedup, out_dir=out_dir), progress
+            SilOptions(
+                scenario_path=scenario, speedup=speedup, out_dir=out_dir, plant_args=plant_args
+            ),
+            progress,
         )
     except (RuntimeError, TimeoutError, OSError) as exc:
         print(f"stereo-avoid sil: {exc}", file=sys.stderr)
