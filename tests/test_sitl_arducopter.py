@@ -76,6 +76,16 @@ def test_a_free_sitl_instance_has_its_ports_free():
         SitlOptions(binary=Path("x"), params=(("wpnav speed", 1.0),))
 
 
+def _print_logs(out_dir: Path, lines: list[str]) -> None:
+    """Progress and the children's logs (kept in ``out_dir``); pytest shows them when the
+    test fails."""
+    print("\n".join(lines))
+    for name in ("companion.log", "plant_sim.log", "arducopter_sitl.log"):
+        path = Path(out_dir) / name
+        if path.is_file():
+            print(f"--- {name} (tail) ---\n{path.read_text(errors='replace')[-6000:]}")
+
+
 def _fly(binary, out_dir, params=()) -> object:
     lines: list[str] = []
     try:
@@ -84,7 +94,7 @@ def _fly(binary, out_dir, params=()) -> object:
             progress=lines.append,
         )
     finally:
-        print("\n".join(lines))  # progress, shown when the test fails
+        _print_logs(out_dir, lines)
 
 
 @pytest.mark.slow
@@ -193,30 +203,32 @@ def test_loiter_takeover_on_arducopter_sitl_releases_then_resumes_in_guided(sitl
         binary=sitl_binary, out_dir=tmp_path, speedup=SPEEDUP, params=(("WPNAV_SPEED", 100.0),)
     )
     gcs = sticks = None
-    with SitlRig(options, progress=lines.append) as rig:
-        try:
-            rig.start()
-            t0 = rig.wait_steering()
-            gcs = mavutil.mavlink_connection(
-                rig.gcs_url(), source_system=255, source_component=190, dialect="ardupilotmega"
-            )
-            gcs.wait_heartbeat(timeout=10)
-            sticks = Sticks(gcs)
-            time.sleep(1.0)  # ~3 s of flight: well before the sphere is in range
-            sticks.set_mode(LOITER)
-            released = rig.wait_event("phase", 20, cond=lambda f: f["phase"] == "released")
-            _wait_heartbeat_mode(gcs, LOITER, 10)
-            time.sleep(8.0 / SPEEDUP)  # 8 s of LOITER (autopilot time)
-            n_before = len(rig.companion.events("phase"))
-            sticks.set_mode(GUIDED)
-            resumed = _first_after(rig, n_before, "active")
-            reached = rig.fly_to_goal()
-        finally:
-            print("\n".join(lines))
-            if sticks is not None:
-                sticks.close()
-            if gcs is not None:
-                gcs.close()
+    try:
+        with SitlRig(options, progress=lines.append) as rig:
+            try:
+                rig.start()
+                t0 = rig.wait_steering()
+                gcs = mavutil.mavlink_connection(
+                    rig.gcs_url(), source_system=255, source_component=190, dialect="ardupilotmega"
+                )
+                gcs.wait_heartbeat(timeout=10)
+                sticks = Sticks(gcs)
+                time.sleep(1.0)  # ~3 s of flight: well before the sphere is in range
+                sticks.set_mode(LOITER)
+                released = rig.wait_event("phase", 20, cond=lambda f: f["phase"] == "released")
+                _wait_heartbeat_mode(gcs, LOITER, 10)
+                time.sleep(8.0 / SPEEDUP)  # 8 s of LOITER (autopilot time)
+                n_before = len(rig.companion.events("phase"))
+                sticks.set_mode(GUIDED)
+                resumed = _first_after(rig, n_before, "active")
+                reached = rig.fly_to_goal()
+            finally:
+                if sticks is not None:
+                    sticks.close()
+                if gcs is not None:
+                    gcs.close()
+    finally:
+        _print_logs(tmp_path, lines)  # the children's logs, written when the rig closed
     result = rig.judge()
     v = result.verdict
     print(v, released, resumed)
