@@ -17,6 +17,7 @@ optional, and an unknown key anywhere is an error that names it (``link.rate`` �
     takeoff_alt_m = 0.0                  # > 0: arm and take off if on the ground (SIL runs)
     takeoff_tolerance_m = 0.5            # climb done within this of takeoff_alt_m
     takeoff_timeout_s = 0.0              # climb limit, autopilot time; 0: alt/0.5 m/s + 15 s
+    takeoff_ready_timeout_s = 180.0      # on the ground: wait for EKF/GPS, pre-arm, frames
     request_mode = true                  # ask for GUIDED / OFFBOARD ourselves
     telemetry_rate_hz = 50.0             # LOCAL_POSITION_NED and ATTITUDE
     frame_clock = "autopilot"            # or "host": frames stamped with this host's clock
@@ -29,6 +30,7 @@ optional, and an unknown key anywhere is an error that names it (``link.rate`` �
     [failsafe]
     frame_timeout_s = 0.3                # frame clock (simulation time in the SIL)
     telemetry_timeout_s = 0.3
+    resume_after_s = 1.0                 # after a hold: healthy this long before resuming
     link_timeout_s = 1.5                 # wall time without any message → link lost
     frame_time_window_s = 2.0            # capture time this far from the clock: refused
 
@@ -92,6 +94,9 @@ class LinkConfig:
     takeoff_alt_m: float = 0.0  # > 0: on the ground → GUIDED, arm, take off to this [m]
     takeoff_tolerance_m: float = 0.5  # climb done within this of takeoff_alt_m [m]
     takeoff_timeout_s: float = 0.0  # climb limit [s autopilot time]; 0: alt / 0.5 m/s + 15 s
+    # on the ground: wait this long [s wall] for a local position (EKF origin, GPS), the
+    # pre-arm checks and camera frames before giving up (ArduPilot SITL needs ~40 s)
+    takeoff_ready_timeout_s: float = 180.0
     request_mode: bool = True  # request GUIDED / OFFBOARD ourselves at start
     telemetry_rate_hz: float = 50.0  # LOCAL_POSITION_NED and ATTITUDE [Hz]
     frame_clock: FrameClock = FrameClock.AUTOPILOT
@@ -128,6 +133,7 @@ class LinkConfig:
             "timesync_period_s",
             "ardupilot_setpoint_period_s",
             "px4_prestream_s",
+            "takeoff_ready_timeout_s",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -140,6 +146,7 @@ class FailsafeConfig:
 
     frame_timeout_s: float = 0.3  # newest frame older than this → hold
     telemetry_timeout_s: float = 0.3  # newest pose older than this → hold
+    resume_after_s: float = 1.0  # after a hold, healthy this long before resuming (hysteresis)
     link_timeout_s: float = 1.5  # wall time without any autopilot message → link lost
     max_pose_extrapolation_s: float = 0.05  # frames newer than the newest pose by ≤ this
     pose_history_s: float = 2.0  # how far back poses are kept
@@ -333,7 +340,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--takeoff-alt",
         type=float,
         metavar="M",
-        help="if on the ground: (GUIDED,) arm and take off to M metres before steering",
+        help="if on the ground: (GUIDED,) arm and take off to M metres before steering "
+        "(waits for EKF origin/GPS, pre-arm checks and camera frames)",
+    )
+    p.add_argument(
+        "--takeoff-wait-s",
+        type=float,
+        metavar="S",
+        help="with --takeoff-alt: give up after S wall seconds without a local position, "
+        "pre-arm checks or frames (default 180)",
     )
     p.add_argument("--no-request-mode", action="store_true", help="never request GUIDED/OFFBOARD")
     p.add_argument("--frame-clock", choices=[c.value for c in FrameClock])
@@ -389,6 +404,7 @@ def config_from_args(
             "component_id": args.component_id,
             "signing_key": key_text,
             "takeoff_alt_m": args.takeoff_alt,
+            "takeoff_ready_timeout_s": args.takeoff_wait_s,
             "request_mode": False if args.no_request_mode else None,
             "frame_clock": args.frame_clock,
             "telemetry_rate_hz": args.telemetry_rate_hz,

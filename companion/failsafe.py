@@ -3,6 +3,10 @@
 Pure. Ages are measured on the frame clock (:mod:`companion.clock_model`), which in the SIL
 is the simulation time, so a run at ``--speedup`` 10 holds after the same simulated delay
 as one at 1×. The caller turns a hold into BRAKE (ArduPilot) or a hold-position setpoint.
+
+Hysteresis: a hold starts as soon as frames or telemetry are older than their timeout,
+but ends only after they have been healthy for ``resume_after_s`` without a break, so one
+late frame costs one hold, not a BRAKE/GUIDED flap at the frame rate.
 """
 
 from __future__ import annotations
@@ -66,26 +70,49 @@ def assess(
 class FailsafeMonitor:
     """Tracks transitions of :func:`assess` so that each is reported once."""
 
-    def __init__(self, frame_timeout_s: float, telemetry_timeout_s: float) -> None:
+    def __init__(
+        self, frame_timeout_s: float, telemetry_timeout_s: float, resume_after_s: float = 0.0
+    ) -> None:
         self.frame_timeout_s = frame_timeout_s
         self.telemetry_timeout_s = telemetry_timeout_s
+        self.resume_after_s = resume_after_s
         self.status = FailsafeStatus(Health.NO_TELEMETRY, None, None)
         self.holds = 0
+        self._was_healthy = False  # healthy at least once: later losses are holds
+        self._healthy_since_ns: int | None = None
 
     def update(
         self, now_frame_ns: int | None, newest_frame_ns: int | None, newest_pose_ns: int | None
     ) -> Health | None:
-        """New status; returns the new health when it changed, else None."""
+        """New status; returns the new health when it changed, else None.
+
+        After a loss of health, HEALTHY is reported only once :func:`assess` has said so
+        for ``resume_after_s`` (frame clock) without a break; until then the status keeps
+        the reason of the hold, with the current ages.
+        """
         previous = self.status.health
-        self.status = assess(
+        raw = assess(
             now_frame_ns,
             newest_frame_ns,
             newest_pose_ns,
             frame_timeout_s=self.frame_timeout_s,
             telemetry_timeout_s=self.telemetry_timeout_s,
         )
-        if self.status.health is previous:
+        if not raw.health.ok:
+            self._healthy_since_ns = None
+        elif not previous.ok and self._was_healthy and self.resume_after_s > 0:
+            assert now_frame_ns is not None  # a healthy verdict needs a clock
+            if self._healthy_since_ns is None or now_frame_ns < self._healthy_since_ns:
+                self._healthy_since_ns = now_frame_ns
+            if (now_frame_ns - self._healthy_since_ns) * 1e-9 < self.resume_after_s:
+                self.status = FailsafeStatus(previous, raw.frame_age_s, raw.telemetry_age_s)
+                return None
+        self.status = raw
+        if raw.health is previous:
             return None
         if previous.ok:
             self.holds += 1
-        return self.status.health
+        if raw.health.ok:
+            self._was_healthy = True
+            self._healthy_since_ns = None
+        return raw.health

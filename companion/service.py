@@ -49,6 +49,7 @@ from companion.link.flavour import (
     control_mode,
     detect_flavour,
     is_autopilot_heartbeat,
+    mode_name,
 )
 from companion.link.messages import (
     CompanionState,
@@ -57,7 +58,7 @@ from companion.link.messages import (
     obstacle_distance_message,
     set_message_interval,
     set_mode_command,
-    statustext_message,
+    statustext_messages,
     timesync_reply,
     timesync_request,
 )
@@ -123,7 +124,9 @@ class CompanionService:
             horizon_ns=round(fs.pose_history_s * 1e9),
             max_extrapolation_ns=round(fs.max_pose_extrapolation_s * 1e9),
         )
-        self.failsafe = FailsafeMonitor(fs.frame_timeout_s, fs.telemetry_timeout_s)
+        self.failsafe = FailsafeMonitor(
+            fs.frame_timeout_s, fs.telemetry_timeout_s, fs.resume_after_s
+        )
         self.modes = ModeWatch(request_mode=link.request_mode, prestream_s=link.px4_prestream_s)
         self.policy: SetpointPolicy | None = None
         self._session: zenoh.Session | None = None
@@ -173,6 +176,7 @@ class CompanionService:
         self._silent_since_s: float | None = None
         self._silence_reported_s = -math.inf
         self.fatal: str | None = None  # terminal error (a refused takeoff): run() returns
+        self._text_id = 0  # id of the last chunked STATUSTEXT (1..255)
 
     # ---- lifecycle -----------------------------------------------------------------
     def open(self) -> None:
@@ -242,7 +246,9 @@ class CompanionService:
         self.modes.reset()
         self.policy = None
         self.failsafe = FailsafeMonitor(
-            cfg.failsafe.frame_timeout_s, cfg.failsafe.telemetry_timeout_s
+            cfg.failsafe.frame_timeout_s,
+            cfg.failsafe.telemetry_timeout_s,
+            cfg.failsafe.resume_after_s,
         )
         self._last_boot_ms: int | None = None
         self._telemetry_newest_ns: int | None = None  # read by the Zenoh thread too
@@ -449,6 +455,7 @@ class CompanionService:
                         cfg.takeoff_alt_m,
                         tolerance_m=cfg.takeoff_tolerance_m,
                         climb_timeout_s=cfg.takeoff_timeout_s,
+                        ready_timeout_s=cfg.takeoff_ready_timeout_s,
                     ),
                     now_s,
                 )
@@ -485,6 +492,12 @@ class CompanionService:
             seq.on_home_amsl((msg.alt - msg.relative_alt) * 1e-3)
         elif mtype == "STATUSTEXT":
             seq.on_statustext(_statustext(msg))
+        elif mtype == "SYS_STATUS":
+            seq.on_sys_status(
+                now_s,
+                msg.onboard_control_sensors_present,
+                msg.onboard_control_sensors_health,
+            )
         elif mtype == "COMMAND_ACK" and self._ack_is_ours(msg):
             seq.on_ack(now_s, msg.command, msg.result)
         else:
@@ -724,6 +737,11 @@ class CompanionService:
         if self._takeoff_busy():
             self._observe(frame.capture_ns)
             self.counters["frames_during_takeoff"] += 1  # not steering before the climb
+            assert self.takeoff is not None
+            self.takeoff.on_frame(time.monotonic())
+            if self._newest_frame_ns is None or frame.capture_ns > self._newest_frame_ns:
+                self._newest_frame_ns = frame.capture_ns  # the camera works: health
+            self._drive_takeoff(time.monotonic())
             return
         if self._last_capture_ns is not None and frame.capture_ns <= self._last_capture_ns:
             self.counters["frames_stale"] += 1
@@ -895,12 +913,10 @@ class CompanionService:
 
     # ---- failsafe ------------------------------------------------------------------
     def _check_failsafe(self, now_s: float) -> None:
-        if self.modes.flavour is None:
-            return
         now_frame = self.clock.now_frame_ns(time.monotonic_ns(), self._newest_seen_ns)
         changed = self.failsafe.update(now_frame, self._newest_frame_ns, self.poses.newest_ns)
-        if changed is None:
-            return
+        if changed is None or self.modes.flavour is None:
+            return  # (during a takeoff the health is tracked for the status line only)
         status = self.failsafe.status
         if changed.ok:
             before = self.modes.phase
@@ -953,8 +969,12 @@ class CompanionService:
         return CompanionState.STANDBY
 
     def _notice(self, text: str, severity: int = _SEV_INFO) -> None:
+        """STATUSTEXT to the ground station; longer than 50 characters: MAVLink 2 chunks."""
         _log.info("STATUSTEXT: %s", text)
-        self.link.send(statustext_message(text, severity))
+        if len(text) > 50:
+            self._text_id = self._text_id % 255 + 1
+        for msg in statustext_messages(text, severity, self._text_id or 1):
+            self.link.send(msg)
 
     def _event(self, name: str, **fields: Any) -> None:
         print(f"COMPANION EVENT {name} {json.dumps(fields, default=str)}", file=self._events)
@@ -975,6 +995,9 @@ class CompanionService:
                 p = lookup.pose.pos_ned_m
                 pos = f"({p[0]:.1f}, {p[1]:.1f}, {p[2]:.1f})"
         f = self.slot.counters
+        mode = self.modes.mode_text()
+        if self.takeoff is not None and self.takeoff.busy and self.takeoff.custom_mode is not None:
+            mode = mode_name(self.takeoff.flavour, self.takeoff.custom_mode)
         _log.info(
             "t=%s pos=%s phase=%s mode=%s health=%s frames %d/%d (malformed %d, superseded %d)"
             " setpoints %d",
@@ -983,7 +1006,7 @@ class CompanionService:
             f"takeoff:{self.takeoff.step.value}"
             if self.takeoff is not None and self.takeoff.busy
             else self.modes.phase.value,
-            self.modes.mode_text(),
+            mode,
             self.failsafe.status.health.value,
             self.counters["frames_processed"],
             f.received,

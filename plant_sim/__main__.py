@@ -8,7 +8,10 @@ readiness line on stdout (one line; wrapped here)::
         zenoh=listen:tcp/127.0.0.1:7447 key=stereo_avoid/sim1/stereo speedup=1
 
 and at exit (SIGINT, SIGTERM, or ``--duration``) flushes the logs and prints
-``PLANT_SIM STATS {json}``. Exit status 0 on a clean stop, 2 on a bad configuration.
+``PLANT_SIM STATS {json}``. With ``--pose-from URL`` it is a camera only
+(:mod:`plant_sim.camera_only`): the pose comes from an external autopilot, and the
+readiness line reads ``PLANT_SIM READY mode=camera-only pose-from=URL zenoh=... key=...``.
+Exit status 0 on a clean stop, 2 on a bad configuration.
 """
 
 from __future__ import annotations
@@ -84,6 +87,14 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="start disarmed on the ground below the start point",
     )
+    p.add_argument(
+        "--autopilot-flavour",
+        choices=["ardupilot", "px4"],
+        default="ardupilot",
+        help="look like an ArduCopter (default) or a PX4 multicopter: PX4 heartbeat and "
+        "main/sub modes, OFFBOARD only after a > 2 Hz setpoint stream, offboard-loss "
+        "failsafe after COM_OF_LOSS_T (1 s) to Hold, NAV_TAKEOFF in AMSL",
+    )
     add_signing_arguments(p)
     p.add_argument(
         "--signing-state",
@@ -108,6 +119,38 @@ def build_parser() -> argparse.ArgumentParser:
         "--truth-rate-hz", type=float, default=50.0, help="truth-log rows per sim second"
     )
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    cam = p.add_argument_group(
+        "camera-only mode",
+        "follow an external MAVLink autopilot (ArduPilot/PX4 SITL, a HIL rig): no physics, "
+        "no autopilot of our own; render the scenario from the autopilot's pose",
+    )
+    cam.add_argument(
+        "--pose-from",
+        metavar="URL",
+        help="pymavlink URL of the autopilot, e.g. tcp:127.0.0.1:5762 (ArduPilot SITL "
+        "SERIAL1) or udpin:0.0.0.0:14541; frames are stamped with its boot time "
+        "(run the companion with --frame-clock autopilot)",
+    )
+    cam.add_argument(
+        "--pose-offset-ned",
+        nargs=3,
+        type=float,
+        metavar=("N", "E", "D"),
+        default=(0.0, 0.0, 0.0),
+        help="scenario position = autopilot LOCAL_NED + this offset [m] (default 0 0 0)",
+    )
+    cam.add_argument(
+        "--pose-rate-hz",
+        type=float,
+        default=50.0,
+        help="LOCAL_POSITION_NED and ATTITUDE rate requested (>= 30, default 50)",
+    )
+    cam.add_argument(
+        "--target-system",
+        type=int,
+        default=0,
+        help="the autopilot's system id (default 0: the first autopilot heard)",
+    )
     p.add_argument(
         "--ready-file",
         type=Path,
@@ -116,8 +159,51 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _camera_only_config(args: argparse.Namespace, scenario):
+    from plant_sim.camera_only import CameraOnlyConfig
+    from protocols.zenoh_session import ZenohSettings
+
+    clashes = [
+        flag
+        for flag, given in (
+            ("--mavlink", bool(args.mavlink)),
+            ("--speedup", args.speedup != 1.0),
+            ("--duration", args.duration is not None),
+            ("--start-on-ground", args.start_on_ground),
+            ("--autopilot-flavour", args.autopilot_flavour != "ardupilot"),
+            ("--signing-key/--signing-key-file", signing_key_text(args) is not None),
+        )
+        if given
+    ]
+    if clashes:
+        raise ValueError(
+            f"--pose-from follows an external autopilot: {', '.join(clashes)} do not apply "
+            "(set them on the autopilot)"
+        )
+    listen = tuple(args.zenoh_listen)
+    if not listen and not args.zenoh_connect and args.zenoh_config is None:
+        listen = ("tcp/127.0.0.1:7447",)
+    log_dir = None
+    if not args.no_logs:
+        log_dir = args.log_dir or Path("runs") / time.strftime("plant_sim-%Y%m%d-%H%M%S")
+    return CameraOnlyConfig(
+        scenario=scenario,
+        pose_from=args.pose_from,
+        zenoh=ZenohSettings(
+            listen=listen, connect=tuple(args.zenoh_connect), config_file=args.zenoh_config
+        ),
+        offset_ned_m=tuple(args.pose_offset_ned),
+        log_dir=log_dir,
+        pose_rate_hz=args.pose_rate_hz,
+        truth_rate_hz=args.truth_rate_hz,
+        target_system=args.target_system,
+    )
+
+
 def config_from_args(args: argparse.Namespace):
-    """The one place CLI flags become a :class:`PlantConfig` (raises ValueError if invalid)."""
+    """The one place CLI flags become a :class:`PlantConfig`, or a
+    :class:`~plant_sim.camera_only.CameraOnlyConfig` with ``--pose-from`` (raises
+    ValueError if invalid)."""
     from plant_sim.autopilot.link import parse_endpoint
     from plant_sim.scenario import load_scenario, paper_scenario
     from plant_sim.service import PlantConfig
@@ -136,6 +222,8 @@ def config_from_args(args: argparse.Namespace):
             raise ValueError(f"--camera-rate-hz must be > 0, got {args.camera_rate_hz}")
         camera = dataclasses.replace(camera, rate_hz=args.camera_rate_hz)
     scenario = dataclasses.replace(scenario, camera=camera)
+    if args.pose_from:
+        return _camera_only_config(args, scenario)
     if args.start_on_ground:
         scenario = dataclasses.replace(
             scenario, start=dataclasses.replace(scenario.start, airborne=False)
@@ -167,6 +255,7 @@ def config_from_args(args: argparse.Namespace):
         autopilot_rate_hz=args.autopilot_rate_hz,
         truth_rate_hz=args.truth_rate_hz,
         duration_s=args.duration,
+        autopilot_flavour=args.autopilot_flavour,
     )
 
 
@@ -188,9 +277,13 @@ def run(config, ready_file: Path | None = None) -> int:
     With ``ready_file`` the readiness line is also written there once every socket is
     bound, and the file is removed at exit (container healthchecks test for it).
     """
+    from plant_sim.camera_only import CameraOnlyConfig, CameraOnlyService
     from plant_sim.service import PlantService, stats_line
 
-    stats = run_until_signalled(PlantService(config), log_name="plant_sim", ready_file=ready_file)
+    service = (
+        CameraOnlyService(config) if isinstance(config, CameraOnlyConfig) else PlantService(config)
+    )
+    stats = run_until_signalled(service, log_name="plant_sim", ready_file=ready_file)
     print(stats_line(stats), flush=True)
     return 0
 

@@ -28,8 +28,15 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from plant_sim.autopilot import commands as cmds
 from plant_sim.autopilot.link import EndpointSpec, MavlinkLink
-from plant_sim.autopilot.modes import FlightModeMachine, GuidedTarget, Kinematics, ModeTimings
+from plant_sim.autopilot.modes import (
+    FlightMode,
+    FlightModeMachine,
+    GuidedTarget,
+    Kinematics,
+    ModeTimings,
+)
 from plant_sim.autopilot.params import ParamTable, timings_from_params
+from plant_sim.autopilot.px4 import Px4Modes, px4_custom_mode
 from plant_sim.autopilot.ratelimit import RequestLimiter
 from plant_sim.autopilot.setpoints import (
     SetpointError,
@@ -52,6 +59,7 @@ from plant_sim.truth_log import TruthLogWriter
 from plant_sim.vehicle import Quadrotor, VehicleState
 from protocols.keys import stereo_key
 from protocols.signing import SigningKey
+from protocols.statustext import statustext_chunks
 from protocols.zenoh_session import ZenohSettings
 
 __all__ = ["PlantConfig", "PlantService"]
@@ -85,8 +93,13 @@ class PlantConfig:
     duration_s: float | None = None  # stop after this much simulation time
     heartbeat_period_s: float = 1.0  # wall time
     signing_state: Path | None = None  # replay-protection timestamps kept across restarts
+    autopilot_flavour: str = "ardupilot"  # or "px4": PX4 heartbeat, modes, offboard rules
 
     def __post_init__(self) -> None:
+        if self.autopilot_flavour not in ("ardupilot", "px4"):
+            raise ValueError(
+                f"autopilot flavour must be ardupilot or px4, got {self.autopilot_flavour!r}"
+            )
         if not self.mavlink:
             raise ValueError("at least one --mavlink endpoint is needed")
         if not self.speedup > 0:
@@ -140,6 +153,10 @@ class PlantService:
             kin=kin,
         )
         self._applied_setpoint = None
+        self.px4: Px4Modes | None = None
+        if config.autopilot_flavour == "px4":
+            self.machine.set_mode(FlightMode.LOITER, kin)  # PX4 starts in Hold
+            self.px4 = Px4Modes(self.machine, self._home_amsl_m())
         self._apply_machine()
         self.telemetry = TelemetryBuilder(
             VehicleIdentity(sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.alt_amsl_m)
@@ -170,6 +187,7 @@ class PlantService:
         self._tilt_sat_prev = False
         self._tilt_sat_last_text_s = -math.inf
         self._refusal_last_text: dict[str, float] = {}
+        self._text_id = 0  # id of the last chunked STATUSTEXT (1..255)
         self.limiter = RequestLimiter()
         self._param_sends: dict[tuple[int, int], int] = {}  # requester → next index
         self.handler_errors: dict[str, int] = {}
@@ -268,7 +286,7 @@ class PlantService:
         while not should_stop():
             now = time.monotonic()
             if now >= next_heartbeat:
-                link.send(self.telemetry.heartbeat(self.machine))
+                link.send(self._heartbeat())
                 next_heartbeat += self.config.heartbeat_period_s
                 if next_heartbeat < now:
                     next_heartbeat = now + self.config.heartbeat_period_s
@@ -314,15 +332,43 @@ class PlantService:
         for msg in inbox:
             self._dispatch_safely(msg, kin, snap)
         self._send_param_batch()
-        for notice in self.machine.update(kin):
+        notices = self.machine.update(kin)
+        for notice in notices:
             self._statustext(notice, _SEVERITY_INFO)
+        if self.px4 is not None:
+            self.px4.home_amsl_m = self._home_amsl_m()
+            for notice in self.px4.update(kin, notices):
+                self._statustext(notice, _SEVERITY_WARNING)
         self._apply_machine()
         self._tilt_notice(snap)
         wall_unix = time.time()
         for name in self.scheduler.due(snap.time_s):
             self.link.send(self._build(name, snap, wall_unix))
         if self._truth is not None and self._tick % self._truth_every == 0:
-            self._truth.write(snap, self.machine.mode.name)
+            self._truth.write(snap, self._mode_name())
+
+    def _heartbeat(self):
+        if self.px4 is None:
+            return self.telemetry.heartbeat(self.machine)
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if self.machine.armed:
+            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        state = mavlink.MAV_STATE_ACTIVE if self.machine.armed else mavlink.MAV_STATE_STANDBY
+        return mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_QUADROTOR,
+            mavlink.MAV_AUTOPILOT_PX4,
+            base,
+            self.px4.custom_mode,
+            state,
+            3,
+        )
+
+    def _home_amsl_m(self) -> float:
+        """AMSL altitude of home (PX4's takeoff altitudes are AMSL)."""
+        return self.config.scenario.origin.alt_amsl_m - self.machine.home_ned_m[2]
+
+    def _mode_name(self) -> str:
+        return self.machine.mode.name if self.px4 is None else self.px4.name
 
     def _build(self, name: str, snap: VehicleState, wall_unix: float):
         return self.telemetry.build(
@@ -367,10 +413,12 @@ class PlantService:
             self._tlog.write(frame)
 
     def _statustext(self, text: str, severity: int = _SEVERITY_WARNING) -> None:
+        """STATUSTEXT; longer than 50 characters: MAVLink 2 chunks (id, chunk_seq)."""
         _log.info("STATUSTEXT: %s", text)
-        self.link.send(
-            mavlink.MAVLink_statustext_message(severity, text[:50].encode("ascii", "replace"))
-        )
+        if len(text) > 50:
+            self._text_id = self._text_id % 255 + 1
+        for text_id, seq, chunk in statustext_chunks(text, self._text_id or 1):
+            self.link.send(mavlink.MAVLink_statustext_message(severity, chunk, text_id, seq))
 
     def _refusal(self, key: str, text: str, sim_s: float) -> None:
         """STATUSTEXT for a repeated refusal at most once per second of simulation time."""
@@ -449,7 +497,10 @@ class PlantService:
         if mtype in ("COMMAND_LONG", "COMMAND_INT"):
             self._command(msg, kin, snap, src)
         elif mtype == "SET_MODE":
-            outcome = cmds.handle_set_mode(msg.base_mode, msg.custom_mode, self.machine, kin)
+            if self.px4 is not None:
+                outcome = self._px4_mode(msg.base_mode, msg.custom_mode, kin)
+            else:
+                outcome = cmds.handle_set_mode(msg.base_mode, msg.custom_mode, self.machine, kin)
             self._ack(mavlink.MAVLINK_MSG_ID_SET_MODE, outcome, src, snap)
         elif mtype in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
             self._position_target(msg, kin)
@@ -522,16 +573,18 @@ class PlantService:
                 msg.param6,
                 msg.param7,
             )
-        outcome = cmds.handle_command(
-            msg.command,
-            params,
-            self.machine,
-            kin,
-            arming_checks=self.params.value("ARMING_CHECK") != 0,
-            known_message_ids=_KNOWN_MSG_IDS,
-            frame=frame,
-            earth=self.telemetry.earth,
-        )
+        outcome = self._px4_command(msg.command, params, kin) if self.px4 is not None else None
+        if outcome is None:
+            outcome = cmds.handle_command(
+                msg.command,
+                params,
+                self.machine,
+                kin,
+                arming_checks=self.params.value("ARMING_CHECK") != 0,
+                known_message_ids=_KNOWN_MSG_IDS,
+                frame=frame,
+                earth=self.telemetry.earth,
+            )
         self._ack(msg.command, outcome, src, snap)
         if outcome.set_interval is not None:
             msg_id, interval_us = outcome.set_interval
@@ -540,6 +593,39 @@ class PlantService:
             name = _NAME_BY_ID[outcome.send_message_id]
             self.link.send(self._build(name, snap, time.time()))
         self._apply_machine()
+
+    def _px4_command(self, command: int, params, kin: Kinematics) -> cmds.CommandOutcome | None:
+        """PX4's handling of the mode, takeoff, land and RTL commands (None: the common one)."""
+        px4 = self.px4
+        assert px4 is not None
+        result = cmds.MavResult
+        if command == cmds.MavCmd.DO_SET_MODE:
+            base, main, sub = params[0], params[1], params[2]
+            if not all(math.isfinite(x) for x in (base, main, sub)):
+                return cmds.CommandOutcome(result.DENIED, "DO_SET_MODE: bad parameters")
+            # PX4 (Commander) reads param2/param3 as uint8 main/sub mode
+            custom = px4_custom_mode(int(main) & 0xFF, int(sub) & 0xFF)
+            return self._px4_mode(int(base), custom, kin)
+        if command == cmds.MavCmd.NAV_TAKEOFF:
+            reason = px4.takeoff(params[6], kin)
+            return cmds.CommandOutcome(result.ACCEPTED if reason is None else result.DENIED, reason)
+        if command == cmds.MavCmd.NAV_LAND:
+            reason = px4.land(kin)
+            return cmds.CommandOutcome(result.ACCEPTED if reason is None else result.DENIED, reason)
+        if command == cmds.MavCmd.NAV_RETURN_TO_LAUNCH:
+            reason = px4.rtl(kin)
+            return cmds.CommandOutcome(result.ACCEPTED if reason is None else result.DENIED, reason)
+        return None
+
+    def _px4_mode(self, base_mode: int, custom_mode: int, kin: Kinematics) -> cmds.CommandOutcome:
+        assert self.px4 is not None
+        if not base_mode & cmds.CUSTOM_MODE_ENABLED:
+            return cmds.CommandOutcome(cmds.MavResult.DENIED, "Only custom modes are supported")
+        ok, text, temporary = self.px4.set_mode(custom_mode, kin)
+        if ok:
+            return cmds.CommandOutcome(cmds.MavResult.ACCEPTED, text)
+        result = cmds.MavResult.TEMPORARILY_REJECTED if temporary else cmds.MavResult.DENIED
+        return cmds.CommandOutcome(result, text)
 
     def _ack(self, command: int, outcome: cmds.CommandOutcome, src, snap: VehicleState) -> None:
         if outcome.text:
@@ -585,7 +671,10 @@ class PlantService:
             self.counters["setpoints_refused"] += 1
             self._refusal("decode", f"Target refused: {exc}", kin.time_s)
             return
-        reason = self.machine.guided_target(target, kin)
+        if self.px4 is not None:
+            reason = self.px4.setpoint(target, kin)
+        else:
+            reason = self.machine.guided_target(target, kin)
         if reason is not None:
             self.counters["setpoints_refused"] += 1
             self._refusal("guided", reason, kin.time_s)
@@ -626,9 +715,11 @@ class PlantService:
 
 
 def _param_name(param_id) -> str:
+    """A PARAM_* name as printable ASCII (hostile bytes become ``?``; NUL ends it)."""
     if isinstance(param_id, bytes):
         param_id = param_id.decode("ascii", "replace")
-    return param_id.rstrip("\x00")
+    name = param_id.split("\x00", 1)[0]
+    return "".join(c if " " <= c <= "~" else "?" for c in name)
 
 
 def stats_line(stats: dict) -> str:

@@ -85,35 +85,97 @@ class TruthLogWriter:
         self.min_clearance_m = math.inf
 
     def write(self, s: VehicleState, mode_name: str) -> None:
-        idx, dist = nearest_surface(self._world, s.pos_ned_m)
+        """One row from plant-sim's own physics."""
+        self._row(
+            s.time_s,
+            s.pos_ned_m,
+            s.vel_ned_mps,
+            (s.roll_rad, s.pitch_rad, s.yaw_rad),
+            (s.roll_cmd_rad, s.pitch_cmd_rad, s.yaw_cmd_rad),
+            tilt_saturated=int(s.tilt_saturated),
+            rotor_saturated=int(s.rotor_saturated),
+            on_ground=int(s.on_ground),
+            armed=int(s.armed),
+            mode_name=mode_name,
+            rotor_thrusts_n=s.rotor_thrusts_n,
+        )
+
+    def write_external(
+        self,
+        time_s: float,
+        pos_ned_m,
+        vel_ned_mps,
+        rpy_rad: tuple[float, float, float],
+        rpy_cmd_rad: tuple[float, float, float] | None,
+        *,
+        on_ground: bool | None,
+        armed: bool | None,
+        mode_name: str,
+    ) -> None:
+        """One row from an external autopilot's telemetry (camera-only mode).
+
+        What the telemetry does not tell (commanded attitude when the autopilot sends no
+        ATTITUDE_TARGET, saturation flags, rotor thrusts) is left empty, never invented.
+        """
+        self._row(
+            time_s,
+            pos_ned_m,
+            vel_ned_mps,
+            rpy_rad,
+            rpy_cmd_rad,
+            tilt_saturated="",
+            rotor_saturated="",
+            on_ground="" if on_ground is None else int(on_ground),
+            armed="" if armed is None else int(armed),
+            mode_name=mode_name,
+            rotor_thrusts_n=None,
+        )
+
+    def _row(
+        self,
+        time_s: float,
+        p,
+        v,
+        rpy_rad,
+        rpy_cmd_rad,
+        *,
+        tilt_saturated,
+        rotor_saturated,
+        on_ground,
+        armed,
+        mode_name: str,
+        rotor_thrusts_n,
+    ) -> None:
+        idx, dist = nearest_surface(self._world, p)
         clearance = dist - self._body_radius_m
         if idx >= 0:
             self.min_clearance_m = min(self.min_clearance_m, clearance)
-        p, v = s.pos_ned_m, s.vel_ned_mps
+        cmd = ("", "", "") if rpy_cmd_rad is None else tuple(f"{a:.5f}" for a in rpy_cmd_rad)
+        thrusts = (
+            ("", "", "", "")
+            if rotor_thrusts_n is None
+            else (tuple(f"{f:.4f}" for f in rotor_thrusts_n))
+        )
         self._writer.writerow(
             (
-                f"{s.time_s:.4f}",
+                f"{time_s:.4f}",
                 f"{p[0]:.4f}",
                 f"{p[1]:.4f}",
                 f"{p[2]:.4f}",
                 f"{v[0]:.4f}",
                 f"{v[1]:.4f}",
                 f"{v[2]:.4f}",
-                f"{s.roll_rad:.5f}",
-                f"{s.pitch_rad:.5f}",
-                f"{s.yaw_rad:.5f}",
-                f"{s.roll_cmd_rad:.5f}",
-                f"{s.pitch_cmd_rad:.5f}",
-                f"{s.yaw_cmd_rad:.5f}",
-                int(s.tilt_saturated),
-                int(s.rotor_saturated),
-                int(s.on_ground),
-                int(s.armed),
+                *(f"{a:.5f}" for a in rpy_rad),
+                *cmd,
+                tilt_saturated,
+                rotor_saturated,
+                on_ground,
+                armed,
                 mode_name,
                 idx if idx >= 0 else "",
                 f"{dist:.4f}" if idx >= 0 else "",
                 f"{clearance:.4f}" if idx >= 0 else "",
-                *(f"{f:.4f}" for f in s.rotor_thrusts_n),
+                *thrusts,
             )
         )
         self.rows += 1

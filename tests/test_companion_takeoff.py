@@ -56,6 +56,9 @@ class FakeAutopilot:
         speedup: float = 4.0,
         home_amsl_m: float = 488.0,
         texts: dict[int, str] | None = None,
+        camera: bool = True,
+        position_after_s: float = 0.0,
+        prearm_after_s: float | None = None,
     ) -> None:
         self.flavour = flavour
         self.mode = mode
@@ -75,6 +78,9 @@ class FakeAutopilot:
         self.pending: list[tuple[float, int, int]] = []  # (deliver at wall s, cmd, result)
         self.ack_delay_s = 0.02
         self.freeze_autopilot_time = False
+        self.camera = camera  # frames arrive
+        self.position_after_s = position_after_s  # no LOCAL_POSITION_NED before (EKF origin)
+        self.prearm_after_s = prearm_after_s  # SYS_STATUS pre-arm bit healthy from (None: n/a)
 
     def _execute(self, cmd: TakeoffCommand) -> int:
         """Default behaviour of an ArduCopter-like autopilot."""
@@ -133,8 +139,13 @@ class FakeAutopilot:
             if self.landed_state is not None:
                 seq.on_landed_state(now_s, self.landed_state)
             seq.on_home_amsl(self.home_amsl_m)
-        if not self.freeze_autopilot_time:
+            if self.prearm_after_s is not None:
+                bit = M.MAV_SYS_STATUS_PREARM_CHECK
+                seq.on_sys_status(now_s, bit, bit if now_s >= self.prearm_after_s else 0)
+        if not self.freeze_autopilot_time and now_s >= self.position_after_s:
             seq.on_position(now_s, self.ap_s, self.down_m)
+        if self.camera:
+            seq.on_frame(now_s)
         seq.tick(now_s)
         self.handle(seq, now_s)
 
@@ -309,6 +320,7 @@ def test_lost_takeoff_ack_and_refused_retransmission_is_not_an_error():
 def test_acks_of_other_commands_are_ignored():
     seq = TakeoffSequence(Flavour.ARDUPILOT, TakeoffSettings(7.0), 0.0)
     seq.on_position(0.0, 0.0, 0.0)
+    seq.on_frame(0.0)
     seq.on_heartbeat(0.0, ARDUCOPTER_GUIDED, False)
     assert seq.step is TakeoffStep.ARM
     seq.on_ack(0.1, M.MAV_CMD_SET_MESSAGE_INTERVAL, FAILED)
@@ -365,6 +377,51 @@ def test_disarm_during_climb_aborts():
             fake.armed = False
         fake.step(seq, t)
     assert seq.step is TakeoffStep.FAILED and "disarmed" in seq.reason
+
+
+def test_waits_for_the_ekf_origin_with_progress_then_takes_off():
+    """ArduPilot sends no LOCAL_POSITION_NED until its EKF has an origin and uses GPS
+    (~40 s after boot on SITL): the takeoff waits, saying so every 5 s, then flies."""
+    fake = FakeAutopilot(position_after_s=40.0)
+    seq = fly(fake)
+    assert seq.step is TakeoffStep.DONE
+    waits = [e for e in fake.events if e["step"] == "wait"]
+    assert len(waits) == 7  # at 5, 10, ... 35 s
+    assert all(e["waiting"] == ["position (EKF origin/GPS)"] for e in waits)
+    texts = [n.text for n in fake.notices]
+    assert "Takeoff waits for position (EKF origin/GPS) (5 s)" in texts
+    assert fake.sent[0].command == SET_MODE  # nothing was sent before the position
+    assert steps(fake)[-4:] == ["arm", "takeoff", "climb", "done"]
+
+
+def test_waits_for_the_prearm_checks_when_the_autopilot_reports_them():
+    fake = FakeAutopilot(prearm_after_s=12.0, position_after_s=3.0)
+    seq = fly(fake)
+    assert seq.step is TakeoffStep.DONE
+    waits = [e for e in fake.events if e["step"] == "wait"]
+    assert [e["waiting"] for e in waits] == [["pre-arm checks"], ["pre-arm checks"]]
+    arm = next(c for c in fake.sent if c.command == ARM)
+    assert arm.confirmation == 0  # armed at the first attempt: no refusal to retry
+
+
+def test_refuses_to_take_off_without_camera_frames_and_says_why():
+    fake = FakeAutopilot(camera=False)
+    seq = fly(fake, ready_timeout_s=20.0)
+    assert seq.step is TakeoffStep.FAILED
+    assert seq.reason == "on the ground but no camera frames after 20 s"
+    assert fake.sent == []  # neither mode, arm nor takeoff
+    texts = [n.text for n in fake.notices]
+    assert texts[-1] == "Takeoff failed: on the ground but no camera frames after 20 s"
+    assert fake.notices[-1].severity == M.MAV_SEVERITY_CRITICAL
+    assert "Takeoff waits for camera frames (15 s)" in texts
+
+
+def test_no_position_at_all_is_a_bounded_wait():
+    fake = FakeAutopilot(position_after_s=math.inf)
+    seq = fly(fake, ready_timeout_s=30.0)
+    assert seq.step is TakeoffStep.FAILED and fake.sent == []
+    assert seq.reason == "on the ground but no position (EKF origin/GPS) after 30 s"
+    assert fake.end_s == pytest.approx(30.0, abs=2 * DT)
 
 
 # ---- PX4 -----------------------------------------------------------------------------
@@ -469,8 +526,14 @@ def test_takeoff_alt_with_an_airborne_vehicle_is_skipped(rig):
 def test_prearm_refusal_over_udp_is_a_clear_terminal_error(rig):
     """A scripted ArduCopter on the companion's UDP port refuses every ARM with a PreArm
     STATUSTEXT: the companion retries a bounded number of times, tells the ground station,
-    and exits with status 3 — it neither hangs nor steers."""
+    and exits with status 3 — it neither hangs nor steers. (Blank camera frames are
+    published: without frames it would not even try.)"""
+    import zenoh
     from pymavlink import mavutil
+
+    from protocols import stereo_frame
+    from protocols.camera import CameraModel
+    from protocols.keys import stereo_key
 
     companion = rig.companion("--takeoff-alt", "7")
     ap = mavutil.mavlink_connection(
@@ -480,6 +543,14 @@ def test_prearm_refusal_over_udp_is_a_clear_terminal_error(rig):
         dialect="ardupilotmega",
     )
     rig.gcs = ap  # closed by the rig
+    conf = zenoh.Config()
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", f'["{rig.companion_zenoh}"]')
+    session = zenoh.open(conf)
+    camera = session.declare_publisher(stereo_key("sim1"))
+    intr = CameraModel().intrinsics
+    blank = np.zeros((intr.height_px, intr.width_px), dtype=np.uint8)
+    frames = 0
     arms, texts, setpoints, heard = 0, [], 0, False
     deadline = time.monotonic() + 30
     next_tx = 0.0
@@ -494,6 +565,12 @@ def test_prearm_refusal_over_udp_is_a_clear_terminal_error(rig):
             ap.mav.heartbeat_send(M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_ARDUPILOTMEGA, 1, 4, 3)
             ap.mav.extended_sys_state_send(0, M.MAV_LANDED_STATE_ON_GROUND)
             ap.mav.local_position_ned_send(ms, 20.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            camera.put(
+                stereo_frame.encode(
+                    stereo_frame.StereoFrame(frames, ms * 1_000_000, intr, blank, blank)
+                )
+            )
+            frames += 1
         if msg is None:
             continue
         mtype = msg.get_type()
@@ -509,6 +586,8 @@ def test_prearm_refusal_over_udp_is_a_clear_terminal_error(rig):
         elif mtype == "SET_POSITION_TARGET_LOCAL_NED":
             setpoints += 1
     assert companion.proc.wait(timeout=10) == 3, rig.logs()
+    camera.undeclare()
+    session.close()
     assert arms == 3 and setpoints == 0
     err = companion.stderr_text()
     assert "takeoff failed: ARM refused (FAILED: PreArm: Gyros not calibrated)" in err, err

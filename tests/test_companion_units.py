@@ -168,6 +168,60 @@ def test_failsafe_decisions_on_frame_clock():
     assert mon.update(6 * s, 6 * s, 6 * s) is Health.HEALTHY  # resume when healthy
 
 
+def test_failsafe_hysteresis_one_late_frame_is_one_hold_not_a_flap():
+    """Issue 12: on SITL one frame just past the 0.3 s timeout commanded BRAKE and GUIDED
+    again 0.03-0.6 s later, twice in a flight. With ``resume_after_s`` the hold ends only
+    after frames have been healthy for that long without a break."""
+    s = 10**9
+    mon = FailsafeMonitor(0.3, 0.3, resume_after_s=1.0)
+    assert mon.update(5 * s, 5 * s, 5 * s) is Health.HEALTHY  # first health: at once
+    # frames at 30 Hz, one of them 0.31 s late
+    assert mon.update(5 * s + 310 * MS, 5 * s, 5 * s + 310 * MS) is Health.STALE_FRAMES
+    changes = []
+    t = 5 * s + 320 * MS
+    while t < 8 * s:
+        changes.append((t, mon.update(t, t - 20 * MS, t)))
+        t += 33 * MS
+    reported = [(t, h) for t, h in changes if h is not None]
+    assert len(reported) == 1 and reported[0][1] is Health.HEALTHY
+    assert (reported[0][0] - (5 * s + 320 * MS)) * 1e-9 == pytest.approx(1.0, abs=0.04)
+    assert mon.holds == 1
+    # while waiting, the status keeps the reason with the current ages
+    mon2 = FailsafeMonitor(0.3, 0.3, resume_after_s=1.0)
+    mon2.update(5 * s, 5 * s, 5 * s)
+    mon2.update(6 * s, 5 * s, 6 * s)
+    assert mon2.update(6 * s + 100 * MS, 6 * s + 90 * MS, 6 * s + 100 * MS) is None
+    assert mon2.status.health is Health.STALE_FRAMES
+    assert mon2.status.frame_age_s == pytest.approx(0.01)
+    # a new late frame during the wait starts the wait again
+    assert mon2.update(6 * s + 600 * MS, 6 * s + 200 * MS, 6 * s + 600 * MS) is None
+    assert mon2.update(7 * s + 500 * MS, 7 * s + 490 * MS, 7 * s + 500 * MS) is None
+    assert mon2.update(8 * s + 400 * MS, 8 * s + 390 * MS, 8 * s + 400 * MS) is None
+    assert mon2.update(8 * s + 500 * MS, 8 * s + 490 * MS, 8 * s + 500 * MS) is Health.HEALTHY
+
+
+def test_statustext_longer_than_50_characters_goes_out_in_mavlink2_chunks():
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    from companion.link.messages import statustext_messages
+    from protocols.statustext import statustext_chunks
+
+    text = "Failsafe stale_frames: BRAKE, avoidance stopped until frames are back"
+    msgs = statustext_messages(text, mavlink.MAV_SEVERITY_WARNING, 9)
+    assert [(m.id, m.chunk_seq) for m in msgs] == [(9, 0), (9, 1)]
+    # what a ground station reassembles from the wire
+    mav = mavlink.MAVLink(None)
+    wire = [mav.parse_char(m.pack(mav)) for m in msgs]
+    assert "".join(w.text for w in wire) == text
+    assert statustext_chunks("short", 0) == [(0, 0, b"short")]  # one chunk: id 0
+    exact = statustext_chunks("x" * 100, 3)
+    assert [len(c) for _, _, c in exact] == [50, 50, 0]  # an empty chunk terminates
+    long = statustext_chunks("y" * 1000, 4)
+    assert len(long) == 8 and long[-1][2].endswith(b"...")
+    with pytest.raises(ValueError, match="text_id"):
+        statustext_chunks("z" * 60, 0)
+
+
 # ---- config -------------------------------------------------------------------------
 
 

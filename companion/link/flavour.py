@@ -73,8 +73,23 @@ class ModeRequest:
     """A mode as MAV_CMD_DO_SET_MODE parameters."""
 
     base_mode: int
-    custom_mode: int
+    custom_mode: int  # as in HEARTBEAT.custom_mode
     name: str
+    px4: bool = False  # PX4 reads DO_SET_MODE as param2 = main mode, param3 = sub mode
+
+    @property
+    def command_params(self) -> tuple[float, ...]:
+        """MAV_CMD_DO_SET_MODE param1.. for this mode. ArduPilot: (base_mode, custom_mode).
+        PX4 casts param2 and param3 to uint8 main and sub mode (Commander; the SET_MODE
+        message is translated the same way), so the packed custom_mode would be read as
+        mode 0 there: (base_mode, main, sub)."""
+        if self.px4:
+            return (
+                float(self.base_mode),
+                float((self.custom_mode >> 16) & 0xFF),
+                float((self.custom_mode >> 24) & 0xFF),
+            )
+        return float(self.base_mode), float(self.custom_mode)
 
 
 def px4_custom_mode(main_mode: int, sub_mode: int = 0) -> int:
@@ -107,7 +122,7 @@ _CUSTOM = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
 def control_mode(flavour: Flavour) -> ModeRequest:
     """The mode in which the companion steers: GUIDED (ArduPilot) or OFFBOARD (PX4)."""
     if flavour is Flavour.PX4:
-        return ModeRequest(_CUSTOM, px4_custom_mode(PX4_MAIN_MODE_OFFBOARD), "OFFBOARD")
+        return ModeRequest(_CUSTOM, px4_custom_mode(PX4_MAIN_MODE_OFFBOARD), "OFFBOARD", px4=True)
     return ModeRequest(_CUSTOM, ARDUCOPTER_GUIDED, "GUIDED")
 
 

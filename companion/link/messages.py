@@ -13,6 +13,7 @@ import math
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.link.flavour import ModeRequest
+from protocols.statustext import statustext_chunks
 
 __all__ = [
     "CompanionState",
@@ -23,6 +24,7 @@ __all__ = [
     "set_message_interval",
     "set_mode_command",
     "statustext_message",
+    "statustext_messages",
     "timesync_reply",
     "timesync_request",
 ]
@@ -88,14 +90,27 @@ def set_message_interval(
 def set_mode_command(
     target_system: int, target_component: int, mode: ModeRequest
 ) -> mavlink.MAVLink_command_long_message:
-    """MAV_CMD_DO_SET_MODE (176) with base_mode and custom_mode."""
+    """MAV_CMD_DO_SET_MODE (176): base_mode and custom_mode (ArduPilot) or main and sub
+    mode (PX4), see :attr:`ModeRequest.command_params`."""
     return command_long(
-        target_system, target_component, _M.MAV_CMD_DO_SET_MODE, mode.base_mode, mode.custom_mode
+        target_system, target_component, _M.MAV_CMD_DO_SET_MODE, *mode.command_params
     )
 
 
 def statustext_message(text: str, severity: int) -> mavlink.MAVLink_statustext_message:
+    """One STATUSTEXT (the first 50 characters); see :func:`statustext_messages`."""
     return _M.MAVLink_statustext_message(severity, text[:50].encode("ascii", "replace"))
+
+
+def statustext_messages(
+    text: str, severity: int, text_id: int
+) -> list[mavlink.MAVLink_statustext_message]:
+    """STATUSTEXT(s) carrying the whole ``text``: MAVLink 2 chunks (``id`` = ``text_id``,
+    ``chunk_seq``) when it is longer than 50 characters (:mod:`protocols.statustext`)."""
+    return [
+        _M.MAVLink_statustext_message(severity, chunk, tid, seq)
+        for tid, seq, chunk in statustext_chunks(text, text_id)
+    ]
 
 
 def timesync_request(host_ns: int) -> mavlink.MAVLink_timesync_message:

@@ -11,6 +11,13 @@ service carries out (:meth:`TakeoffSequence.pop_actions`). Steps::
 * PROBE: on the ground if EXTENDED_SYS_STATE says ON_GROUND or the HEARTBEAT says
   disarmed; airborne if armed and landed_state is IN_AIR / TAKEOFF / LANDING, or armed
   with no landed state within ``probe_timeout_s`` (wall).
+* On the ground it waits, like a pilot, until the vehicle is ready and it can see: a local
+  position (ArduPilot sends LOCAL_POSITION_NED only once its EKF has an origin and uses
+  GPS, ~40 s after boot on SITL), PX4's home altitude, the autopilot's pre-arm checks
+  passing (SYS_STATUS ``MAV_SYS_STATUS_PREARM_CHECK``, when it reports them) and camera
+  frames (it never takes off blind). What it waits for is said every
+  ``progress_period_s`` (STATUSTEXT and event); after ``ready_timeout_s`` (wall) it gives
+  up (FAILED) naming what is missing.
 * ArduPilot (and GENERIC): DO_SET_MODE GUIDED (unless already), COMPONENT_ARM_DISARM
   param1 = 1 (unless already armed), NAV_TAKEOFF param7 = altitude above home [m].
 * PX4: arm, then NAV_TAKEOFF. PX4 reads a COMMAND_LONG's param7 as an AMSL altitude (NaN
@@ -89,7 +96,10 @@ class TakeoffSettings:
     max_refusals: int = 3  # DENIED / FAILED answers per step before giving up
     refusal_retry_s: float = 2.0  # pause after a refusal
     in_progress_timeout_s: float = 10.0  # IN_PROGRESS: wait this long for the final ACK
-    probe_timeout_s: float = 3.0  # wait for EXTENDED_SYS_STATE / home altitude
+    probe_timeout_s: float = 3.0  # armed without landed state this long → airborne
+    ready_timeout_s: float = 180.0  # on the ground: wait this long for position/frames/pre-arm
+    progress_period_s: float = 5.0  # say what it waits for this often
+    require_frames: bool = True  # never take off without camera frames
     grace_s: float = 2.5  # heartbeats this soon after an ACK may predate it
 
     def __post_init__(self) -> None:
@@ -99,6 +109,8 @@ class TakeoffSettings:
             raise ValueError(f"takeoff tolerance must be in (0, alt), got {self.tolerance_m!r}")
         if self.max_attempts < 1 or self.max_refusals < 1:
             raise ValueError("max_attempts and max_refusals must be >= 1")
+        if not (self.ready_timeout_s > 0 and self.progress_period_s > 0):
+            raise ValueError("ready_timeout_s and progress_period_s must be > 0")
 
     @property
     def climb_limit_s(self) -> float:
@@ -173,6 +185,9 @@ class TakeoffSequence:
         self.down_m: float | None = None  # newest LOCAL_POSITION_NED z [m]
         self._autopilot_s: float | None = None
         self._last_statustext = ""
+        self.frames = 0  # camera frames seen since the start
+        self.prearm_ok: bool | None = None  # None: the autopilot does not report it
+        self._next_wait_notice_s = now_s + settings.progress_period_s
         # current command step
         self._attempts = 0
         self._refusals = 0
@@ -237,6 +252,17 @@ class TakeoffSequence:
         """LOCAL_POSITION_NED: ``autopilot_s`` = time_boot_ms / 1000, ``down_m`` = z."""
         self.down_m = down_m
         self._autopilot_s = autopilot_s
+        self._advance(now_s)
+
+    def on_frame(self, now_s: float) -> None:
+        """A camera frame arrived (the companion can see)."""
+        self.frames += 1
+        self._advance(now_s)
+
+    def on_sys_status(self, now_s: float, present: int, health: int) -> None:
+        """SYS_STATUS sensor bits: pre-arm checks passing, if the autopilot reports them."""
+        bit = _M.MAV_SYS_STATUS_PREARM_CHECK
+        self.prearm_ok = bool(health & bit) if present & bit else None
         self._advance(now_s)
 
     def on_statustext(self, text: str) -> None:
@@ -315,10 +341,14 @@ class TakeoffSequence:
             elif waited >= self.settings.probe_timeout_s:
                 self._skip("armed and no landed state: assuming airborne")
             return
-        if self.down_m is None or (self.flavour is Flavour.PX4 and self.home_amsl_m is None):
-            if waited >= self.settings.probe_timeout_s:
-                missing = "LOCAL_POSITION_NED" if self.down_m is None else "home altitude"
-                self._fail(f"on the ground but no {missing} after {waited:.1f} s")
+        missing = self.missing()
+        if missing:
+            if waited >= self.settings.ready_timeout_s:
+                self._fail(f"on the ground but no {', '.join(missing)} after {waited:.0f} s")
+            elif now_s >= self._next_wait_notice_s:
+                self._next_wait_notice_s = now_s + self.settings.progress_period_s
+                self._notice(f"Takeoff waits for {', '.join(missing)} ({waited:.0f} s)")
+                self._event(step="wait", waiting=missing, waited_s=round(waited, 1))
             return
         self._notice(
             f"Takeoff to {self.settings.alt_m:.1f} m: on the ground, "
@@ -332,6 +362,19 @@ class TakeoffSequence:
             self._enter(TakeoffStep.ARM, now_s)
         else:
             self._enter(TakeoffStep.TAKEOFF, now_s)
+
+    def missing(self) -> list[str]:
+        """What the vehicle on the ground still lacks before the takeoff (short names)."""
+        out = []
+        if self.down_m is None:
+            out.append("position (EKF origin/GPS)")
+        if self.flavour is Flavour.PX4 and self.home_amsl_m is None:
+            out.append("home altitude")
+        if self.prearm_ok is False and not self.armed:
+            out.append("pre-arm checks")
+        if self.settings.require_frames and self.frames == 0:
+            out.append("camera frames")
+        return out
 
     def _current_command(self) -> TakeoffCommand | None:
         step = self.step

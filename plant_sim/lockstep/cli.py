@@ -13,6 +13,9 @@ Subcommands
 ``stereo-avoid sil [--scenario FILE] [--speedup N] [--out DIR] [--json]``
     plant-sim and the companion as two processes over MAVLink and Zenoh on loopback;
     the same verdict and figures, from plant-sim's ground-truth log.
+``stereo-avoid sil --autopilot arducopter-sitl [--autopilot-params FILE] [--speedup K]``
+    the paper's scene (north from home at 7 m) on ArduPilot's ArduCopter SITL, taken off
+    by the companion, plant-sim as the camera only (:mod:`plant_sim.lockstep.sitl`).
 
 Exit status: 0 when every run reached its goal without collision, 1 otherwise, 2 on a
 usage error.
@@ -112,6 +115,23 @@ def _parser() -> argparse.ArgumentParser:
     sil.add_argument("--speedup", type=float, default=4.0, help="simulation speed-up")
     sil.add_argument("--out", type=Path, default=Path("runs/sil"), help="output folder")
     sil.add_argument("--json", action="store_true", help="print the verdict as JSON")
+    sil.add_argument(
+        "--autopilot",
+        choices=["plant-sim", "plant-sim-px4", "arducopter-sitl"],
+        default="plant-sim",
+        help="plant-sim as an ArduCopter (default) or as a PX4 (plant-sim-px4: the "
+        "companion's OFFBOARD path), or ArduPilot's ArduCopter SITL ($ARDUCOPTER_SITL or "
+        "../shared/ardupilot-sitl/arducopter) with plant-sim as the camera only; "
+        "--speedup is then SITL's",
+    )
+    sil.add_argument(
+        "--autopilot-params",
+        type=Path,
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="extra SITL parameter file (NAME VALUE lines, e.g. WPNAV_SPEED 100), repeatable",
+    )
     return parser
 
 
@@ -121,9 +141,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command == "paper":
         return _fly_and_report(paper_scene(), args.out, args.json)
     if args.command == "sil":
-        from plant_sim.lockstep.sil_report import fly_sil_and_report
+        from plant_sim.lockstep.sil_report import fly_sil_and_report, fly_sitl_and_report
 
-        return fly_sil_and_report(args.scenario, args.speedup, args.out, args.json)
+        if args.autopilot == "arducopter-sitl":
+            if args.scenario is not None:
+                print("stereo-avoid sil: --scenario is for plant-sim", file=sys.stderr)
+                return 2
+            out = args.out if args.out != Path("runs/sil") else Path("runs/sitl")
+            return fly_sitl_and_report(args.speedup, out, args.json, tuple(args.autopilot_params))
+        if args.autopilot_params:
+            print("stereo-avoid sil: --autopilot-params needs --autopilot", file=sys.stderr)
+            return 2
+        plant_args = ("--autopilot-flavour", "px4") if args.autopilot == "plant-sim-px4" else ()
+        return fly_sil_and_report(args.scenario, args.speedup, args.out, args.json, plant_args)
     if args.command == "replay":
         out = args.out or Path(f"runs/replay-{args.seed}")
         return _fly_and_report(random_scene(args.seed), out, args.json)

@@ -189,6 +189,13 @@ def _avoid_intervals(events: list[tuple[str, dict]]) -> list[tuple[float, float]
     return intervals
 
 
+def _max_abs_deg(angles_rad: np.ndarray) -> float:
+    """Largest |angle| [deg] ignoring empty cells (an external autopilot may not say what
+    it commanded: NaN when no sample has it)."""
+    finite = np.abs(angles_rad[np.isfinite(angles_rad)])
+    return round(math.degrees(float(np.max(finite))), 4) if finite.size else math.nan
+
+
 def verdict_from_truth(
     truth: dict[str, np.ndarray],
     *,
@@ -233,12 +240,8 @@ def verdict_from_truth(
         reached_goal=reached,
         collided=collided,
         min_surface_distance_m=round(float(np.min(surface[w])), 4),
-        max_roll_cmd_deg=round(
-            math.degrees(float(np.max(np.abs(truth["roll_cmd_rad"][sel][w])))), 4
-        ),
-        max_pitch_cmd_deg=round(
-            math.degrees(float(np.max(np.abs(truth["pitch_cmd_rad"][sel][w])))), 4
-        ),
+        max_roll_cmd_deg=_max_abs_deg(truth["roll_cmd_rad"][sel][w]),
+        max_pitch_cmd_deg=_max_abs_deg(truth["pitch_cmd_rad"][sel][w]),
         avoidance_time_s=round(avoid, 4),
         sim_time_s=round(t_end - t0_s, 4),
         wall_time_s=round(wall_time_s, 3),

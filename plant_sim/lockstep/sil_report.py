@@ -11,10 +11,16 @@ from plant_sim.lockstep.report import write_run_report
 from plant_sim.lockstep.sil import SilOptions, run_sil
 from plant_sim.scenario import load_scenario, paper_scenario
 
-__all__ = ["fly_sil_and_report"]
+__all__ = ["fly_sil_and_report", "fly_sitl_and_report"]
 
 
-def fly_sil_and_report(scenario: Path | None, speedup: float, out_dir: Path, as_json: bool) -> int:
+def fly_sil_and_report(
+    scenario: Path | None,
+    speedup: float,
+    out_dir: Path,
+    as_json: bool,
+    plant_args: tuple[str, ...] = (),
+) -> int:
     """Fly, report, write files; exit status 0 when passed, 1 otherwise, 2 on bad input."""
     log = sys.stderr if as_json else sys.stdout
     if not speedup > 0:
@@ -28,7 +34,10 @@ def fly_sil_and_report(scenario: Path | None, speedup: float, out_dir: Path, as_
     print(f"flying SIL at {speedup:g}x: plant-sim + companion on loopback", file=log)
     try:
         result = run_sil(
-            SilOptions(scenario_path=scenario, speedup=speedup, out_dir=out_dir), progress
+            SilOptions(
+                scenario_path=scenario, speedup=speedup, out_dir=out_dir, plant_args=plant_args
+            ),
+            progress,
         )
     except (RuntimeError, TimeoutError, OSError) as exc:
         print(f"stereo-avoid sil: {exc}", file=sys.stderr)
@@ -48,3 +57,75 @@ def fly_sil_and_report(scenario: Path | None, speedup: float, out_dir: Path, as_
         stdout=sys.stdout,
         other_files=[(label, path) for label, path in logs if path is not None],
     )
+
+
+def fly_sitl_and_report(
+    speedup: float, out_dir: Path, as_json: bool, params_files: tuple[Path, ...] = ()
+) -> int:
+    """``stereo-avoid sil --autopilot arducopter-sitl``: fly the paper's scene on ArduPilot's
+    ArduCopter SITL (plant-sim as the camera only), report like the plant-sim SIL run plus
+    the speed figures; exit status 0 when passed, 1 otherwise, 2 on bad input."""
+    import json
+
+    from plant_sim.lockstep.sitl import (
+        ARDUCOPTER_SITL_ENV,
+        SITL_GOAL_NED_M,
+        SitlOptions,
+        find_arducopter_sitl,
+        run_sitl_sil,
+    )
+    from plant_sim.scenario import scenario_from_dict
+
+    log = sys.stderr if as_json else sys.stdout
+    binary = find_arducopter_sitl()
+    if binary is None:
+        print(
+            f"stereo-avoid sil: no ArduCopter SITL binary: set ${ARDUCOPTER_SITL_ENV} or put "
+            "it at ../shared/ardupilot-sitl/arducopter (build: ./waf configure --board sitl "
+            "&& ./waf copter in an ArduPilot checkout)",
+            file=sys.stderr,
+        )
+        return 2
+    for path in params_files:
+        if not path.is_file():
+            print(f"stereo-avoid sil: parameter file {path} not found", file=sys.stderr)
+            return 2
+
+    def progress(text: str) -> None:
+        print(f"  {text}", file=log)
+        log.flush()
+
+    print(f"flying the paper's scene on ArduCopter SITL ({binary}) at {speedup:g}x", file=log)
+    try:
+        options = SitlOptions(
+            binary=binary, out_dir=out_dir, speedup=speedup, params_files=params_files
+        )
+        result = run_sitl_sil(options, progress)
+    except ValueError as exc:
+        print(f"stereo-avoid sil: {exc}", file=sys.stderr)
+        return 2
+    except (RuntimeError, TimeoutError, OSError) as exc:
+        print(f"stereo-avoid sil: {exc}", file=sys.stderr)
+        return 1
+    sc = scenario_from_dict({})
+    sil = result.sil
+    status = write_run_report(
+        sil.verdict,
+        sil.history,
+        world=load_scenario(out_dir / "scenario.toml").world,
+        goal_ned_m=SITL_GOAL_NED_M,
+        out_dir=out_dir,
+        vehicle=sc.vehicle,
+        control=sc.control,
+        detect_threshold_m=RunConfig().perception.threshold_m,
+        as_json=False,
+        stdout=log,
+        other_files=[("truth", sil.truth_path), ("figures", out_dir / "sitl_figures.json")],
+    )
+    if as_json:  # one document: the verdict with the SITL figures
+        fields = json.loads((out_dir / "verdict.json").read_text())
+        print(json.dumps({**fields, "figures": result.figures}, indent=2), file=sys.stdout)
+    else:
+        for key, value in result.figures.items():
+            print(f"  {key:24s} {value}", file=sys.stdout)
+    return status

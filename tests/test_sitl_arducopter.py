@@ -1,0 +1,248 @@
+"""The companion against ArduPilot's own ArduCopter SITL (issue 12): real processes on
+127.0.0.1 — ``arducopter`` on a free instance, the companion on SERIAL0, plant-sim as the
+camera only (``--pose-from``) on SERIAL1, a ground station on SERIAL2 — judged from
+plant-sim's ground truth. Every wait is bounded; the children's logs are printed on
+failure (pytest shows the captured output).
+
+The binary comes from ``$ARDUCOPTER_SITL`` or ``../shared/ardupilot-sitl/arducopter``
+beside the checkout. Without it these tests skip, saying how to get one; under
+``CI=true`` a missing binary is a failure.
+
+SITL runs at ``--speedup 3``: boot to EKF-using-GPS (~42 s of autopilot time), takeoff and
+the 20 m leg take ~35 s of wall time per test on two loaded cores. The verdict at this
+speed-up is the one at real time (``benchmarks/bench_sitl.py`` checks it).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from plant_sim.lockstep.sil import _read_truth
+from plant_sim.lockstep.sitl import (
+    ARDUCOPTER_SITL_ENV,
+    SitlOptions,
+    SitlRig,
+    find_arducopter_sitl,
+    free_sitl_instance,
+    run_sitl_sil,
+)
+
+M = mavlink
+SPEEDUP = 3.0
+CLEARANCE_M = 0.5  # from the sphere's surface to the vehicle's centre
+LOITER, GUIDED = 5, 4
+
+
+@pytest.fixture(scope="module")
+def sitl_binary():
+    binary = find_arducopter_sitl()
+    if binary is None:
+        how = (
+            f"no ArduCopter SITL binary: set ${ARDUCOPTER_SITL_ENV} or put one at "
+            "../shared/ardupilot-sitl/arducopter beside the checkout (an ArduPilot checkout: "
+            "./waf configure --board sitl && ./waf copter → build/sitl/bin/arducopter, with "
+            "Tools/autotest/default_params/copter.parm beside it as copter.parm)"
+        )
+        if os.environ.get("CI") == "true":
+            pytest.fail(how)
+        pytest.skip(how)
+    return binary
+
+
+def test_the_sitl_binary_is_found_from_the_environment_first(tmp_path):
+    fake = tmp_path / "arducopter"
+    fake.write_text("#!/bin/sh\n")
+    assert find_arducopter_sitl({ARDUCOPTER_SITL_ENV: str(fake)}) != fake.resolve()  # not +x
+    fake.chmod(0o755)
+    assert find_arducopter_sitl({ARDUCOPTER_SITL_ENV: str(fake)}) == fake.resolve()
+
+
+def test_a_free_sitl_instance_has_its_ports_free():
+    n = free_sitl_instance()
+    assert 0 <= n <= 255  # SITL keeps -I in 8 bits
+    for port in range(5760 + 10 * n, 5764 + 10 * n):
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", port))
+    with pytest.raises(ValueError, match="bad SITL parameter"):
+        SitlOptions(binary=Path("x"), params=(("wpnav speed", 1.0),))
+
+
+def _print_logs(out_dir: Path, lines: list[str]) -> None:
+    """Progress and the children's logs (kept in ``out_dir``); pytest shows them when the
+    test fails."""
+    print("\n".join(lines))
+    for name in ("companion.log", "plant_sim.log", "arducopter_sitl.log"):
+        path = Path(out_dir) / name
+        if path.is_file():
+            print(f"--- {name} (tail) ---\n{path.read_text(errors='replace')[-6000:]}")
+
+
+def _fly(binary, out_dir, params=()) -> object:
+    lines: list[str] = []
+    try:
+        return run_sitl_sil(
+            SitlOptions(binary=binary, out_dir=out_dir, speedup=SPEEDUP, params=params),
+            progress=lines.append,
+        )
+    finally:
+        _print_logs(out_dir, lines)
+
+
+@pytest.mark.slow
+def test_paper_scene_on_arducopter_sitl_at_wpnav_speed_100(sitl_binary, tmp_path):
+    """Takeoff by the companion at home to 7 m, goal 20 m north, the 1.5 m sphere 10 m
+    north: with GUIDED targets flown at ≤ 1 m/s the companion side-steps the sphere."""
+    result = _fly(sitl_binary, tmp_path, params=(("WPNAV_SPEED", 100.0),))
+    v, fig = result.sil.verdict, result.figures
+    print(v, fig)
+    assert v.reached_goal and not v.collided, (v, fig)
+    assert v.min_surface_distance_m >= CLEARANCE_M, (v, fig)
+    assert v.avoidance_time_s > 0  # it did see and avoid the sphere
+    assert fig["max_speed_mps"] <= 1.3  # WPNAV_SPEED 100 cm/s (+ the side-step)
+    takeoff = fig["takeoff"]
+    assert takeoff is not None and abs(takeoff["height_m"] - 7.0) <= 0.5
+    truth = _read_truth(result.sil.truth_path)
+    assert truth["pos_d_m"][0] == pytest.approx(0.0, abs=0.3)  # it started on the ground
+    assert truth["armed"][0] == 0
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    raises=AssertionError,  # a run that cannot fly at all is an error, not this failure
+    reason="issue 13 (safety envelope): at ArduCopter's default WPNAV_SPEED (10 m/s) the "
+    "GUIDED target 20 m away is flown at ~5.5 m/s and the 4 m detection threshold leaves "
+    "< 0.7 s to react; the companion flies through the sphere until the envelope lands",
+)
+def test_paper_scene_on_arducopter_sitl_at_default_wpnav_speed(sitl_binary, tmp_path):
+    result = _fly(sitl_binary, tmp_path)
+    v, fig = result.sil.verdict, result.figures
+    print(v, fig)
+    assert v.reached_goal and not v.collided, (v, fig)
+    assert v.min_surface_distance_m >= CLEARANCE_M, (v, fig)
+
+
+def _set_mode(gcs, custom_mode: int) -> None:
+    gcs.mav.command_long_send(
+        1,
+        1,
+        M.MAV_CMD_DO_SET_MODE,
+        0,
+        M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+        custom_mode,
+        0,
+        0,
+        0,
+        0,
+        0,
+    )
+
+
+class Sticks:
+    """A pilot's sticks centred (throttle mid: LOITER holds altitude) by RC_CHANNELS_OVERRIDE
+    from the ground station at 4 Hz (ArduPilot drops an override after RC_OVERRIDE_TIME,
+    3 s); SITL's own throttle input is at its minimum, which would descend in LOITER."""
+
+    def __init__(self, gcs) -> None:
+        self.gcs = gcs
+        self.lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.25):
+            with self.lock:
+                self.gcs.mav.rc_channels_override_send(1, 1, 1500, 1500, 1500, 1500, *[0] * 4)
+
+    def set_mode(self, custom_mode: int) -> None:
+        with self.lock:
+            _set_mode(self.gcs, custom_mode)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+def _wait_heartbeat_mode(gcs, custom_mode: int, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        msg = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
+        if msg is not None and msg.get_srcComponent() == 1 and msg.custom_mode == custom_mode:
+            return
+    raise AssertionError(f"autopilot not in mode {custom_mode} within {timeout_s} s")
+
+
+def _first_after(rig, n_before: int, phase: str, timeout_s: float = 20.0) -> dict:
+    """The first ``phase`` event after the first ``n_before`` phase events."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for _ev, fields in rig.companion.events("phase")[n_before:]:
+            if fields["phase"] == phase:
+                return fields
+        time.sleep(0.05)
+    raise AssertionError(f"no phase {phase!r} within {timeout_s} s\n{rig.logs()}")
+
+
+@pytest.mark.slow
+def test_loiter_takeover_on_arducopter_sitl_releases_then_resumes_in_guided(sitl_binary, tmp_path):
+    """A ground station on SERIAL2 switches to LOITER mid-flight: the companion stops
+    steering (no setpoint while the pilot has it) and ArduCopter holds position; back in
+    GUIDED the companion resumes and reaches the goal without a collision."""
+    lines: list[str] = []
+    options = SitlOptions(
+        binary=sitl_binary, out_dir=tmp_path, speedup=SPEEDUP, params=(("WPNAV_SPEED", 100.0),)
+    )
+    gcs = sticks = None
+    try:
+        with SitlRig(options, progress=lines.append) as rig:
+            try:
+                rig.start()
+                t0 = rig.wait_steering()
+                gcs = mavutil.mavlink_connection(
+                    rig.gcs_url(), source_system=255, source_component=190, dialect="ardupilotmega"
+                )
+                gcs.wait_heartbeat(timeout=10)
+                sticks = Sticks(gcs)
+                time.sleep(1.0)  # ~3 s of flight: well before the sphere is in range
+                sticks.set_mode(LOITER)
+                released = rig.wait_event("phase", 20, cond=lambda f: f["phase"] == "released")
+                _wait_heartbeat_mode(gcs, LOITER, 10)
+                time.sleep(8.0 / SPEEDUP)  # 8 s of LOITER (autopilot time)
+                n_before = len(rig.companion.events("phase"))
+                sticks.set_mode(GUIDED)
+                resumed = _first_after(rig, n_before, "active")
+                reached = rig.fly_to_goal()
+            finally:
+                if sticks is not None:
+                    sticks.close()
+                if gcs is not None:
+                    gcs.close()
+    finally:
+        _print_logs(tmp_path, lines)  # the children's logs, written when the rig closed
+    result = rig.judge()
+    v = result.verdict
+    print(v, released, resumed)
+    assert released["mode"] == "LOITER"
+    # not one setpoint between the release and the resume
+    assert resumed["setpoints_sent"] == released["setpoints_sent"]
+    assert reached and v.reached_goal and not v.collided, v
+    assert v.min_surface_distance_m >= CLEARANCE_M, v
+    truth = _read_truth(result.truth_path)
+    rows = np.genfromtxt(result.truth_path, delimiter=",", names=True, dtype=None, encoding=None)
+    loiter = rows["mode"] == "LOITER"
+    assert loiter.sum() >= 5 * 50  # ≥ 5 s of LOITER at 50 rows/s
+    t = truth["time_s"][loiter]
+    assert t[0] > t0
+    speed = np.hypot(truth["vel_n_mps"][loiter], truth["vel_e_mps"][loiter])
+    late = t >= t[0] + 3.0  # ArduCopter's LOITER has stopped the vehicle by then
+    assert np.max(speed[late]) < 0.3, speed[late]
