@@ -792,7 +792,8 @@ class CompanionService:
             self._event("avoidance", active=self._avoiding, capture_s=frame.capture_ns * 1e-9)
             if self._avoiding:
                 near = min((o.nearest_range_m for o in out.perception.obstacles), default=math.nan)
-                self._notice(f"Avoiding obstacle at {near:.1f} m", _SEV_WARNING)
+                where = f" at {near:.1f} m" if math.isfinite(near) else " (remembered)"
+                self._notice(f"Avoiding obstacle{where}", _SEV_WARNING)
             else:
                 self._notice("Avoidance ended, heading to goal")
         if self.config.link.obstacle_distance:
