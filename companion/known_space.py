@@ -14,8 +14,11 @@ the grid is shifted by whole voxels (what falls off the edge is forgotten, what 
 UNKNOWN). Nothing is forgotten by a timer: OCCUPIED stays until a matched ray passes
 through it.
 
-Update, per depth frame (:meth:`KnownSpace.integrate`, a numba kernel over every
-``pixel_stride``-th pixel of every ``pixel_stride``-th row):
+Update, per depth frame (:meth:`KnownSpace.integrate`, a numba kernel casting one ray per
+``pixel_stride`` × ``pixel_stride`` block, through the block's centre, to the *nearest*
+matched depth in the block — min-pooling fills small matching holes conservatively and
+does not miss a thin obstacle between rays — when at least ``block_min_matched`` of the
+block is matched):
 
 * **Matched, in range** (finite depth, range ≤ ``max_range_m``): voxels along the ray are
   FREE up to ``hit_clear_m`` short of the hit (also clearing OCCUPIED: seen free again);
@@ -40,8 +43,9 @@ Update, per depth frame (:meth:`KnownSpace.integrate`, a numba kernel over every
   ``start_free_radius_m`` (named assumption: the vehicle starts in a clear bubble, as
   after a take-off; the camera cannot see beside or below itself).
 
-Query (:meth:`KnownSpace.free_distance_m`): the distance the vehicle's body, a disc of
-``radius_m`` normal to the direction (its centre and 8 points on its rim), can travel
+Query (:meth:`KnownSpace.free_distance_m`): the distance the vehicle's body, an ellipse
+normal to the direction (``radius_m`` wide, ``half_height_m`` high; its centre and 8
+points on its rim), can travel
 from a position along a direction with every sample in FREE voxels, in steps of half a
 voxel, up to a limit. Outside the grid is UNKNOWN.
 
@@ -93,15 +97,15 @@ class KnownSpaceConfig:
         the range at which the top of the tube ahead enters the view (see the module
         docstring of :mod:`companion.guidance.envelope`).
     pixel_stride : int
-        Every n-th pixel of every n-th row is cast (4 → 4 800 rays at 320 × 240).
+        One ray per n × n pixel block (4 → 4 800 rays at 320 × 240).
+    block_min_matched : float
+        Fraction of a block's pixels that must be matched for its ray to be cast (to the
+        nearest of them); fewer is unknown (or open sky).
     hit_clear_m : float
         Free marking stops this far before a hit [m] (range noise must not clear the
         surface voxel).
     sky_min_elevation_deg : float
         Open-sky rule: lowest ray elevation above the horizon [deg] (negative: below).
-    blind_band_px : int
-        Left image columns the matcher cannot match (its disparity range plus half a
-        block); never open sky. Set by the caller from the matcher.
     ego_free_radius_m : float
         Voxels centred within this distance of the vehicle become FREE where UNKNOWN [m].
     ego_clear_radius_m : float
@@ -115,15 +119,15 @@ class KnownSpaceConfig:
     size_z_vox: int = 64
     max_range_m: float = 8.0
     pixel_stride: int = 4
+    block_min_matched: float = 0.25
     hit_clear_m: float = 0.2
     sky_min_elevation_deg: float = -5.0
-    blind_band_px: int = 0
-    ego_free_radius_m: float = 0.55
+    ego_free_radius_m: float = 0.35
     ego_clear_radius_m: float = 0.25
     start_free_radius_m: float = 1.2
 
     def __post_init__(self) -> None:
-        for name in ("size_xy_vox", "size_z_vox", "pixel_stride", "blind_band_px"):
+        for name in ("size_xy_vox", "size_z_vox", "pixel_stride"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
@@ -142,6 +146,8 @@ class KnownSpaceConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        if not 0.0 < self.block_min_matched <= 1.0:
+            raise ValueError(f"block_min_matched must be in (0, 1], got {self.block_min_matched}")
         if not -90.0 <= self.sky_min_elevation_deg <= 90.0:
             raise ValueError(
                 f"sky_min_elevation_deg must be in [-90, 90], got {self.sky_min_elevation_deg}"
@@ -244,6 +250,7 @@ def _integrate_depth(
     voxel,
     depth,
     stride,
+    min_matched,
     fx,
     fy,
     cx,
@@ -255,27 +262,44 @@ def _integrate_depth(
     sky_min_sin_elev,
     blind_band_px,
 ):
-    """Cast every ``stride``-th pixel of ``depth`` (float32, NaN unknown) into the grid.
+    """Cast one ray per ``stride`` × ``stride`` block of ``depth`` (float32, NaN unknown).
 
-    Returns the number of rays cast.
+    A block with at least ``min_matched`` matched pixels casts a ray through its centre to
+    the *nearest* of them (min-pooling: small holes are filled conservatively and a thin
+    obstacle between block centres is not missed); a block wholly above the first matched
+    pixel of each of its columns is open sky (see the module docstring); any other block
+    is unknown. Returns the number of rays cast.
     """
     height, width = depth.shape
     inv = 1.0 / voxel
     n_rays = 0
-    for u in range(0, width, stride):
-        # open-sky run: rows from the top down to the first matched pixel of this column
-        first_matched = height
-        if u >= blind_band_px:
-            for v in range(height):
-                if not math.isnan(depth[v, u]):
-                    first_matched = v
-                    break
-        else:
-            first_matched = 0
-        xn = (u - cx) / fx
-        for v in range(0, height, stride):
-            d = depth[v, u]
-            yn = (v - cy) / fy
+    # first matched row of every column (0 in the blind band: never sky)
+    first_matched = np.empty(width, np.int64)
+    for u in range(width):
+        first_matched[u] = height
+        if u < blind_band_px:
+            first_matched[u] = 0
+            continue
+        for v in range(height):
+            if not math.isnan(depth[v, u]):
+                first_matched[u] = v
+                break
+    for bu in range(0, width - stride + 1, stride):
+        sky_rows = height
+        for u in range(bu, bu + stride):
+            sky_rows = min(sky_rows, first_matched[u])
+        xn = (bu + 0.5 * (stride - 1) - cx) / fx
+        for bv in range(0, height - stride + 1, stride):
+            n_matched = 0
+            d = np.inf
+            for v in range(bv, bv + stride):
+                for u in range(bu, bu + stride):
+                    dv = depth[v, u]
+                    if not math.isnan(dv):
+                        n_matched += 1
+                        if dv < d:
+                            d = dv
+            yn = (bv + 0.5 * (stride - 1) - cy) / fy
             norm = math.sqrt(xn * xn + yn * yn + 1.0)
             # unit ray direction, camera frame then NED
             ux = xn / norm
@@ -284,10 +308,10 @@ def _integrate_depth(
             dx = R_ned_from_cam[0, 0] * ux + R_ned_from_cam[0, 1] * uy + R_ned_from_cam[0, 2] * uz
             dy = R_ned_from_cam[1, 0] * ux + R_ned_from_cam[1, 1] * uy + R_ned_from_cam[1, 2] * uz
             dz = R_ned_from_cam[2, 0] * ux + R_ned_from_cam[2, 1] * uy + R_ned_from_cam[2, 2] * uz
-            if math.isnan(d):
-                # open sky: unmatched above the first matched pixel, not too far below the
-                # horizon (NED z down: elevation sin = -dz)
-                if v < first_matched and -dz >= sky_min_sin_elev:
+            if n_matched < min_matched:
+                # open sky: the whole block above its columns' first matched pixels, not
+                # too far below the horizon (NED z down: elevation sine = -dz)
+                if n_matched == 0 and bv + stride <= sky_rows and -dz >= sky_min_sin_elev:
                     _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
                               dx, dy, dz, max_range, False)  # fmt: skip
                     n_rays += 1
@@ -335,10 +359,12 @@ def _mark_ball(grid, origin, voxel, px, py, pz, radius, clear_occupied):
 
 
 @numba.njit(cache=True)
-def _free_distance(grid, origin, voxel, px, py, pz, ux, uy, uz, radius, limit):
-    """Largest s ≤ limit (half-voxel steps) with the disc of ``radius`` FREE from 0 to s.
+def _free_distance(grid, origin, voxel, px, py, pz, ux, uy, uz, radius, half_height, limit):
+    """Largest s ≤ limit (half-voxel steps) with the body's section FREE from 0 to s.
 
-    ``(ux, uy, uz)`` is a unit direction. Returns -1.0 when the disc at s = 0 is not FREE.
+    ``(ux, uy, uz)`` is a unit direction; the section is an ellipse normal to it with
+    semi-axes ``radius`` (horizontal, ``e1 = u × down``) and ``half_height`` (``e2 = u ×
+    e1``). Returns -1.0 when the section at s = 0 is not FREE.
     """
     inv = 1.0 / voxel
     # two unit vectors normal to u
@@ -360,7 +386,7 @@ def _free_distance(grid, origin, voxel, px, py, pz, ux, uy, uz, radius, limit):
     for m in range(8):
         a = m * (math.pi / 4.0)
         ca = math.cos(a) * radius
-        sa = math.sin(a) * radius
+        sa = math.sin(a) * half_height
         offs[m + 1, 0] = ca * e1x + sa * e2x
         offs[m + 1, 1] = ca * e1y + sa * e2y
         offs[m + 1, 2] = ca * e1z + sa * e2z
@@ -391,11 +417,11 @@ def _warm_up() -> None:
     depth[2, 2] = 0.5
     depth.flags.writeable = False  # perception's depth is read-only: its own specialization
     _integrate_depth(
-        grid, origin, 0.2, depth, 1, 2.0, 2.0, 1.5, 1.5, np.full(3, 0.8),
+        grid, origin, 0.2, depth, 2, 1, 2.0, 2.0, 1.5, 1.5, np.full(3, 0.8),
         np.eye(3), 1.0, 0.1, -0.1, 0,
     )  # fmt: skip
     _mark_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3, True)
-    _free_distance(grid, origin, 0.2, 0.8, 0.8, 0.8, 1.0, 0.0, 0.0, 0.1, 0.5)
+    _free_distance(grid, origin, 0.2, 0.8, 0.8, 0.8, 1.0, 0.0, 0.0, 0.1, 0.1, 0.5)
 
 
 class KnownSpace:
@@ -444,6 +470,7 @@ class KnownSpace:
         intrinsics: StereoIntrinsics,
         pos_ned_m,
         R_ned_from_frd,
+        blind_band_px: int = 0,
     ) -> int:
         """Fold one depth frame (left camera, NaN = unknown) in; returns the rays cast.
 
@@ -457,6 +484,9 @@ class KnownSpace:
             Vehicle position at the frame's capture time [m, NED].
         R_ned_from_frd : array_like, shape (3, 3)
             Body FRD → NED at the capture time.
+        blind_band_px : int
+            Left image columns the matcher cannot match (perception's
+            ``blind_band_px``): never open sky.
         """
         c = self.config
         pos = np.asarray(pos_ned_m, dtype=float)
@@ -474,6 +504,7 @@ class KnownSpace:
             c.voxel_m,
             depth,
             c.pixel_stride,
+            max(1, math.ceil(c.block_min_matched * c.pixel_stride**2)),
             float(intrinsics.fx_px),
             float(intrinsics.fy_px),
             float(intrinsics.cx_px),
@@ -483,7 +514,7 @@ class KnownSpace:
             c.max_range_m,
             c.hit_clear_m,
             math.sin(math.radians(c.sky_min_elevation_deg)),
-            c.blind_band_px,
+            int(blind_band_px),
         )
         self.mark_vehicle(pos)
         self.frames += 1
@@ -509,12 +540,21 @@ class KnownSpace:
             return int(UNKNOWN)
         return int(self.grid[tuple(idx)])
 
-    def free_distance_m(self, pos_ned_m, direction_ned, radius_m: float, limit_m: float) -> float:
-        """Known-free distance [m] for a disc of ``radius_m`` moving along ``direction_ned``.
+    def free_distance_m(
+        self,
+        pos_ned_m,
+        direction_ned,
+        radius_m: float,
+        limit_m: float,
+        half_height_m: float | None = None,
+    ) -> float:
+        """Known-free distance [m] for the vehicle's section moving along ``direction_ned``.
 
-        Returns the largest distance ≤ ``limit_m`` (multiples of half a voxel) over which
-        the centre and 8 rim points of the disc stay in FREE voxels; 0 when the vehicle
-        cannot move at all (also for a zero direction).
+        The section is an ellipse normal to the direction, ``radius_m`` wide on each side
+        (horizontal) and ``half_height_m`` (default ``radius_m``) high. Returns the largest
+        distance ≤ ``limit_m`` (multiples of half a voxel) over which its centre and 8 rim
+        points stay in FREE voxels; 0 when the vehicle cannot move at all (also for a zero
+        direction).
         """
         u = np.asarray(direction_ned, dtype=float)
         n = math.sqrt(float(u @ u))
@@ -533,6 +573,7 @@ class KnownSpace:
             float(u[1]),
             float(u[2]),
             float(radius_m),
+            float(radius_m if half_height_m is None else half_height_m),
             float(limit_m),
         )
         return max(float(d), 0.0)

@@ -607,7 +607,7 @@ class CompanionService:
         g = out.guidance
         t_computed = time.monotonic_ns()
         sent_ns = None
-        target = PositionTarget(tuple(float(x) for x in g.setpoint_ned_m), float(g.yaw_rad))
+        target = PositionTarget(tuple(float(x) for x in out.setpoint_ned_m), float(out.yaw_rad))
         if self.modes.steering and self.failsafe.status.health.ok and self.policy is not None:
             now_s = time.monotonic()
             if self.policy.on_new_target(target, now_s):

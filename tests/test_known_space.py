@@ -110,11 +110,11 @@ def test_unmatched_pixels_and_unseen_directions_are_not_free():
 
 
 def test_open_sky_rule_only_above_the_horizon_and_outside_the_blind_band():
-    cfg = KnownSpaceConfig(blind_band_px=70)
+    cfg = KnownSpaceConfig()
     space = KnownSpace(cfg)
     pos = np.array([0.0, 0.0, -7.0])
     nan = np.full((K.height_px, K.width_px), np.nan, np.float32)
-    space.integrate(nan, K, pos, LEVEL_NORTH)  # level: half the image is above the horizon
+    space.integrate(nan, K, pos, LEVEL_NORTH, blind_band_px=70)  # level: half is sky
     up = np.array([math.cos(math.radians(8)), 0.0, -math.sin(math.radians(8))])
     assert space.free_distance_m(pos, up, 0.0, 20.0) >= cfg.max_range_m - VOXEL_M
     down = np.array([math.cos(math.radians(12)), 0.0, math.sin(math.radians(12))])
@@ -126,7 +126,7 @@ def test_open_sky_rule_only_above_the_horizon_and_outside_the_blind_band():
     space3 = KnownSpace(cfg)
     masked = nan.copy()
     masked[0, :] = 50.0  # a far matched row at the top: the rows below are not sky
-    space3.integrate(masked, K, pos, LEVEL_NORTH)
+    space3.integrate(masked, K, pos, LEVEL_NORTH, blind_band_px=70)
     assert space3.free_distance_m(pos, up, 0.0, 20.0) < 2.0
 
 

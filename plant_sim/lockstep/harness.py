@@ -136,12 +136,10 @@ def run_scene(
         pose = PoseAtCapture(state.pos_ned_m, state.vel_ned_mps, state.R_ned_from_frd)
         out = pipeline.process(frame, pose)
         decision = out.guidance
-        quad.set_setpoint(
-            Setpoint(pos_ned_m=tuple(decision.setpoint_ned_m), yaw_rad=decision.yaw_rad)
-        )
+        quad.set_setpoint(Setpoint(pos_ned_m=tuple(out.setpoint_ned_m), yaw_rad=out.yaw_rad))
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
         goal_dist = float(np.linalg.norm(state.pos_ned_m - goal))
-        _record(history, state, surface, decision, len(out.perception.obstacles))
+        _record(history, state, surface, out, len(out.perception.obstacles))
         min_surface = min(min_surface, surface)
         if decision.avoidance_flag:
             avoid_time += frame_period_s
@@ -198,8 +196,9 @@ def _render_frame(
     )
 
 
-def _record(history: History, s: VehicleState, surface_m: float, decision, n_seen: int) -> None:
-    sp = decision.setpoint_ned_m
+def _record(history: History, s: VehicleState, surface_m: float, out, n_seen: int) -> None:
+    decision = out.guidance
+    sp = out.setpoint_ned_m
     history.append(
         time_s=s.time_s,
         north_m=s.pos_ned_m[0],
@@ -226,4 +225,7 @@ def _record(history: History, s: VehicleState, surface_m: float, decision, n_see
         setpoint_down_m=sp[2],
         n_obstacles_seen=n_seen,
         tilt_saturated=1.0 if s.tilt_saturated else 0.0,
+        free_distance_m=out.envelope.free_distance_m,
+        speed_limit_mps=out.envelope.speed_limit_mps,
+        speed_mps=out.envelope.speed_mps,
     )
