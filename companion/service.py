@@ -55,6 +55,7 @@ from companion.link.messages import (
 )
 from companion.link.mode_watch import ControlPhase, ModeWatch
 from companion.link.setpoints import PositionTarget, SetpointPolicy, position_target_message
+from companion.link.speed_limit import SpeedLimitPolicy, change_speed_command
 from companion.link.takeoff import (
     TakeoffCommand,
     TakeoffEvent,
@@ -115,6 +116,8 @@ class CompanionService:
         self.failsafe = FailsafeMonitor(fs.frame_timeout_s, fs.telemetry_timeout_s)
         self.modes = ModeWatch(request_mode=link.request_mode, prestream_s=link.px4_prestream_s)
         self.policy: SetpointPolicy | None = None
+        self.speed_policy = SpeedLimitPolicy()
+        self._overspeed_notice_s = -math.inf
         self._session: zenoh.Session | None = None
         self._subscriber: FrameSubscriber | None = None
         self._status: StatusPublisher | None = None
@@ -132,6 +135,8 @@ class CompanionService:
             "autopilot_restarts": 0,
             "mode_releases": 0,
             "pipeline_errors": 0,
+            "speed_limits_sent": 0,
+            "overspeed_frames": 0,
             "frames_during_takeoff": 0,
         }
         self._reset_vehicle_state()
@@ -430,6 +435,7 @@ class CompanionService:
             self.counters["mode_releases"] += 1
         if after in (ControlPhase.ACTIVE, ControlPhase.PRESTREAM) and self.policy is not None:
             self.policy.reset()  # first setpoint goes out at once
+            self.speed_policy.reset()  # ArduCopter resets its speed on entering GUIDED
             self._resend_now(now_s)
 
     def _on_timesync(self, msg, now_s: float) -> None:
@@ -612,6 +618,8 @@ class CompanionService:
             now_s = time.monotonic()
             if self.policy.on_new_target(target, now_s):
                 sent_ns = self._send_target(target, now_s, frame.capture_ns)
+            self._state_speed_limit(out.envelope.speed_limit_mps, now_s)
+        self._check_overspeed(out)
         self._check_goal(pose.pos_ned_m, frame.capture_ns)
         if g.avoidance_flag != self._avoiding:
             self._avoiding = bool(g.avoidance_flag)
@@ -668,6 +676,33 @@ class CompanionService:
             self._waypoint += 1
             self.pipeline.goal_ned_m = np.array(wps[self._waypoint], dtype=float)
             self._notice(f"Waypoint {self._waypoint} of {len(wps) - 1}")
+
+    def _state_speed_limit(self, limit_mps: float, now_s: float) -> None:
+        """ArduPilot: the envelope's speed limit as MAV_CMD_DO_CHANGE_SPEED (see
+        :mod:`companion.link.speed_limit`); other autopilots: the carrot alone."""
+        if self.modes.flavour is not Flavour.ARDUPILOT:
+            return
+        speed = self.speed_policy.due(limit_mps, now_s)
+        if speed is None:
+            return
+        cfg = self.config.link
+        self.link.send(change_speed_command(speed, cfg.target_system, cfg.target_component))
+        self.speed_policy.sent(speed, now_s)
+        self.counters["speed_limits_sent"] += 1
+
+    def _check_overspeed(self, out) -> None:
+        """Warn (log + STATUSTEXT, at most every 5 s) when telemetry exceeds the limit."""
+        env = out.envelope
+        if not env.overspeed:
+            return
+        self.counters["overspeed_frames"] += 1
+        now_s = time.monotonic()
+        if now_s - self._overspeed_notice_s >= 5.0:
+            self._overspeed_notice_s = now_s
+            self._notice(
+                f"Speed {env.speed_mps:.1f} m/s above limit {env.speed_limit_mps:.1f} m/s",
+                _SEV_WARNING,
+            )
 
     def _send_target(self, target: PositionTarget, now_s: float, frame_ns: int | None) -> int:
         cfg = self.config.link
