@@ -136,6 +136,8 @@ class CompanionService:
             "mode_releases": 0,
             "pipeline_errors": 0,
             "speed_limits_sent": 0,
+            "speed_limits_accepted": 0,
+            "speed_limits_refused": 0,
             "overspeed_frames": 0,
             "frames_during_takeoff": 0,
         }
@@ -452,6 +454,13 @@ class CompanionService:
         if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             if accepted:
                 self._streams_acked += 1
+            return
+        if msg.command == mavlink.MAV_CMD_DO_CHANGE_SPEED:
+            key = "speed_limits_accepted" if accepted else "speed_limits_refused"
+            self.counters[key] += 1
+            if not accepted and self.counters[key] == 1:
+                _log.info("autopilot refuses DO_CHANGE_SPEED (result %d): the carrot alone "
+                          "bounds the speed", msg.result)  # fmt: skip
             return
         if msg.command == mavlink.MAV_CMD_DO_SET_MODE:
             before = self.modes.phase
