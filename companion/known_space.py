@@ -37,17 +37,23 @@ block is matched):
   their outline is matched at a finite depth, and every pixel below a matched pixel in
   its column stays UNKNOWN. Named limitation: a textureless obstacle that fills the top
   of the image with no matched edge is mistaken for sky.
-* **The vehicle itself**: voxels whose centre lies within ``ego_free_radius_m`` of the
-  vehicle become FREE where UNKNOWN (the vehicle is there), and within
-  ``ego_clear_radius_m`` also where OCCUPIED. The first frame also frees a ball of
-  ``start_free_radius_m`` (named assumption: the vehicle starts in a clear bubble, as
-  after a take-off; the camera cannot see beside or below itself).
+* **The vehicle itself**: OCCUPIED voxels centred within ``ego_clear_radius_m`` of the
+  vehicle become FREE (the vehicle is there). UNKNOWN is never made FREE around the
+  vehicle: a bubble that moved with it would let it creep into unseen space, one bubble
+  at a time. Only the first frame frees a ball of ``start_free_radius_m`` (named
+  assumption: the vehicle starts in a clear bubble, as after a take-off; the camera
+  cannot see beside or below itself).
 
 Query (:meth:`KnownSpace.free_distance_m`): the distance the vehicle's body, an ellipse
 normal to the direction (``radius_m`` wide, ``half_height_m`` high; its centre and 8
-points on its rim), can travel
-from a position along a direction with every sample in FREE voxels, in steps of half a
-voxel, up to a limit. Outside the grid is UNKNOWN.
+points on its rim), can travel from a position along a direction, in steps of half a
+voxel, up to a limit: the centre must be in FREE voxels beyond ``body_m`` (inside it is
+the vehicle), the rim in FREE voxels beyond ``near_field_m`` and in voxels that are not
+OCCUPIED before it. The near field is where the rim is outside any forward camera's
+view (0.35 m to the right is in the left eye's ±24° view only from 1.0 m ahead): what
+the vehicle could not have looked at without being there, excused only when it was never
+seen occupied (named limitation: a thin obstacle that reaches into the rim's path only
+within 1 m ahead and never into the view). Outside the grid is UNKNOWN.
 
 Costs (``benchmarks/bench_known_space.py``): about 0.3–0.6 ms per 320 × 240 frame at the
 default stride of 4 (4 800 rays) on the 2-core machine; the budget is 2 ms.
@@ -106,10 +112,9 @@ class KnownSpaceConfig:
         surface voxel).
     sky_min_elevation_deg : float
         Open-sky rule: lowest ray elevation above the horizon [deg] (negative: below).
-    ego_free_radius_m : float
-        Voxels centred within this distance of the vehicle become FREE where UNKNOWN [m].
     ego_clear_radius_m : float
-        ... and within this distance also where OCCUPIED (the vehicle is there) [m].
+        OCCUPIED voxels centred within this distance of the vehicle become FREE (the
+        vehicle is there) [m].
     start_free_radius_m : float
         On the first frame, voxels within this distance become FREE [m] (assumption).
     """
@@ -122,7 +127,6 @@ class KnownSpaceConfig:
     block_min_matched: float = 0.25
     hit_clear_m: float = 0.2
     sky_min_elevation_deg: float = -5.0
-    ego_free_radius_m: float = 0.35
     ego_clear_radius_m: float = 0.25
     start_free_radius_m: float = 1.2
 
@@ -139,7 +143,6 @@ class KnownSpaceConfig:
                 raise ValueError(f"{name} must be finite and positive, got {value!r}")
         for name in (
             "hit_clear_m",
-            "ego_free_radius_m",
             "ego_clear_radius_m",
             "start_free_radius_m",
         ):
@@ -359,7 +362,28 @@ def _mark_ball(grid, origin, voxel, px, py, pz, radius, clear_occupied):
 
 
 @numba.njit(cache=True)
-def _free_distance(grid, origin, voxel, px, py, pz, ux, uy, uz, radius, half_height, limit):
+def _clear_occupied_ball(grid, origin, voxel, px, py, pz, radius):
+    """OCCUPIED → FREE for voxels centred within ``radius`` of (px, py, pz)."""
+    inv = 1.0 / voxel
+    r_vox = math.ceil(radius * inv) + 1
+    ci = math.floor(px * inv) - origin[0]
+    cj = math.floor(py * inv) - origin[1]
+    ck = math.floor(pz * inv) - origin[2]
+    r2 = radius * radius
+    for i in range(max(ci - r_vox, 0), min(ci + r_vox + 1, grid.shape[0])):
+        xc = (i + origin[0] + 0.5) * voxel - px
+        for j in range(max(cj - r_vox, 0), min(cj + r_vox + 1, grid.shape[1])):
+            yc = (j + origin[1] + 0.5) * voxel - py
+            for k in range(max(ck - r_vox, 0), min(ck + r_vox + 1, grid.shape[2])):
+                zc = (k + origin[2] + 0.5) * voxel - pz
+                if xc * xc + yc * yc + zc * zc <= r2 and grid[i, j, k] == 2:
+                    grid[i, j, k] = 1
+
+
+@numba.njit(cache=True)
+def _free_distance(
+    grid, origin, voxel, px, py, pz, ux, uy, uz, radius, half_height, limit, body, near_field
+):
     """Largest s ≤ limit (half-voxel steps) with the body's section FREE from 0 to s.
 
     ``(ux, uy, uz)`` is a unit direction; the section is an ellipse normal to it with
@@ -400,8 +424,16 @@ def _free_distance(grid, origin, voxel, px, py, pz, ux, uy, uz, radius, half_hei
                 grid, origin, inv,
                 px + t * ux + offs[m, 0], py + t * uy + offs[m, 1], pz + t * uz + offs[m, 2],
             )  # fmt: skip
-            if i < 0 or grid[i, j, k] != 1:
+            if i < 0:
                 return last
+            cur = grid[i, j, k]
+            if cur == 1:
+                continue
+            if m == 0 and t <= body:
+                continue
+            if m > 0 and t < near_field and cur == 0:
+                continue
+            return last
         last = t
         if t >= limit:
             break
@@ -421,7 +453,8 @@ def _warm_up() -> None:
         np.eye(3), 1.0, 0.1, -0.1, 0,
     )  # fmt: skip
     _mark_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3, True)
-    _free_distance(grid, origin, 0.2, 0.8, 0.8, 0.8, 1.0, 0.0, 0.0, 0.1, 0.1, 0.5)
+    _free_distance(grid, origin, 0.2, 0.8, 0.8, 0.8, 1.0, 0.0, 0.0, 0.1, 0.1, 0.5, 0.1, 0.2)
+    _clear_occupied_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3)
 
 
 class KnownSpace:
@@ -526,8 +559,7 @@ class KnownSpace:
         pos = np.asarray(pos_ned_m, dtype=float)
         self._centre_on(pos)
         self._started = True
-        _mark_ball(self.grid, self.origin_vox, c.voxel_m, *pos, c.ego_free_radius_m, False)
-        _mark_ball(self.grid, self.origin_vox, c.voxel_m, *pos, c.ego_clear_radius_m, True)
+        _clear_occupied_ball(self.grid, self.origin_vox, c.voxel_m, *pos, c.ego_clear_radius_m)
 
     # -- queries ---------------------------------------------------------------------------
 
@@ -547,14 +579,17 @@ class KnownSpace:
         radius_m: float,
         limit_m: float,
         half_height_m: float | None = None,
+        body_m: float = 0.0,
+        near_field_m: float = 0.0,
     ) -> float:
         """Known-free distance [m] for the vehicle's section moving along ``direction_ned``.
 
         The section is an ellipse normal to the direction, ``radius_m`` wide on each side
         (horizontal) and ``half_height_m`` (default ``radius_m``) high. Returns the largest
         distance ≤ ``limit_m`` (multiples of half a voxel) over which its centre and 8 rim
-        points stay in FREE voxels; 0 when the vehicle cannot move at all (also for a zero
-        direction).
+        points stay in FREE voxels (the centre within ``body_m`` and the rim within
+        ``near_field_m``: see the module docstring); 0 when the vehicle cannot move at
+        all (also for a zero direction).
         """
         u = np.asarray(direction_ned, dtype=float)
         n = math.sqrt(float(u @ u))
@@ -575,6 +610,8 @@ class KnownSpace:
             float(radius_m),
             float(radius_m if half_height_m is None else half_height_m),
             float(limit_m),
+            float(body_m),
+            float(near_field_m),
         )
         return max(float(d), 0.0)
 

@@ -20,7 +20,7 @@ CFG = EnvelopeConfig()
 def _const_free(free_m: float):
     calls = []
 
-    def free(pos, direction, radius_m, limit_m, half_height_m):
+    def free(pos, direction, radius_m, limit_m, half_height_m, body_m, near_field_m):
         calls.append((np.array(pos), np.array(direction), radius_m, limit_m, half_height_m))
         return min(free_m, limit_m)
 

@@ -193,3 +193,37 @@ def test_perception_depth_contract_nan_is_unknown():
     rel = np.abs(depth[near] - truth[near]) / truth[near]
     assert np.median(rel) < 0.02, np.median(rel)
     assert np.isnan(depth).mean() == pytest.approx(seen.unknown_fraction, abs=1e-9)
+
+
+def test_no_creep_into_unseen_space():
+    """Carrots taken from the map (free − 0.3 m margin, at least 0.15 m) never carry the
+    vehicle out of the start bubble when nothing else was seen: the vehicle does not
+    make its own surroundings free."""
+    space = KnownSpace()
+    pos = np.array([0.0, 0.0, -7.0])
+    down50 = rotation_321(0.0, math.radians(-50.0), 0.0)
+    nan = np.full((K.height_px, K.width_px), np.nan, np.float32)
+    start = pos.copy()
+    for direction in ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]):
+        for _ in range(50):
+            space.integrate(nan, K, pos, down50)
+            free = space.free_distance_m(pos, direction, 0.35, 10.0, 0.2, 0.35, 0.8)
+            reach = free - 0.3
+            if reach < 0.15:
+                break
+            pos = pos + reach * np.array(direction)
+        assert np.linalg.norm(pos - start) <= space.config.start_free_radius_m
+
+
+def test_near_field_excuses_unseen_rim_but_never_an_obstacle():
+    space = KnownSpace(KnownSpaceConfig(start_free_radius_m=0.0))
+    pos = np.array([0.1, 0.1, -7.1])
+    space.integrate(_wall_depth(30.0), K, pos, LEVEL_NORTH)  # sees north, nothing beside
+    strict = space.free_distance_m(pos, (1, 0, 0), 0.35, 10.0, 0.2)
+    excused = space.free_distance_m(pos, (1, 0, 0), 0.35, 10.0, 0.2, 0.35, 1.05)
+    assert strict <= 0.1 < 7.0 <= excused
+    # an obstacle where the rim passes 0.5 m ahead stops it although it is in the near field
+    space.grid[space.grid.shape[0] // 2 + 2, :, :] = 2  # a wall of occupied voxels
+    wall_north_m = (space.origin_vox[0] + space.grid.shape[0] // 2 + 2) * VOXEL_M
+    blocked = space.free_distance_m(pos, (1, 0, 0), 0.35, 10.0, 0.2, 0.35, 1.05)
+    assert blocked <= wall_north_m - pos[0]

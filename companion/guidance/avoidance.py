@@ -369,6 +369,7 @@ def guidance_step(
                     candidate_indices=overlapping_cluster(
                         cones, seeds, margin_rad=cfg.cone_margin_rad
                     ),
+                    max_elevation_rad=cfg.max_aim_elevation_rad,
                 )
                 if choice is None:
                     mode, reason = Mode.HOLD, Reason.NO_FREE_DIRECTION

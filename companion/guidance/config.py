@@ -69,6 +69,9 @@ class GuidanceConfig:
         velocity) whose surface is farther than this is forgotten [m].
     max_tracks : int
         Most obstacles remembered; the least recently seen go first.
+    max_aim_elevation_rad : float
+        Aiming directions steeper than this are not candidates (12°: the safety
+        envelope's steepest path, inside the camera's ±18.5° vertical view).
     """
 
     n_candidates: int = 72
@@ -87,6 +90,7 @@ class GuidanceConfig:
     memory_timeout_s: float = 10.0
     forget_distance_m: float = 2.0
     max_tracks: int = 16
+    max_aim_elevation_rad: float = math.radians(12.0)
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):

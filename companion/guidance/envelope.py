@@ -50,7 +50,8 @@ __all__ = [
 ]
 
 FreeDistanceFn = Callable[..., float]
-"""``(pos_ned_m, unit_direction_ned, radius_m, limit_m, half_height_m) -> metres``."""
+"""``(pos_ned_m, unit_dir_ned, radius_m, limit_m, half_height_m, body_m, near_field_m)``
+→ known-free metres (:meth:`companion.known_space.KnownSpace.free_distance_m`)."""
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,10 @@ class EnvelopeConfig:
     vehicle_half_height_m : float
         Half-height of that section [m] (body, propellers and a few centimetres of
         height-hold error). The forward camera's ±18.5° view covers it 0.6 m ahead.
+    near_field_m : float
+        Within this distance ahead the section's rim may lie in unseen (never occupied)
+        space: the left eye (0.1 m left of the centre) sees 0.35 m to the right only
+        from (0.35 + 0.1) / tan 24° = 1.0 m ahead (see :mod:`companion.known_space`) [m].
     min_advance_m : float
         A carrot nearer than this is not sent: the target is the vehicle's position
         (brake) [m]. Keeps the vehicle from creeping into unseen space by the width of
@@ -92,6 +97,7 @@ class EnvelopeConfig:
     margin_m: float = 0.3
     vehicle_radius_m: float = 0.35
     vehicle_half_height_m: float = 0.2
+    near_field_m: float = 1.05
     min_advance_m: float = 0.15
     max_speed_mps: float = 10.0
     lookahead_m: float = 12.0
@@ -236,7 +242,13 @@ def envelope_step(
         direction = _path_direction(to_setpoint, math.radians(cfg.max_path_elevation_deg))
         free = float(
             free_distance(
-                pos, direction, cfg.vehicle_radius_m, cfg.lookahead_m, cfg.vehicle_half_height_m
+                pos,
+                direction,
+                cfg.vehicle_radius_m,
+                cfg.lookahead_m,
+                cfg.vehicle_half_height_m,
+                cfg.vehicle_radius_m,
+                cfg.near_field_m,
             )
         )
         reach = min(dist, max(0.0, free - d_stop - cfg.margin_m))
