@@ -183,7 +183,7 @@ class GuidanceOutput:
     aiming_point_ned_m : ndarray, shape (3,) or None
         The Eq. (28) tangent point chosen (AVOID via the planner only).
     tracks : tuple of TrackedObstacle
-        The obstacle memory after this step.
+        The confirmed obstacles of the memory after this step.
     """
 
     time_s: float
@@ -265,7 +265,7 @@ def guidance_step(
         goal_ned_m=goal,
         config=cfg,
     )
-    tracks = memory.tracks
+    tracks = tuple(t for t in memory.tracks if t.confirmed)
     cones = [collision_cone(pos, t.sphere) for t in tracks]
 
     to_goal = goal - pos
