@@ -363,10 +363,35 @@ def test_inside_a_boundary_with_radial_velocity_escapes_radially():
     np.testing.assert_allclose(_unit(out_dir), radial, atol=1e-12)
 
 
-def test_goal_inside_a_boundary_holds():
+def test_goal_inside_a_boundary_ends_in_a_latched_hold_outside_it():
+    """Unreachable goal: steer to the stop point goal_standoff_m before the boundary on the
+    straight path, then hold there (reported) whatever the velocity does: no go-around."""
+    cfg = GuidanceConfig(**ONE_SHOT)
     goal = CENTER_NED_M + np.array([0.5, 0.0, 0.0])
-    _, out = _step(GuidanceState(), 0.0, START_NED_M, [-2.0, 0.0, 0.0], goal, [INFLATED])
-    assert out.mode is Mode.HOLD and out.reason is Reason.GOAL_INSIDE_BOUNDARY
+    stop = CENTER_NED_M + np.array([INFLATED.radius_m + cfg.goal_standoff_m, 0.0, 0.0])
+    state, out = _step(GuidanceState(), 0.0, START_NED_M, [-2.0, 0.0, 0.0], goal, [INFLATED])
+    np.testing.assert_allclose(out.setpoint_ned_m, stop, atol=1e-9)
+    assert out.mode is not Mode.HOLD
+    pos = stop + np.array([0.2, 0.0, 0.0])  # arrived (within the standoff)
+    state, out = _step(state, 0.1, pos, [-0.3, 0.0, 0.0], goal, [INFLATED])
+    assert out.mode is Mode.HOLD and out.reason is Reason.GOAL_UNREACHABLE
+    held = out.setpoint_ned_m.copy()
+    assert np.linalg.norm(held - CENTER_NED_M) > INFLATED.radius_m
+    for k in range(60):  # braking, drifting sideways, the obstacle out of view: still held
+        state, out = _step(state, 0.2 + k * DT_S, pos, [0.0, 0.4, 0.0], goal, [])
+        assert out.mode is Mode.HOLD and out.reason is Reason.GOAL_UNREACHABLE
+        np.testing.assert_array_equal(out.setpoint_ned_m, held)
+
+
+def test_a_surface_just_past_the_goal_needs_no_go_around():
+    """The goal 0.2 m outside the inflated boundary (0.7 m from the real surface)."""
+    goal = CENTER_NED_M + np.array([INFLATED.radius_m + 0.2, 0.0, 0.0])
+    state = GuidanceState()
+    for k, x in enumerate(np.linspace(START_NED_M[0], goal[0], 30)):
+        pos = np.array([x, 0.0, -7.0])
+        state, out = _step(state, k * DT_S, pos, [-0.85, 0.0, 0.0], goal, [INFLATED])
+        assert out.mode is Mode.NAVIGATE, (k, out.reason)
+        np.testing.assert_allclose(out.setpoint_ned_m, goal)
 
 
 def test_obstacle_beyond_the_goal_is_ignored():

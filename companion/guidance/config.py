@@ -55,8 +55,14 @@ class GuidanceConfig:
     escape_clearance_m : float
         Inside a boundary sphere, the escape setpoint lies this far outside it [m].
     goal_clearance_m : float
-        An obstacle whose surface is farther than ``|goal - p| + goal_clearance_m`` is not
-        a threat: the vehicle stops at the goal before reaching it [m].
+        An obstacle whose (inflated) surface is farther than ``|goal - p| +
+        goal_clearance_m`` and that does not block the straight path to the goal is not
+        a threat: the vehicle stops at the goal before reaching it [m]. 0: the boundary
+        already carries the vehicle radius and the safety margin, so a real surface just
+        past the goal needs no go-around.
+    goal_standoff_m : float
+        An unreachable goal (inside a boundary) is replaced by the point this far before
+        the boundary on the straight path to it, where the vehicle holds [m].
     yaw_min_distance_m : float
         Below this horizontal distance to the setpoint the previous yaw is held [m].
     merge_distance_m : float
@@ -92,7 +98,8 @@ class GuidanceConfig:
     min_setpoint_distance_m: float = 2.0
     max_setpoint_distance_m: float = 10.0
     escape_clearance_m: float = 0.5
-    goal_clearance_m: float = 1.0
+    goal_clearance_m: float = 0.0
+    goal_standoff_m: float = 0.5
     yaw_min_distance_m: float = 0.5
     merge_distance_m: float = 1.0
     memory_timeout_s: float = 10.0

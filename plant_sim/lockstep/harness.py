@@ -85,6 +85,7 @@ class Verdict:
     frames: int
     # None, "collision", "timeout", "hold" (stopped: no free direction), "companion_stopped"
     failure: str | None
+    hold_reason: str | None = None  # guidance's reason when the run ended in a HOLD
 
     @property
     def passed(self) -> bool:
@@ -167,6 +168,8 @@ def run_scene(
     seq = 0
     next_progress_s = 0.0
     pending_kills = sorted(float(t) for t in kill_times_s)
+    hold_since: float | None = None
+    hold_reason: str | None = None
     kills: list[KillOutcome] = []
     while True:
         state = quad.snapshot()
@@ -192,8 +195,17 @@ def run_scene(
         if goal_dist < cfg.goal_tolerance_m:
             reached = True
             break
+        # a reported stop (HOLD) that has come to rest ends the run: the world is static
+        if decision.mode is Mode.HOLD and float(np.linalg.norm(state.vel_ned_mps)) < 0.05:
+            hold_since = state.time_s if hold_since is None else hold_since
+            if state.time_s - hold_since >= 2.0:
+                failure, hold_reason = "hold", decision.reason.value
+                break
+        else:
+            hold_since = None
         if state.time_s >= cfg.max_time_s:
             failure = "hold" if decision.mode is Mode.HOLD else "timeout"
+            hold_reason = decision.reason.value if failure == "hold" else None
             break
         if cfg.companion_stop_s is not None and state.time_s >= cfg.companion_stop_s:
             tail = _kill_tail(quad, scene.world, state.time_s, cfg)
@@ -226,6 +238,7 @@ def run_scene(
         final_goal_distance_m=round(float(np.linalg.norm(quad.pos_ned_m - goal)), 4),
         frames=seq + 1,
         failure=failure,
+        hold_reason=hold_reason,
     )
     return RunResult(verdict=verdict, history=history, kills=tuple(kills))
 
