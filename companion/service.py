@@ -35,6 +35,7 @@ from companion.clock_model import ClockModel, FrameClock, SyncResult, SyncSample
 from companion.config import CompanionConfig
 from companion.failsafe import FailsafeMonitor, Health
 from companion.frames_sub import FrameSubscriber, LatestFrameSlot
+from companion.guidance import Mode, Reason
 from companion.link.connection import MavlinkConnection
 from companion.link.flavour import (
     Flavour,
@@ -118,6 +119,7 @@ class CompanionService:
         self.policy: SetpointPolicy | None = None
         self.speed_policy = SpeedLimitPolicy()
         self._overspeed_notice_s = -math.inf
+        self._guidance_state: tuple[Mode, Reason] | None = None
         self._session: zenoh.Session | None = None
         self._subscriber: FrameSubscriber | None = None
         self._status: StatusPublisher | None = None
@@ -630,6 +632,15 @@ class CompanionService:
             self._state_speed_limit(out.envelope.speed_limit_mps, now_s)
         self._check_overspeed(out)
         self._check_goal(pose.pos_ned_m, frame.capture_ns)
+        if (g.mode, g.reason) != self._guidance_state:
+            self._guidance_state = (g.mode, g.reason)
+            if g.mode is Mode.HOLD:
+                sp = out.setpoint_ned_m
+                self._notice(
+                    f"Holding ({g.reason.value}) at N{sp[0]:.1f} E{sp[1]:.1f} D{sp[2]:.1f}",
+                    _SEV_WARNING,
+                )
+                self._event("hold", reason=g.reason.value, setpoint_ned_m=[float(x) for x in sp])
         if g.avoidance_flag != self._avoiding:
             self._avoiding = bool(g.avoidance_flag)
             self._event("avoidance", active=self._avoiding, capture_s=frame.capture_ns * 1e-9)
