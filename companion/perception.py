@@ -227,12 +227,20 @@ class PerceptionResult:
         Sorted by ``nearest_range_m`` (nearest first).
     unknown_fraction : float
         Fraction of the image without a valid disparity (never free space).
+    depth_m : numpy.ndarray or None
+        ``(H, W)`` float32 depth of the left image along its optical axis [m] (Eq. 27):
+        NaN = unknown (unmatched, the blind band, nearer than the matcher's range,
+        invalid), +inf = matched at zero disparity (farther than any range). Read-only.
+    blind_band_px : int
+        Left image columns the matcher cannot match (its disparity range plus half a block).
     """
 
     sequence: int
     capture_ns: int
     obstacles: tuple[Obstacle, ...]
     unknown_fraction: float
+    depth_m: np.ndarray | None = None
+    blind_band_px: int = 0
 
 
 def _sample_stride(n_pixels: int, max_points: int) -> int:
@@ -391,6 +399,25 @@ def _fit_sphere(xs, ys, n_grid, disp, fx, fy, cx, cy, fb, cap_depth_m, max_half_
     return nearest_m, center_cam, max(radius_fit_m, math.sqrt(farthest_sq))
 
 
+@numba.njit(cache=True)
+def _depth_from_fixed(disp, fb_fixed):
+    """Depth [m, float32] of an OpenCV fixed-point disparity image (Eq. 27).
+
+    ``fb_fixed`` is 16 · f · b; negative disparities (invalid) give NaN, zero gives +inf.
+    """
+    out = np.empty(disp.shape, np.float32)
+    for y in range(disp.shape[0]):
+        for x in range(disp.shape[1]):
+            d = disp[y, x]
+            if d < 0:
+                out[y, x] = np.nan
+            elif d == 0:
+                out[y, x] = np.inf
+            else:
+                out[y, x] = fb_fixed / np.float32(d)
+    return out
+
+
 @functools.cache
 def _warm_up() -> None:
     """Run every per-obstacle step once per process, on a tiny input with the argument types
@@ -419,6 +446,7 @@ def _warm_up() -> None:
             fill, 1, 0, 0, 2, 2, 1, edge, mask[1:3, 1:3].copy(), disp_px
         )
     _fit_sphere(2 * xs, 2 * ys, n_grid, disp_s, 1.0, 1.0, 0.0, 0.0, 1.0, 0.1, 1.0)
+    _depth_from_fixed(disp, np.float32(16.0))
 
 
 def _auto_block_size(width_px: int) -> int:
@@ -510,11 +538,18 @@ class StereoPerception:
         fb = k.focal_baseline_m_px
         valid = disp >= 0
         unknown_fraction = 1.0 - float(np.count_nonzero(valid)) / disp.size
+        # Columns the right image cannot see at the largest disparity, plus half a block.
+        band_px = n_disp + (cfg.block_size_px or _auto_block_size(width)) // 2
+        depth_m = _depth_from_fixed(disp, np.float32(_DISP_SCALE * fb))
+        depth_m.flags.writeable = False
+        empty = PerceptionResult(
+            frame.sequence, frame.capture_ns, (), unknown_fraction, depth_m, band_px
+        )
 
         # Integer disparities: d >= x  <=>  d >= ceil(x), compared in int16 (no float copy).
         near = (disp >= math.ceil(_DISP_SCALE * fb / cfg.threshold_m)).view(np.uint8)
         if cv2.countNonZero(near) == 0:  # the common empty frame: nothing to open or label
-            return PerceptionResult(frame.sequence, frame.capture_ns, (), unknown_fraction)
+            return empty
         if cfg.opening_px > 1:
             near = cv2.morphologyEx(near, cv2.MORPH_OPEN, self._kernel)
         # Blobs on a 2x subsampled mask: 4x cheaper labelling; areas count 4 pixels each.
@@ -523,14 +558,14 @@ class StereoPerception:
         # stats are shifted back to the half-resolution image, labels stay box-relative.
         bx, by, bw, bh = cv2.boundingRect(near_half)
         if bw == 0:
-            return PerceptionResult(frame.sequence, frame.capture_ns, (), unknown_fraction)
+            return empty
         n_labels, labels, stats, _ = cv2.connectedComponentsWithStats(
             near_half[by : by + bh, bx : bx + bw], connectivity=8
         )
         min_area = max(1, math.ceil(cfg.min_blob_fraction * width * height / 4.0))
         blobs = [i for i in range(1, n_labels) if stats[i, cv2.CC_STAT_AREA] >= min_area]
         if not blobs:
-            return PerceptionResult(frame.sequence, frame.capture_ns, (), unknown_fraction)
+            return empty
 
         # Depth-continuous flood fill from each blob out to threshold + extent margin, on
         # the same 2x subsampled grid as the blobs: a quarter of the pixels to convert and
@@ -558,8 +593,6 @@ class StereoPerception:
             )
             regions.append((value, rect, int(area)))
 
-        # Columns the right image cannot see at the largest disparity, plus half a block.
-        band_px = n_disp + (cfg.block_size_px or _auto_block_size(width)) // 2
         obstacles = []
         for value, rect, n_half in regions:
             x0, y0, w, h = rect
@@ -591,7 +624,7 @@ class StereoPerception:
             )
         obstacles.sort(key=lambda o: (o.nearest_range_m, tuple(o.center_ned_m)))
         return PerceptionResult(
-            frame.sequence, frame.capture_ns, tuple(obstacles), unknown_fraction
+            frame.sequence, frame.capture_ns, tuple(obstacles), unknown_fraction, depth_m, band_px
         )
 
     def _boundary(

@@ -1,8 +1,11 @@
 """The companion's pure avoidance pipeline: stereo frame + pose at capture → setpoint.
 
-One call per frame: perception (disparity → depth → boundary spheres in NED, paper §4–5)
-then guidance (collision cone, aiming point, mode switching, Fig. 5). No sockets, files or
-clocks: the networked service and the lockstep harness both run exactly this.
+One call per frame: perception (disparity → depth → boundary spheres in NED, paper §4–5),
+the known-space map (the depth folded in with the pose at capture), guidance (collision
+cone, aiming point, mode switching, Fig. 5), then the safety envelope (the position target
+moved no farther than known-free space allows, a speed limit; DESIGN.md "The safety
+envelope"). No sockets, files or clocks: the networked service and the lockstep harness
+both run exactly this.
 """
 
 from __future__ import annotations
@@ -12,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput
+from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
+from companion.known_space import KnownSpace, KnownSpaceConfig
 from companion.perception import PerceptionConfig, PerceptionResult, StereoPerception
 from protocols.stereo_frame import StereoFrame
 
@@ -29,10 +34,26 @@ class PoseAtCapture:
 
 @dataclass(frozen=True, eq=False)
 class PipelineOutput:
-    """What one frame produced: the obstacles seen and the guidance decision."""
+    """What one frame produced: the obstacles seen, the guidance decision, the command.
+
+    ``setpoint_ned_m`` and ``yaw_rad`` are what goes to the autopilot: the envelope's
+    carrot (never beyond known-free space) and guidance's yaw (facing the direction of
+    travel, so the camera looks before the vehicle moves).
+    """
 
     perception: PerceptionResult
     guidance: GuidanceOutput
+    envelope: EnvelopeOutput
+
+    @property
+    def setpoint_ned_m(self) -> np.ndarray:
+        """Position target to send [m, NED]."""
+        return self.envelope.setpoint_ned_m
+
+    @property
+    def yaw_rad(self) -> float:
+        """Yaw to send [rad, NED]."""
+        return self.guidance.yaw_rad
 
 
 class AvoidancePipeline:
@@ -42,7 +63,8 @@ class AvoidancePipeline:
     ----------
     goal_ned_m : sequence of 3 float
         Where to go, LOCAL_NED [m].
-    perception, guidance : configs (defaults: the paper's 4 m threshold etc.).
+    perception, guidance, known_space, envelope : configs (defaults: the paper's 4 m
+        threshold etc.).
     """
 
     def __init__(
@@ -50,6 +72,8 @@ class AvoidancePipeline:
         goal_ned_m,
         perception: PerceptionConfig | None = None,
         guidance: GuidanceConfig | None = None,
+        known_space: KnownSpaceConfig | None = None,
+        envelope: EnvelopeConfig | None = None,
     ) -> None:
         goal = np.array(goal_ned_m, dtype=float)
         if goal.shape != (3,) or not np.all(np.isfinite(goal)):
@@ -57,10 +81,22 @@ class AvoidancePipeline:
         self.goal_ned_m = goal
         self.perception = StereoPerception(perception)
         self.guidance = Guidance(guidance)
+        self.known_space = KnownSpace(known_space)
+        self.envelope_config = EnvelopeConfig() if envelope is None else envelope
 
     def process(self, frame: StereoFrame, pose: PoseAtCapture) -> PipelineOutput:
         """Run one frame; ``pose`` must be the vehicle's at ``frame.capture_ns``."""
         seen = self.perception.process(frame, pose.pos_ned_m, pose.R_ned_from_frd)
+        if seen.depth_m is not None:
+            self.known_space.integrate(
+                seen.depth_m,
+                frame.intrinsics,
+                pose.pos_ned_m,
+                pose.R_ned_from_frd,
+                blind_band_px=seen.blind_band_px,
+            )
+        else:
+            self.known_space.mark_vehicle(pose.pos_ned_m)
         decision = self.guidance.step(
             time_s=frame.capture_ns * 1e-9,
             pos_ned_m=pose.pos_ned_m,
@@ -68,4 +104,11 @@ class AvoidancePipeline:
             goal_ned_m=self.goal_ned_m,
             detections=seen.obstacles,
         )
-        return PipelineOutput(perception=seen, guidance=decision)
+        bounded = envelope_step(
+            pos_ned_m=pose.pos_ned_m,
+            vel_ned_mps=pose.vel_ned_mps,
+            setpoint_ned_m=decision.setpoint_ned_m,
+            free_distance=self.known_space.free_distance_m,
+            config=self.envelope_config,
+        )
+        return PipelineOutput(perception=seen, guidance=decision, envelope=bounded)

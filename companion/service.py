@@ -43,6 +43,7 @@ from companion.clock_model import (
 from companion.config import CompanionConfig
 from companion.failsafe import FailsafeMonitor, Health
 from companion.frames_sub import FrameSubscriber, LatestFrameSlot, PublisherProbe
+from companion.guidance import Mode, Reason
 from companion.link.connection import MavlinkConnection
 from companion.link.flavour import (
     Flavour,
@@ -64,6 +65,7 @@ from companion.link.messages import (
 )
 from companion.link.mode_watch import ControlPhase, ModeWatch
 from companion.link.setpoints import PositionTarget, SetpointPolicy, position_target_message
+from companion.link.speed_limit import SpeedLimitPolicy, change_speed_command
 from companion.link.takeoff import (
     TakeoffCommand,
     TakeoffEvent,
@@ -129,6 +131,9 @@ class CompanionService:
         )
         self.modes = ModeWatch(request_mode=link.request_mode, prestream_s=link.px4_prestream_s)
         self.policy: SetpointPolicy | None = None
+        self.speed_policy = SpeedLimitPolicy()
+        self._overspeed_notice_s = -math.inf
+        self._guidance_state: tuple[Mode, Reason] | None = None
         self._session: zenoh.Session | None = None
         self._subscriber: FrameSubscriber | None = None
         self._probe: PublisherProbe | None = None
@@ -150,6 +155,10 @@ class CompanionService:
             "autopilot_restarts": 0,
             "mode_releases": 0,
             "pipeline_errors": 0,
+            "speed_limits_sent": 0,
+            "speed_limits_accepted": 0,
+            "speed_limits_refused": 0,
+            "overspeed_frames": 0,
             "frames_during_takeoff": 0,
             "frames_implausible_time": 0,
             "telemetry_implausible_time": 0,
@@ -558,6 +567,7 @@ class CompanionService:
             self.counters["mode_releases"] += 1
         if after in (ControlPhase.ACTIVE, ControlPhase.PRESTREAM) and self.policy is not None:
             self.policy.reset()  # first setpoint goes out at once
+            self.speed_policy.reset()  # ArduCopter resets its speed on entering GUIDED
             self._resend_now(now_s)
 
     def _on_timesync(self, msg, now_s: float) -> None:
@@ -578,6 +588,13 @@ class CompanionService:
         if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             if accepted:
                 self._streams_acked += 1
+            return
+        if msg.command == mavlink.MAV_CMD_DO_CHANGE_SPEED:
+            key = "speed_limits_accepted" if accepted else "speed_limits_refused"
+            self.counters[key] += 1
+            if not accepted and self.counters[key] == 1:
+                _log.info("autopilot refuses DO_CHANGE_SPEED (result %d): the carrot alone "
+                          "bounds the speed", msg.result)  # fmt: skip
             return
         if msg.command == mavlink.MAV_CMD_DO_SET_MODE:
             before = self.modes.phase
@@ -776,7 +793,7 @@ class CompanionService:
         g = out.guidance
         t_computed = time.monotonic_ns()
         sent_ns = None
-        target = PositionTarget(tuple(float(x) for x in g.setpoint_ned_m), float(g.yaw_rad))
+        target = PositionTarget(tuple(float(x) for x in out.setpoint_ned_m), float(out.yaw_rad))
         if (
             self.modes.steering
             and self.failsafe.status.health.ok
@@ -786,7 +803,18 @@ class CompanionService:
             now_s = time.monotonic()
             if self.policy.on_new_target(target, now_s):
                 sent_ns = self._send_target(target, now_s, frame.capture_ns)
+            self._state_speed_limit(out.envelope.speed_limit_mps, now_s)
+        self._check_overspeed(out)
         self._check_goal(pose.pos_ned_m, frame.capture_ns)
+        if (g.mode, g.reason) != self._guidance_state:
+            self._guidance_state = (g.mode, g.reason)
+            if g.mode is Mode.HOLD:
+                sp = out.setpoint_ned_m
+                self._notice(
+                    f"Holding ({g.reason.value}) at N{sp[0]:.1f} E{sp[1]:.1f} D{sp[2]:.1f}",
+                    _SEV_WARNING,
+                )
+                self._event("hold", reason=g.reason.value, setpoint_ned_m=[float(x) for x in sp])
         if g.avoidance_flag != self._avoiding:
             self._avoiding = bool(g.avoidance_flag)
             self._event("avoidance", active=self._avoiding, capture_s=frame.capture_ns * 1e-9)
@@ -843,6 +871,33 @@ class CompanionService:
             self._waypoint += 1
             self.pipeline.goal_ned_m = np.array(wps[self._waypoint], dtype=float)
             self._notice(f"Waypoint {self._waypoint} of {len(wps) - 1}")
+
+    def _state_speed_limit(self, limit_mps: float, now_s: float) -> None:
+        """ArduPilot: the envelope's speed limit as MAV_CMD_DO_CHANGE_SPEED (see
+        :mod:`companion.link.speed_limit`); other autopilots: the carrot alone."""
+        if self.modes.flavour is not Flavour.ARDUPILOT:
+            return
+        speed = self.speed_policy.due(limit_mps, now_s)
+        if speed is None:
+            return
+        cfg = self.config.link
+        self.link.send(change_speed_command(speed, cfg.target_system, cfg.target_component))
+        self.speed_policy.sent(speed, now_s)
+        self.counters["speed_limits_sent"] += 1
+
+    def _check_overspeed(self, out) -> None:
+        """Warn (log + STATUSTEXT, at most every 5 s) when telemetry exceeds the limit."""
+        env = out.envelope
+        if not env.overspeed:
+            return
+        self.counters["overspeed_frames"] += 1
+        now_s = time.monotonic()
+        if now_s - self._overspeed_notice_s >= 5.0:
+            self._overspeed_notice_s = now_s
+            self._notice(
+                f"Speed {env.speed_mps:.1f} m/s above limit {env.speed_limit_mps:.1f} m/s",
+                _SEV_WARNING,
+            )
 
     def _send_target(self, target: PositionTarget, now_s: float, frame_ns: int | None) -> int:
         cfg = self.config.link

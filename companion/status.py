@@ -41,7 +41,16 @@ def status_document(out: PipelineOutput, **extra: Any) -> dict[str, Any]:
         "mode": g.mode.value,
         "reason": g.reason.value,
         "avoidance_flag": bool(g.avoidance_flag),
-        "setpoint_ned_m": _vec(g.setpoint_ned_m),
+        "setpoint_ned_m": _vec(out.setpoint_ned_m),
+        "guidance_setpoint_ned_m": _vec(g.setpoint_ned_m),
+        "envelope": {
+            "free_distance_m": round(float(out.envelope.free_distance_m), 3),
+            "stopping_distance_m": round(float(out.envelope.stopping_distance_m), 3),
+            "speed_limit_mps": round(float(out.envelope.speed_limit_mps), 3),
+            "speed_mps": round(float(out.envelope.speed_mps), 3),
+            "limited": bool(out.envelope.limited),
+            "overspeed": bool(out.envelope.overspeed),
+        },
         "yaw_rad": round(float(g.yaw_rad), 5),
         "aiming_point_ned_m": _vec(g.aiming_point_ned_m),
         "obstacles": [

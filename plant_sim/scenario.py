@@ -38,14 +38,16 @@ error that names the key (``camera.fps`` → "unknown key 'camera.fps'"). Exampl
     [failsafe]
     guided_velocity_timeout_s = 3.0
 
-    [vehicle]                # plant_sim.params.QuadrotorParams overrides
-    [control]                # plant_sim.params.ControlParams overrides
+    profile = "paper"        # plant_sim.profiles: "paper" (default) or "fast"
+    [vehicle]                # plant_sim.params.QuadrotorParams overrides (of the profile)
+    [control]                # plant_sim.params.ControlParams overrides (of the profile)
 
 Pure: :func:`load_scenario` reads one file; :func:`scenario_from_dict` does the rest.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import tomllib
@@ -56,6 +58,7 @@ from typing import Any
 
 from plant_sim.autopilot.modes import FlightMode
 from plant_sim.params import ControlParams, QuadrotorParams, from_dict
+from plant_sim.profiles import profile
 from plant_sim.stereo_camera import RenderParams
 from plant_sim.world import GroundPlane, Sphere, World, paper_world
 from protocols.camera import CameraModel
@@ -308,6 +311,7 @@ _TOP_KEYS = {
     "failsafe",
     "vehicle",
     "control",
+    "profile",
 }
 
 
@@ -343,10 +347,16 @@ def scenario_from_dict(d: Mapping[str, Any]) -> Scenario:
         kw["stream_rates_hz"] = _streams(d["streams"])
     if "failsafe" in d:
         kw["failsafe"] = _failsafe(d["failsafe"])
+    try:
+        base = profile(str(d.get("profile", "paper")))
+    except ValueError as exc:
+        raise ScenarioError(f"profile: {exc}") from None
+    kw["vehicle"], kw["control"] = base.vehicle, base.control
     for section, cls in (("vehicle", QuadrotorParams), ("control", ControlParams)):
         if section in d:
             try:
-                kw[section] = from_dict(cls, _check_keys(d[section], set(d[section]), section))
+                overrides = _check_keys(d[section], set(d[section]), section)
+                kw[section] = from_dict(cls, {**dataclasses.asdict(kw[section]), **dict(overrides)})
             except (TypeError, ValueError) as exc:
                 raise ScenarioError(f"{section}: {exc}") from None
     scenario = Scenario(**kw)

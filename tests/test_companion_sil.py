@@ -370,3 +370,26 @@ def test_ready_file_exists_exactly_while_ready(rig):
     assert ready.read_text(encoding="utf-8").strip() == line
     assert companion.stop() == 0, rig.logs()
     assert not ready.exists()
+
+
+@pytest.mark.parametrize("kill_at", ["steering", "avoidance", "around"])
+def test_companion_sigkill_leaves_the_vehicle_stopped_clear_of_the_obstacle(rig, kill_at):
+    """The safety envelope's first invariant with real processes: SIGKILL the companion
+    while it steers (cruising toward the sphere, as avoidance starts, going round it);
+    the autopilot holds the last position target, which lies in space seen free, so the
+    vehicle stops clear of the sphere (surface distance >= 0.25 m) and stays stopped."""
+    companion = rig.companion("--goal", *map(str, GOAL))
+    plant = rig.plant("--duration", "40")  # simulation seconds, whatever the pace
+    steering = rig.wait_event(companion, "steering", 30)
+    assert steering["setpoint_ned_m"] != list(GOAL)  # a carrot, not the far goal
+    if kill_at != "steering":
+        rig.wait_event(companion, "avoidance", 60, cond=lambda f: f["active"])
+    if kill_at == "around":
+        time.sleep(1.0)
+    companion.kill()
+    plant.proc.wait(timeout=240)  # runs out its 40 s of simulation
+    truth = _read_truth(rig.tmp / "run0" / "truth.csv")
+    assert truth["surface_distance_m"].min() >= 0.25, truth["surface_distance_m"].min()
+    speed = (truth["vel_n_mps"] ** 2 + truth["vel_e_mps"] ** 2 + truth["vel_d_mps"] ** 2) ** 0.5
+    assert speed[-50:].max() < 0.1  # stopped (the last second at 50 Hz)
+    assert truth["pos_n_m"][-1] > GOAL[0] + 1.0, "it stopped short of the far goal"

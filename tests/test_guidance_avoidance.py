@@ -30,6 +30,9 @@ CENTER_NED_M = np.array([10.0, 0.0, -7.0])
 TRUE_RADIUS_M = 1.5
 INFLATED = BoundarySphere(center_ned_m=tuple(CENTER_NED_M), radius_m=2.0)  # + 0.25 arm + 0.25
 DT_S = 1.0 / 30.0
+# Unit tests of the cone and mode logic feed one detection at a time: confirm at once.
+# Confirmation itself (2 of 3 by default) is tested below and in the paper flight.
+ONE_SHOT = {"confirm_n": 1, "confirm_m": 1}
 
 
 def _unit(v) -> np.ndarray:
@@ -186,6 +189,7 @@ def test_nothing_free_means_hold_latched_where_it_started():
 
 
 def _step(state, t, pos, vel, goal, detections=(), config=None):
+    config = GuidanceConfig(**ONE_SHOT) if config is None else config
     return guidance_step(
         state,
         time_s=t,
@@ -219,17 +223,17 @@ def test_noisy_grazing_velocity_raises_the_flag_once():
     grazing = alpha + noise
     assert np.any(grazing < alpha) and np.any(grazing > alpha), "really crosses the edge"
 
-    flags, _ = _graze(GuidanceConfig(), grazing)
+    flags, _ = _graze(GuidanceConfig(**ONE_SHOT), grazing)
     assert _edges(flags) == (1, 0)
     # Without the exit hysteresis the flag falls at the first excursion outside the cone
     # (the test has teeth); the obstacle is then cleared (goal path free), so the noisy
     # velocity re-entering the cone does not raise it again.
-    bare = GuidanceConfig(exit_margin_rad=0.0, min_clear_time_s=0.0)
+    bare = GuidanceConfig(**ONE_SHOT, exit_margin_rad=0.0, min_clear_time_s=0.0)
     assert _edges(_graze(bare, grazing)[0]) == (1, 1)
 
 
 def test_cleared_obstacle_triggers_again_when_it_blocks_the_goal():
-    bare = GuidanceConfig(exit_margin_rad=0.0, min_clear_time_s=0.0)
+    bare = GuidanceConfig(**ONE_SHOT, exit_margin_rad=0.0, min_clear_time_s=0.0)
     sphere = BoundarySphere(center_ned_m=(10.0, 0.0, 0.0), radius_m=2.0)
     alpha = math.asin(0.2)
     state = GuidanceState()
@@ -245,7 +249,7 @@ def test_cleared_obstacle_triggers_again_when_it_blocks_the_goal():
 
 
 def test_flag_falls_once_after_clear_for_the_minimum_time():
-    cfg = GuidanceConfig()
+    cfg = GuidanceConfig(**ONE_SHOT)
     alpha = math.asin(0.2)
     rng = np.random.default_rng(6)
     angles = np.concatenate(
@@ -304,7 +308,7 @@ def test_head_on_side_is_stable_under_perception_noise():
 
 
 def test_setpoint_extends_past_the_tangent_point():
-    cfg = GuidanceConfig()
+    cfg = GuidanceConfig(**ONE_SHOT)
     _, out = _step(GuidanceState(), 0.0, START_NED_M, [-2.0, 0.0, 0.0], GOAL_NED_M, [INFLATED])
     aim = out.aiming_point_ned_m
     reach = min(
@@ -321,7 +325,7 @@ def test_setpoint_extends_past_the_tangent_point():
 
 def test_setpoint_never_collapses_onto_the_vehicle():
     # Skimming the boundary, the tangent length → 0; the setpoint must stay ahead.
-    cfg = GuidanceConfig()
+    cfg = GuidanceConfig(**ONE_SHOT)
     pos = CENTER_NED_M + np.array([0.3, -2.01, 0.0])
     _, out = _step(GuidanceState(), 0.0, pos, [-2.0, 0.5, 0.0], GOAL_NED_M, [INFLATED])
     assert out.mode is Mode.AVOID
@@ -336,7 +340,7 @@ def test_inside_a_boundary_escapes_out_and_slides_along_travel():
     vel = np.array([-1.0, 0.0, 0.0])
     _, out = _step(GuidanceState(), 0.0, pos, vel, GOAL_NED_M, [INFLATED])
     assert out.mode is Mode.AVOID and out.reason is Reason.INSIDE_BOUNDARY
-    cfg = GuidanceConfig()
+    cfg = GuidanceConfig(**ONE_SHOT)
     radial = _unit(pos - CENTER_NED_M)
     exit_ned = CENTER_NED_M + radial * (2.0 + cfg.escape_clearance_m)
     tangent = _unit(vel - (vel @ radial) * radial)
@@ -353,14 +357,41 @@ def test_inside_a_boundary_with_radial_velocity_escapes_radially():
     radial = _unit(pos - CENTER_NED_M)
     _, out = _step(GuidanceState(), 0.0, pos, -radial, GOAL_NED_M, [INFLATED])
     out_dir = out.setpoint_ned_m - CENTER_NED_M
-    np.testing.assert_allclose(np.linalg.norm(out_dir), 2.0 + GuidanceConfig().escape_clearance_m)
+    np.testing.assert_allclose(
+        np.linalg.norm(out_dir), 2.0 + GuidanceConfig(**ONE_SHOT).escape_clearance_m
+    )
     np.testing.assert_allclose(_unit(out_dir), radial, atol=1e-12)
 
 
-def test_goal_inside_a_boundary_holds():
+def test_goal_inside_a_boundary_ends_in_a_latched_hold_outside_it():
+    """Unreachable goal: steer to the stop point goal_standoff_m before the boundary on the
+    straight path, then hold there (reported) whatever the velocity does: no go-around."""
+    cfg = GuidanceConfig(**ONE_SHOT)
     goal = CENTER_NED_M + np.array([0.5, 0.0, 0.0])
-    _, out = _step(GuidanceState(), 0.0, START_NED_M, [-2.0, 0.0, 0.0], goal, [INFLATED])
-    assert out.mode is Mode.HOLD and out.reason is Reason.GOAL_INSIDE_BOUNDARY
+    stop = CENTER_NED_M + np.array([INFLATED.radius_m + cfg.goal_standoff_m, 0.0, 0.0])
+    state, out = _step(GuidanceState(), 0.0, START_NED_M, [-2.0, 0.0, 0.0], goal, [INFLATED])
+    np.testing.assert_allclose(out.setpoint_ned_m, stop, atol=1e-9)
+    assert out.mode is not Mode.HOLD
+    pos = stop + np.array([0.2, 0.0, 0.0])  # arrived (within the standoff)
+    state, out = _step(state, 0.1, pos, [-0.3, 0.0, 0.0], goal, [INFLATED])
+    assert out.mode is Mode.HOLD and out.reason is Reason.GOAL_UNREACHABLE
+    held = out.setpoint_ned_m.copy()
+    assert np.linalg.norm(held - CENTER_NED_M) > INFLATED.radius_m
+    for k in range(60):  # braking, drifting sideways, the obstacle out of view: still held
+        state, out = _step(state, 0.2 + k * DT_S, pos, [0.0, 0.4, 0.0], goal, [])
+        assert out.mode is Mode.HOLD and out.reason is Reason.GOAL_UNREACHABLE
+        np.testing.assert_array_equal(out.setpoint_ned_m, held)
+
+
+def test_a_surface_just_past_the_goal_needs_no_go_around():
+    """The goal 0.2 m outside the inflated boundary (0.7 m from the real surface)."""
+    goal = CENTER_NED_M + np.array([INFLATED.radius_m + 0.2, 0.0, 0.0])
+    state = GuidanceState()
+    for k, x in enumerate(np.linspace(START_NED_M[0], goal[0], 30)):
+        pos = np.array([x, 0.0, -7.0])
+        state, out = _step(state, k * DT_S, pos, [-0.85, 0.0, 0.0], goal, [INFLATED])
+        assert out.mode is Mode.NAVIGATE, (k, out.reason)
+        np.testing.assert_allclose(out.setpoint_ned_m, goal)
 
 
 def test_obstacle_beyond_the_goal_is_ignored():
@@ -380,7 +411,7 @@ def test_time_must_not_go_backwards():
 
 
 def test_memory_merges_nearby_detections_and_keeps_ids():
-    cfg = GuidanceConfig()
+    cfg = GuidanceConfig(**ONE_SHOT)
     here = {"pos_ned_m": START_NED_M, "vel_ned_mps": [-2.0, 0.0, 0.0], "config": cfg}
     mem = update_memory(ObstacleMemory(), [INFLATED], time_s=0.0, **here)
     assert [t.track_id for t in mem.tracks] == [0]
@@ -402,7 +433,7 @@ def test_memory_merges_nearby_detections_and_keeps_ids():
 
 def test_memory_never_shrinks_on_partial_views():
     """Close up the camera sees caps and fragments of a big obstacle: all are absorbed."""
-    cfg = GuidanceConfig()
+    cfg = GuidanceConfig(**ONE_SHOT)
     here = {"pos_ned_m": START_NED_M, "vel_ned_mps": [-2.0, 0.0, 0.0], "config": cfg}
     mem = update_memory(ObstacleMemory(), [INFLATED], time_s=0.0, **here)
     c = np.asarray(INFLATED.center_ned_m)
@@ -417,7 +448,7 @@ def test_memory_never_shrinks_on_partial_views():
 
 
 def test_memory_times_out_in_simulation_seconds():
-    cfg = GuidanceConfig(memory_timeout_s=2.0)
+    cfg = GuidanceConfig(**ONE_SHOT, memory_timeout_s=2.0)
     hover = {"pos_ned_m": START_NED_M, "vel_ned_mps": [0.0, 0.0, 0.0], "config": cfg}
     mem = update_memory(ObstacleMemory(), [INFLATED], time_s=10.0, **hover)
     assert len(update_memory(mem, [], time_s=12.0, **hover).tracks) == 1
@@ -425,7 +456,7 @@ def test_memory_times_out_in_simulation_seconds():
 
 
 def test_memory_forgets_an_obstacle_once_passed():
-    cfg = GuidanceConfig()
+    cfg = GuidanceConfig(**ONE_SHOT)
     mem = update_memory(
         ObstacleMemory(),
         [INFLATED],
@@ -450,7 +481,7 @@ def test_memory_forgets_an_obstacle_once_passed():
 
 
 def test_memory_keeps_an_obstacle_that_blocks_the_goal():
-    cfg = GuidanceConfig()
+    cfg = GuidanceConfig(**ONE_SHOT)
     far_behind = {"pos_ned_m": [16.0, 0.0, -7.0], "vel_ned_mps": [2.0, 0.0, 0.0], "config": cfg}
     mem = update_memory(ObstacleMemory(), [INFLATED], time_s=0.0, **far_behind)
     # Flying away from it (behind, 4 m from its surface) but the goal lies beyond it.
@@ -461,7 +492,7 @@ def test_memory_keeps_an_obstacle_that_blocks_the_goal():
 
 
 def test_obstacle_out_of_view_is_still_avoided():
-    g = Guidance()
+    g = Guidance(GuidanceConfig(**ONE_SHOT))
     out = g.step(
         time_s=0.0,
         pos_ned_m=START_NED_M,
@@ -534,14 +565,17 @@ def test_paper_scenario_closed_loop():
     assert _edges(flags) == (1, 1), "one avoidance pulse, like Fig. 11"
     rise = int(np.argmax(flags))
     fall = rise + int(np.argmin(flags[rise:]))
-    assert visible[rise] and not visible[rise - 1], "rises on the first detection"
+    # confirmation, 2 of 3 frames (the obstacle is 4 m away, beyond confirm_immediate_m)
+    assert visible[rise] and visible[rise - 1] and not visible[rise - 2], "second detection"
     assert clearance[rise] <= 4.0 + 0.1
     _, p_fall, v_fall, _, _ = log[fall]
     assert float((CENTER_NED_M - p_fall) @ v_fall) <= 0.5 * np.linalg.norm(v_fall), "passed"
     # The obstacle left the view while still being avoided: the memory carried it.
     assert np.any(flags & ~visible)
     # Forgetting unseen obstacles at once (no memory) makes the flag chatter instead.
-    no_memory = _fly_paper_scenario(GuidanceConfig(memory_timeout_s=0.0))
+    no_memory = _fly_paper_scenario(
+        GuidanceConfig(**ONE_SHOT, memory_timeout_s=0.0, forget_distance_m=0.0)
+    )
     rising, _ = _edges([out.avoidance_flag for _, _, _, out, _ in no_memory])
     assert rising > 3
     # Yaw faces the setpoint whenever it is far enough to define a direction.
@@ -549,3 +583,53 @@ def test_paper_scenario_closed_loop():
         d = out.setpoint_ned_m - p
         if math.hypot(d[0], d[1]) > 1.0:
             np.testing.assert_allclose(out.yaw_rad, math.atan2(d[1], d[0]), atol=1e-12)
+
+
+# --- confirmation (N of M) and forgetting ----------------------------------------------
+
+
+def _fly_detections(pattern, center, config=None):
+    """Hovering at START facing the goal; ``pattern`` says which frames see the sphere."""
+    state, outs = GuidanceState(), []
+    sphere = BoundarySphere(center_ned_m=tuple(center), radius_m=1.0)
+    for k, seen in enumerate(pattern):
+        state, out = guidance_step(
+            state,
+            time_s=k * DT_S,
+            pos_ned_m=START_NED_M,
+            vel_ned_mps=(-0.85, 0.0, 0.0),
+            goal_ned_m=GOAL_NED_M,
+            detections=[sphere] if seen else [],
+            config=config,
+        )
+        outs.append(out)
+    return state, outs
+
+
+def test_one_false_detection_is_not_avoided_two_of_three_are():
+    far = START_NED_M + np.array([-4.5, 0.0, 0.0])  # surface 3.5 m ahead
+    state, outs = _fly_detections([1, 0, 0, 0, 0], far)
+    assert all(o.mode is Mode.NAVIGATE for o in outs)
+    assert state.memory.tracks == ()  # the unconfirmed track is dropped after 3 frames
+    _, outs = _fly_detections([1, 0, 1, 0], far)
+    assert [o.mode for o in outs] == [Mode.NAVIGATE, Mode.NAVIGATE, Mode.AVOID, Mode.AVOID]
+    _, outs = _fly_detections([1, 0, 0, 1], far)  # 1 of the last 3: not yet
+    assert all(o.mode is Mode.NAVIGATE for o in outs)
+    _, outs = _fly_detections([1, 1], far, GuidanceConfig(confirm_n=3, confirm_m=5))
+    assert all(o.mode is Mode.NAVIGATE for o in outs)
+
+
+def test_inside_the_stopping_distance_one_detection_suffices():
+    near = START_NED_M + np.array([-2.5, 0.0, 0.0])  # surface 1.5 m < confirm_immediate_m
+    _, outs = _fly_detections([1], near)
+    assert outs[0].mode is Mode.AVOID
+
+
+def test_an_obstacle_beside_the_vehicle_is_not_timed_out():
+    cfg = GuidanceConfig(**ONE_SHOT, memory_timeout_s=1.0)
+    beside = START_NED_M + np.array([0.0, 2.5, 0.0])  # surface 1.5 m to the east
+    state, _ = _fly_detections([1] + [0] * 90, beside, cfg)  # 3 s unseen
+    assert len(state.memory.tracks) == 1
+    far = START_NED_M + np.array([0.0, 6.0, 0.0])  # surface 5 m away: timed out
+    state, _ = _fly_detections([1] + [0] * 90, far, cfg)
+    assert state.memory.tracks == ()

@@ -1,10 +1,13 @@
-"""Monte Carlo sample in the suite: fixed seeds, zero collisions, every goal reached."""
+"""Monte Carlo sample in the suite: fixed seeds of every scene family, zero collisions,
+every run ends at the goal or in a reported stop."""
+
+import math
 
 import numpy as np
 import pytest
 
 from plant_sim.lockstep.montecarlo import run_batch, summarize
-from plant_sim.lockstep.scenes import random_scene
+from plant_sim.lockstep.scenes import FAMILIES, family_scene, mixed_scene, random_scene
 
 SEEDS = range(100, 112)
 
@@ -21,11 +24,32 @@ def test_random_scenes_are_reproducible_and_valid():
     assert random_scene(1) != random_scene(2)
 
 
+def test_scene_families_are_reproducible_and_what_they_say():
+    for seed in range(40):
+        for family in FAMILIES:
+            assert family_scene(seed, family) == family_scene(seed, family)
+        assert mixed_scene(seed) == family_scene(seed, FAMILIES[seed % 4])
+        start = np.array(family_scene(seed, "climb").start_ned_m)
+        goal = np.array(family_scene(seed, "climb").goal_ned_m)
+        climb_m = abs(goal[2] - start[2])
+        assert 2.0 - 1e-9 <= climb_m <= 5.0 + 1e-9 or goal[2] in (-3.0, -14.0)
+        assert math.degrees(math.atan2(climb_m, np.linalg.norm(goal[:2] - start[:2]))) <= 11.4
+        near = family_scene(seed, "goal_near")
+        assert 0.0 <= near.world.spheres[-1].surface_distance_m(near.goal_ned_m) <= 1.5 + 1e-9
+        away = family_scene(seed, "facing_away")
+        heading = math.atan2(*(np.subtract(away.goal_ned_m, away.start_ned_m)[[1, 0]]))
+        assert math.cos(away.start_yaw_rad - heading) == pytest.approx(-1.0)
+        assert 1.5 - 1e-9 <= away.world.spheres[-1].surface_distance_m(away.start_ned_m) <= 2.6
+    with pytest.raises(ValueError, match="valid"):
+        family_scene(0, "spiral")
+
+
 @pytest.mark.slow
 def test_monte_carlo_sample_has_no_collision():
-    verdicts = run_batch(SEEDS, jobs=2)
+    verdicts = run_batch(SEEDS, jobs=2)  # mixed: three of each family
     summary = summarize(verdicts)
     assert summary["collision_rate"] == 0.0, summary["failed_seeds"]
-    assert summary["goal_reached_rate"] == 1.0, summary["failures_by_cause"]
+    assert summary["safe_outcome_rate"] == 1.0, summary["failures_by_cause"]
+    assert all(v.min_surface_distance_m >= 0.25 for v in verdicts)
     # at least half the scenes put an obstacle in the way
     assert np.mean([v.avoidance_time_s > 0 for v in verdicts]) >= 0.5

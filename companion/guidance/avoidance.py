@@ -33,6 +33,11 @@ Each step
 6. Active obstacle: the threat with the nearest surface, or the kept one if nearer.
    None → NAVIGATE (setpoint = goal). A threat whose sphere holds the goal → HOLD
    (``GOAL_INSIDE_BOUNDARY``): the goal cannot be reached safely.
+
+Unreachable goal: when the goal lies inside a confirmed boundary sphere, guidance steers
+to the *stop point* instead, ``goal_standoff_m`` before the straight path to the goal
+enters that sphere, and holds there (``GOAL_UNREACHABLE``, latched while the goal stays
+inside): a stable, reported stop outside the obstacle, never a go-around.
 7. AVOID: :func:`~companion.guidance.planner.choose_aiming_point` over all remembered
    obstacles, candidates from the cluster of cones overlapping the active and threatening
    ones. Nothing free → HOLD (``NO_FREE_DIRECTION``). Eq. (28)'s reference is the
@@ -81,7 +86,6 @@ import numpy as np
 
 from companion.guidance._vec import norm3
 from companion.guidance.cone import (
-    CollisionCone,
     SphereLike,
     collision_cone,
     contains_direction,
@@ -123,6 +127,8 @@ class Reason(Enum):
     INSIDE_BOUNDARY = "inside_boundary"
     NO_FREE_DIRECTION = "no_free_direction"
     GOAL_INSIDE_BOUNDARY = "goal_inside_boundary"
+    GOAL_UNREACHABLE = "goal_unreachable"
+    """The goal lies inside a confirmed boundary: holding at the stop point outside it."""
 
 
 @dataclass(frozen=True)
@@ -149,6 +155,8 @@ class GuidanceState:
         enters their boundary.
     aim_dir_ned : tuple of 3 float or None
         Unit direction to the aiming point chosen at the last step (AVOID only).
+    unreachable : bool
+        HOLD was entered because the goal is unreachable (latched while it stays so).
     """
 
     mode: Mode = Mode.NAVIGATE
@@ -160,6 +168,27 @@ class GuidanceState:
     memory: ObstacleMemory = field(default_factory=ObstacleMemory)
     cleared_ids: frozenset[int] = frozenset()
     aim_dir_ned: tuple[float, float, float] | None = None
+    unreachable: bool = False
+
+
+def _stop_short(pos: np.ndarray, goal: np.ndarray, blocking, standoff_m: float) -> np.ndarray:
+    """Where to stop on the way to an unreachable goal: ``standoff_m`` before the segment
+    ``pos → goal`` first enters one of the ``blocking`` spheres (``pos`` if already in)."""
+    d = goal - pos
+    length = norm3(d)
+    if length <= 1e-9:
+        return pos.copy()
+    u = d / length
+    t_stop = length
+    for track in blocking:
+        c = np.asarray(track.sphere.center_ned_m) - pos
+        r = float(track.sphere.radius_m)
+        b = float(c @ u)
+        disc = b * b - (float(c @ c) - r * r)
+        if disc < 0.0:
+            continue
+        t_stop = min(t_stop, b - math.sqrt(disc))
+    return pos + u * max(t_stop - standoff_m, 0.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -183,7 +212,7 @@ class GuidanceOutput:
     aiming_point_ned_m : ndarray, shape (3,) or None
         The Eq. (28) tangent point chosen (AVOID via the planner only).
     tracks : tuple of TrackedObstacle
-        The obstacle memory after this step.
+        The confirmed obstacles of the memory after this step.
     """
 
     time_s: float
@@ -204,8 +233,8 @@ def _vec3(name: str, value) -> np.ndarray:
     return vec
 
 
-def _inside_ball(point: np.ndarray, cone: CollisionCone) -> bool:
-    return norm3(point - cone.center_ned_m) < cone.radius_m
+def _inside_ball(point: np.ndarray, ball) -> bool:
+    return norm3(point - np.asarray(ball.center_ned_m)) < float(ball.radius_m)
 
 
 def guidance_step(
@@ -265,8 +294,15 @@ def guidance_step(
         goal_ned_m=goal,
         config=cfg,
     )
-    tracks = memory.tracks
+    tracks = tuple(t for t in memory.tracks if t.confirmed)
     cones = [collision_cone(pos, t.sphere) for t in tracks]
+
+    # Unreachable goal (inside a confirmed boundary): the goal becomes the stop point just
+    # outside it; once there (or once held for this reason) the vehicle holds, reported.
+    blocking = [t for t in tracks if _inside_ball(goal, t.sphere)]
+    unreachable = bool(blocking)
+    if unreachable:
+        goal = _stop_short(pos, goal, blocking, cfg.goal_standoff_m)
 
     to_goal = goal - pos
     goal_dist = norm3(to_goal)
@@ -314,7 +350,7 @@ def guidance_step(
             i
             for i, c in enumerate(cones)
             if has_ref
-            and c.surface_distance_m <= goal_dist + cfg.goal_clearance_m
+            and (c.surface_distance_m <= goal_dist + cfg.goal_clearance_m or goal_blocked(i))
             and contains_direction(c, ref)
             and (tracks[i].track_id not in cleared or goal_blocked(i))
         ]
@@ -369,6 +405,7 @@ def guidance_step(
                     candidate_indices=overlapping_cluster(
                         cones, seeds, margin_rad=cfg.cone_margin_rad
                     ),
+                    max_elevation_rad=cfg.max_aim_elevation_rad,
                 )
                 if choice is None:
                     mode, reason = Mode.HOLD, Reason.NO_FREE_DIRECTION
@@ -385,6 +422,11 @@ def guidance_step(
                     )
                     setpoint = pos + choice.direction_ned * reach
 
+    if unreachable and (
+        (state.mode is Mode.HOLD and state.unreachable) or goal_dist < cfg.goal_standoff_m
+    ):
+        mode, reason = Mode.HOLD, Reason.GOAL_UNREACHABLE
+        aim, aim_dir = None, None
     hold: tuple[float, float, float] | None = None
     if mode is Mode.HOLD:
         if state.mode is Mode.HOLD and state.hold_ned_m is not None:
@@ -419,6 +461,7 @@ def guidance_step(
         memory=memory,
         cleared_ids=frozenset(cleared),
         aim_dir_ned=aim_dir,
+        unreachable=mode is Mode.HOLD and reason is Reason.GOAL_UNREACHABLE,
     )
     output = GuidanceOutput(
         time_s=time_s,

@@ -20,7 +20,7 @@ class UnknownGuidanceKeyError(TypeError):
     """A guidance configuration mapping named a key that does not exist."""
 
 
-_INT_FIELDS = frozenset({"n_candidates", "max_tracks"})
+_INT_FIELDS = frozenset({"n_candidates", "max_tracks", "confirm_n", "confirm_m"})
 
 
 @dataclass(frozen=True)
@@ -55,20 +55,37 @@ class GuidanceConfig:
     escape_clearance_m : float
         Inside a boundary sphere, the escape setpoint lies this far outside it [m].
     goal_clearance_m : float
-        An obstacle whose surface is farther than ``|goal - p| + goal_clearance_m`` is not
-        a threat: the vehicle stops at the goal before reaching it [m].
+        An obstacle whose (inflated) surface is farther than ``|goal - p| +
+        goal_clearance_m`` and that does not block the straight path to the goal is not
+        a threat: the vehicle stops at the goal before reaching it [m]. 0: the boundary
+        already carries the vehicle radius and the safety margin, so a real surface just
+        past the goal needs no go-around.
+    goal_standoff_m : float
+        An unreachable goal (inside a boundary) is replaced by the point this far before
+        the boundary on the straight path to it, where the vehicle holds [m].
     yaw_min_distance_m : float
         Below this horizontal distance to the setpoint the previous yaw is held [m].
     merge_distance_m : float
         A detection whose centre is within this distance of a remembered obstacle's centre
         (or inside it) updates it instead of creating a new one [m].
     memory_timeout_s : float
-        An obstacle unseen for longer than this is forgotten [s, simulation time].
+        An obstacle unseen for longer than this is forgotten, unless its surface is
+        within ``forget_distance_m`` [s, simulation time].
     forget_distance_m : float
         An unseen obstacle behind the vehicle (centre behind the plane normal to the
         velocity) whose surface is farther than this is forgotten [m].
     max_tracks : int
         Most obstacles remembered; the least recently seen go first.
+    confirm_n, confirm_m : int
+        A new obstacle is avoided once detected in ``confirm_n`` of ``confirm_m`` frames
+        (default 2 of 3) ...
+    confirm_immediate_m : float
+        ... or at its first detection when its surface is nearer than this [m] (2.0: the
+        stopping distance from the fast profile's 3 m/s plus margin; the paper's cruise
+        needs 0.5 m).
+    max_aim_elevation_rad : float
+        Aiming directions steeper than this are not candidates (12°: the safety
+        envelope's steepest path, inside the camera's ±18.5° vertical view).
     """
 
     n_candidates: int = 72
@@ -81,12 +98,17 @@ class GuidanceConfig:
     min_setpoint_distance_m: float = 2.0
     max_setpoint_distance_m: float = 10.0
     escape_clearance_m: float = 0.5
-    goal_clearance_m: float = 1.0
+    goal_clearance_m: float = 0.0
+    goal_standoff_m: float = 0.5
     yaw_min_distance_m: float = 0.5
     merge_distance_m: float = 1.0
     memory_timeout_s: float = 10.0
     forget_distance_m: float = 2.0
     max_tracks: int = 16
+    confirm_n: int = 2
+    confirm_m: int = 3
+    confirm_immediate_m: float = 2.0
+    max_aim_elevation_rad: float = math.radians(12.0)
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
@@ -102,6 +124,10 @@ class GuidanceConfig:
             object.__setattr__(self, field.name, float(value))
         if self.tie_angle_rad >= 0.5 * math.pi:
             raise ValueError(f"tie_angle_rad must be < π/2, got {self.tie_angle_rad!r}")
+        if self.confirm_n > self.confirm_m or self.confirm_m > 30:
+            raise ValueError(
+                f"need 1 <= confirm_n <= confirm_m <= 30, got {self.confirm_n} of {self.confirm_m}"
+            )
         if self.max_setpoint_distance_m < self.min_setpoint_distance_m:
             raise ValueError(
                 "max_setpoint_distance_m must be >= min_setpoint_distance_m, got "

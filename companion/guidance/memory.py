@@ -20,6 +20,14 @@ Rules (parameters in :class:`~companion.guidance.config.GuidanceConfig`):
   obstacle seen in this update is always kept.
 * **Capacity.** At most ``max_tracks`` are kept, the most recently seen first (ties: the
   older id).
+* **Confirmation.** A track is *confirmed* once it was detected in ``confirm_n`` of the
+  last ``confirm_m`` updates, or at once when its surface is nearer than
+  ``confirm_immediate_m`` (inside the stopping distance there is no time to wait); an
+  unconfirmed track not detected for ``confirm_m`` updates is dropped. Guidance avoids
+  confirmed tracks only, so one false detection is not a 10 s stop; the known-space map
+  (the safety envelope) still stops the vehicle short of anything seen, confirmed or not.
+* **Timeout.** ``memory_timeout_s`` forgets only a track whose surface is farther than
+  ``forget_distance_m``: an obstacle beside or above the vehicle is never timed out.
 
 Pure functions over frozen values; time is simulation time passed in by the caller.
 """
@@ -52,6 +60,10 @@ class TrackedObstacle:
         Simulation times of the first and the latest detection [s].
     n_detections : int
         Detections merged into it so far.
+    recent : int
+        Bit mask of the latest updates that detected it (bit 0: the latest).
+    confirmed : bool
+        See "Confirmation" in the module docstring.
     """
 
     track_id: int
@@ -59,6 +71,8 @@ class TrackedObstacle:
     first_seen_s: float
     last_seen_s: float
     n_detections: int = 1
+    recent: int = 1
+    confirmed: bool = True
 
 
 @dataclass(frozen=True)
@@ -187,17 +201,40 @@ def update_memory(
             continue
         seen.add(len(tracks))
         tracks.append(
-            TrackedObstacle(track_id=next_id, sphere=det, first_seen_s=time_s, last_seen_s=time_s)
+            TrackedObstacle(
+                track_id=next_id,
+                sphere=det,
+                first_seen_s=time_s,
+                last_seen_s=time_s,
+                confirmed=False,
+            )
         )
         next_id += 1
+
+    mask = (1 << config.confirm_m) - 1
+    for i, trk in enumerate(tracks):
+        recent = ((trk.recent << 1) | (1 if i in seen else 0)) & mask
+        if i >= n_remembered:
+            recent = 1  # new this update
+        surface = norm3(np.asarray(trk.sphere.center_ned_m) - pos) - trk.sphere.radius_m
+        confirmed = trk.confirmed or (
+            i in seen
+            and (recent.bit_count() >= config.confirm_n or surface < config.confirm_immediate_m)
+        )
+        tracks[i] = replace(trk, recent=recent, confirmed=confirmed)
+
+    def far(trk: TrackedObstacle) -> bool:
+        centre = np.asarray(trk.sphere.center_ned_m)
+        return norm3(centre - pos) - trk.sphere.radius_m > config.forget_distance_m
 
     kept = [
         trk
         for i, trk in enumerate(tracks)
         if i in seen
         or not (
-            time_s - trk.last_seen_s > config.memory_timeout_s
+            (time_s - trk.last_seen_s > config.memory_timeout_s and far(trk))
             or _is_passed(trk.sphere, pos, vel, goal, config)
+            or (not trk.confirmed and trk.recent == 0)
         )
     ]
     if len(kept) > config.max_tracks:

@@ -88,6 +88,7 @@ def choose_aiming_point(
     tie_angle_rad: float = 0.0,
     cone_margin_rad: float = 0.0,
     candidate_indices: Sequence[int] | None = None,
+    max_elevation_rad: float | None = None,
 ) -> AimChoice | None:
     """Choose the free tangent point whose direction is nearest the reference direction.
 
@@ -108,6 +109,10 @@ def choose_aiming_point(
     candidate_indices : sequence of int, optional
         Cones whose tangent circles supply candidates (default: all). Every cone still
         rejects candidates. :func:`overlapping_cluster` gives a sensible set.
+    max_elevation_rad : float, optional
+        Candidates climbing or descending more steeply are rejected (the safety envelope
+        flies no path steeper than the camera's view covers, so such an aiming point
+        would be flown clamped, into the obstacle).
 
     Returns
     -------
@@ -170,6 +175,8 @@ def choose_aiming_point(
         rel = pts - cone.center_ned_m[None, :]
         in_ball = np.einsum("ij,ij->i", rel, rel) < cone.radius_m**2
         free &= ~(other & (in_cone | in_ball))
+    if max_elevation_rad is not None:
+        free &= np.abs(dirs[:, 2]) <= math.sin(max_elevation_rad) + 1e-12
 
     cos_q = np.round((dirs @ ref_hat) * 1e9)
     vert_q = np.round(np.abs(np.concatenate(units)[:, 2]) * 1e9)

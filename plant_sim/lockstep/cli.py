@@ -5,10 +5,12 @@ Subcommands
 ``stereo-avoid paper [--out DIR] [--json]``
     Fly §6 (start (20, 0, −7), goal (0, 0, −7), obstacle (10, 0, −7) r 1.5 m), print
     progress and a verdict, write Fig. 6–11 as PNG and the time history as CSV.
-``stereo-avoid montecarlo --n N --seed S [--jobs J] [--json]``
+``stereo-avoid montecarlo --n N --seed S [--jobs J] [--family F] [--json]``
     N random scenes (seeds S … S+N−1) on J processes; a summary table or JSON, with the
     seed of every failure so it can be replayed with ``stereo-avoid replay SEED``.
-``stereo-avoid replay SEED [--out DIR] [--json]``
+    Families (``plant_sim.lockstep.scenes``): path, climb, goal_near, facing_away, or
+    mixed (the default: the family of seed s is the (s mod 4)-th).
+``stereo-avoid replay SEED [--family F] [--out DIR] [--json]``
     One random scene, with figures, exactly as Monte Carlo flew it.
 ``stereo-avoid sil [--scenario FILE] [--speedup N] [--out DIR] [--json]``
     plant-sim and the companion as two processes over MAVLink and Zenoh on loopback;
@@ -31,9 +33,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from plant_sim.lockstep.harness import RunConfig, RunResult, run_scene
-from plant_sim.lockstep.montecarlo import run_batch, summarize
+from plant_sim.lockstep.montecarlo import run_batch, scene_of, summarize
 from plant_sim.lockstep.report import write_run_report
-from plant_sim.lockstep.scenes import Scene, paper_scene, random_scene
+from plant_sim.lockstep.scenes import FAMILIES, Scene, paper_scene
 
 __all__ = ["main"]
 
@@ -73,13 +75,18 @@ def _montecarlo(args: argparse.Namespace) -> int:
         print(f"  [{done:4d}/{total}] seed {verdict.seed:6d} {status}", file=log)
         log.flush()
 
-    verdicts = run_batch(range(args.seed, args.seed + args.n), jobs=args.jobs, progress=progress)
+    verdicts = run_batch(
+        range(args.seed, args.seed + args.n), jobs=args.jobs, progress=progress, family=args.family
+    )
     summary = summarize(verdicts)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
         print(f"runs                 {summary['runs']}")
         print(f"goal reached rate    {summary['goal_reached_rate']:.3f}")
+        print(f"safe outcome rate    {summary['safe_outcome_rate']:.3f} (goal or reported hold)")
+        fams = "  ".join(f"{k} {v['safe']}/{v['runs']}" for k, v in summary["by_family"].items())
+        print(f"safe by family       {fams}")
         print(f"collision rate       {summary['collision_rate']:.3f}")
         sep = summary["min_separation_m"]
         print(
@@ -89,7 +96,10 @@ def _montecarlo(args: argparse.Namespace) -> int:
         print(f"avoidance time [s]   mean {summary['avoidance_time_s']['mean']:.2f}")
         print(f"failures by cause    {summary['failures_by_cause'] or 'none'}")
         if summary["failed_seeds"]:
-            print(f"replay a failure     stereo-avoid replay {summary['failed_seeds'][0]}")
+            print(
+                "replay a failure     stereo-avoid replay "
+                f"{summary['failed_seeds'][0]} --family {args.family}"
+            )
     return 0 if summary["failed_seeds"] == [] else 1
 
 
@@ -106,10 +116,15 @@ def _parser() -> argparse.ArgumentParser:
     mc.add_argument("--seed", type=int, default=0, help="first seed")
     mc.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="processes")
     mc.add_argument("--json", action="store_true", help="print the summary as JSON")
+    families = ["mixed", *FAMILIES]
+    mc.add_argument(
+        "--family", choices=families, default="mixed", help="scene family (mixed: by seed)"
+    )
     replay = sub.add_parser("replay", help="fly one Monte Carlo scene by its seed")
     replay.add_argument("seed", type=int)
     replay.add_argument("--out", type=Path, default=None, help="output folder")
     replay.add_argument("--json", action="store_true", help="print the verdict as JSON")
+    replay.add_argument("--family", choices=families, default="mixed", help="scene family")
     sil = sub.add_parser("sil", help="plant-sim + companion as processes on loopback")
     sil.add_argument("--scenario", type=Path, default=None, help="plant-sim scenario file")
     sil.add_argument("--speedup", type=float, default=4.0, help="simulation speed-up")
@@ -156,7 +171,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return fly_sil_and_report(args.scenario, args.speedup, args.out, args.json, plant_args)
     if args.command == "replay":
         out = args.out or Path(f"runs/replay-{args.seed}")
-        return _fly_and_report(random_scene(args.seed), out, args.json)
+        return _fly_and_report(scene_of(args.seed, args.family), out, args.json)
     if args.n < 1 or args.jobs < 1:
         print("stereo-avoid: --n and --jobs must be >= 1", file=sys.stderr)
         return 2

@@ -10,9 +10,10 @@ networked companion interpolates it from telemetry.
 
 from __future__ import annotations
 
+import copy
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,7 +30,14 @@ from plant_sim.world import World
 from protocols.camera import CameraModel
 from protocols.stereo_frame import StereoFrame
 
-__all__ = ["RunConfig", "RunResult", "Verdict", "nearest_surface_m", "run_scene"]
+__all__ = [
+    "KillOutcome",
+    "RunConfig",
+    "RunResult",
+    "Verdict",
+    "nearest_surface_m",
+    "run_scene",
+]
 
 
 @dataclass(frozen=True)
@@ -47,6 +55,10 @@ class RunConfig:
     guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
     vehicle: QuadrotorParams = field(default_factory=QuadrotorParams)
     control: ControlParams = field(default_factory=ControlParams)
+    # The companion's death (SIGKILL) in lockstep: from this simulation time on, no frame
+    # is processed and the autopilot keeps tracking the last setpoint; the run ends once
+    # the vehicle has stopped (speed below 0.05 m/s for 1 s) or at max_time_s.
+    companion_stop_s: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("camera_rate_hz", "max_time_s", "goal_tolerance_m"):
@@ -71,7 +83,9 @@ class Verdict:
     wall_time_s: float
     final_goal_distance_m: float
     frames: int
-    failure: str | None  # None, "collision", "timeout", "hold" (stopped: no free direction)
+    # None, "collision", "timeout", "hold" (stopped: no free direction), "companion_stopped"
+    failure: str | None
+    hold_reason: str | None = None  # guidance's reason when the run ended in a HOLD
 
     @property
     def passed(self) -> bool:
@@ -81,10 +95,28 @@ class Verdict:
 
 @dataclass(frozen=True, eq=False)
 class RunResult:
-    """A verdict with the time history behind it."""
+    """A verdict with the time history behind it (and the companion-death tails)."""
 
     verdict: Verdict
     history: History
+    kills: tuple[KillOutcome, ...] = ()
+
+
+@dataclass(frozen=True)
+class KillOutcome:
+    """What the vehicle did after the companion died at ``stop_s`` (SIGKILL in lockstep).
+
+    The autopilot keeps tracking the last setpoint the companion sent; the tail is flown
+    on a copy of the plant until the vehicle has stopped (speed < 0.05 m/s for 1 s).
+    """
+
+    stop_s: float
+    min_surface_distance_m: float
+    stopped: bool
+    end_time_s: float
+    end_pos_ned_m: tuple[float, float, float]
+    last_setpoint_ned_m: tuple[float, float, float]
+    max_speed_mps: float
 
 
 def nearest_surface_m(world: World, pos_ned_m: np.ndarray) -> float:
@@ -99,6 +131,7 @@ def run_scene(
     config: RunConfig | None = None,
     *,
     progress: Callable[[float, float], None] | None = None,
+    kill_times_s: Sequence[float] = (),
 ) -> RunResult:
     """Fly ``scene`` in lockstep until the goal, a collision or ``max_time_s``.
 
@@ -106,6 +139,10 @@ def run_scene(
     ----------
     progress : callable(sim_time_s, goal_distance_m), optional
         Called about once per simulated second.
+    kill_times_s : sequence of float
+        Simulation times at which to also simulate the companion's death: at the first
+        frame at or after each, a copy of the plant flies on with the last setpoint
+        (:class:`KillOutcome` in ``RunResult.kills``) while the run itself continues.
     """
     cfg = config or RunConfig()
     wall_start = time.perf_counter()
@@ -130,32 +167,52 @@ def run_scene(
     failure: str | None = None
     seq = 0
     next_progress_s = 0.0
+    pending_kills = sorted(float(t) for t in kill_times_s)
+    hold_since: float | None = None
+    hold_reason: str | None = None
+    kills: list[KillOutcome] = []
     while True:
         state = quad.snapshot()
         frame = _render_frame(renderer, scene.world, state, seq, intrinsics)
         pose = PoseAtCapture(state.pos_ned_m, state.vel_ned_mps, state.R_ned_from_frd)
         out = pipeline.process(frame, pose)
         decision = out.guidance
-        quad.set_setpoint(
-            Setpoint(pos_ned_m=tuple(decision.setpoint_ned_m), yaw_rad=decision.yaw_rad)
-        )
+        quad.set_setpoint(Setpoint(pos_ned_m=tuple(out.setpoint_ned_m), yaw_rad=out.yaw_rad))
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
         goal_dist = float(np.linalg.norm(state.pos_ned_m - goal))
-        _record(history, state, surface, decision, len(out.perception.obstacles))
+        _record(history, state, surface, out, len(out.perception.obstacles))
         min_surface = min(min_surface, surface)
         if decision.avoidance_flag:
             avoid_time += frame_period_s
         if progress is not None and state.time_s >= next_progress_s:
             progress(state.time_s, goal_dist)
             next_progress_s += 1.0
+        while pending_kills and state.time_s >= pending_kills[0] - 1e-9:
+            kills.append(_kill_tail(copy.deepcopy(quad), scene.world, pending_kills.pop(0), cfg))
         if surface < cfg.collision_distance_m:
             collided, failure = True, "collision"
             break
         if goal_dist < cfg.goal_tolerance_m:
             reached = True
             break
+        # a reported stop (HOLD) that has come to rest ends the run: the world is static
+        if decision.mode is Mode.HOLD and float(np.linalg.norm(state.vel_ned_mps)) < 0.05:
+            hold_since = state.time_s if hold_since is None else hold_since
+            if state.time_s - hold_since >= 2.0:
+                failure, hold_reason = "hold", decision.reason.value
+                break
+        else:
+            hold_since = None
         if state.time_s >= cfg.max_time_s:
             failure = "hold" if decision.mode is Mode.HOLD else "timeout"
+            hold_reason = decision.reason.value if failure == "hold" else None
+            break
+        if cfg.companion_stop_s is not None and state.time_s >= cfg.companion_stop_s:
+            tail = _kill_tail(quad, scene.world, state.time_s, cfg)
+            min_surface = min(min_surface, tail.min_surface_distance_m)
+            reached = float(np.linalg.norm(quad.pos_ned_m - goal)) < cfg.goal_tolerance_m
+            collided = min_surface < cfg.collision_distance_m
+            failure = "collision" if collided else "companion_stopped"
             break
         # advance to the next frame, watching commanded tilt and clearance at control rate
         seq += 1
@@ -181,8 +238,42 @@ def run_scene(
         final_goal_distance_m=round(float(np.linalg.norm(quad.pos_ned_m - goal)), 4),
         frames=seq + 1,
         failure=failure,
+        hold_reason=hold_reason,
     )
-    return RunResult(verdict=verdict, history=history)
+    return RunResult(verdict=verdict, history=history, kills=tuple(kills))
+
+
+def _kill_tail(quad: Quadrotor, world: World, stop_s: float, cfg: RunConfig) -> KillOutcome:
+    """Fly ``quad`` (a copy) with its last setpoint until it stops; see :class:`KillOutcome`."""
+    setpoint = quad.setpoint.pos_ned_m
+    min_surface = nearest_surface_m(world, quad.pos_ned_m)
+    max_speed = 0.0
+    still_since: float | None = None
+    stopped = False
+    t_end = quad.time_s + 60.0
+    while quad.time_s < t_end:
+        quad.step(quad.control.steps_per_control)
+        min_surface = min(min_surface, nearest_surface_m(world, quad.pos_ned_m))
+        speed = float(np.linalg.norm(quad.vel_ned_mps))
+        max_speed = max(max_speed, speed)
+        if min_surface < cfg.collision_distance_m:
+            break
+        if speed < 0.05:
+            still_since = quad.time_s if still_since is None else still_since
+            if quad.time_s - still_since >= 1.0:
+                stopped = True
+                break
+        else:
+            still_since = None
+    return KillOutcome(
+        stop_s=stop_s,
+        min_surface_distance_m=round(min_surface, 4),
+        stopped=stopped,
+        end_time_s=round(quad.time_s, 4),
+        end_pos_ned_m=tuple(round(float(x), 4) for x in quad.pos_ned_m),
+        last_setpoint_ned_m=tuple(float(x) for x in setpoint),
+        max_speed_mps=round(max_speed, 4),
+    )
 
 
 def _render_frame(
@@ -198,8 +289,9 @@ def _render_frame(
     )
 
 
-def _record(history: History, s: VehicleState, surface_m: float, decision, n_seen: int) -> None:
-    sp = decision.setpoint_ned_m
+def _record(history: History, s: VehicleState, surface_m: float, out, n_seen: int) -> None:
+    decision = out.guidance
+    sp = out.setpoint_ned_m
     history.append(
         time_s=s.time_s,
         north_m=s.pos_ned_m[0],
@@ -226,4 +318,7 @@ def _record(history: History, s: VehicleState, surface_m: float, decision, n_see
         setpoint_down_m=sp[2],
         n_obstacles_seen=n_seen,
         tilt_saturated=1.0 if s.tilt_saturated else 0.0,
+        free_distance_m=out.envelope.free_distance_m,
+        speed_limit_mps=out.envelope.speed_limit_mps,
+        speed_mps=out.envelope.speed_mps,
     )

@@ -36,6 +36,9 @@ COLUMNS: tuple[str, ...] = (
     "setpoint_down_m",
     "n_obstacles_seen",
     "tilt_saturated",
+    "free_distance_m",
+    "speed_limit_mps",
+    "speed_mps",
 )
 
 

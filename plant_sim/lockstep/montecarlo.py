@@ -12,14 +12,20 @@ from typing import Any
 import numpy as np
 
 from plant_sim.lockstep.harness import RunConfig, Verdict, run_scene
-from plant_sim.lockstep.scenes import random_scene
+from plant_sim.lockstep.scenes import FAMILIES, family_scene, mixed_scene
 
-__all__ = ["fly_seed", "run_batch", "summarize"]
+__all__ = ["fly_seed", "run_batch", "scene_of", "summarize"]
 
 
-def fly_seed(seed: int) -> Verdict:
-    """Fly the random scene of ``seed`` with the default configuration."""
-    return run_scene(random_scene(seed), RunConfig()).verdict
+def scene_of(seed: int, family: str = "mixed"):
+    """The scene Monte Carlo flies for ``seed``: ``family`` ("mixed": by seed, see
+    :func:`~plant_sim.lockstep.scenes.mixed_scene`)."""
+    return mixed_scene(seed) if family == "mixed" else family_scene(seed, family)
+
+
+def fly_seed(seed: int, family: str = "mixed") -> Verdict:
+    """Fly the random scene of ``seed`` (in ``family``) with the default configuration."""
+    return run_scene(scene_of(seed, family), RunConfig()).verdict
 
 
 def _init_worker() -> None:
@@ -37,13 +43,16 @@ def run_batch(
     *,
     jobs: int = 1,
     progress: Callable[[int, int, Verdict], None] | None = None,
+    family: str = "mixed",
 ) -> list[Verdict]:
     """Fly every seed; verdicts in seed order. ``jobs`` > 1 uses worker processes."""
+    if family != "mixed" and family not in FAMILIES:
+        raise ValueError(f"unknown scene family {family!r}; valid: mixed, {list(FAMILIES)}")
     seeds = list(seeds)
     verdicts: dict[int, Verdict] = {}
     if jobs <= 1:
         for seed in seeds:
-            verdicts[seed] = fly_seed(seed)
+            verdicts[seed] = fly_seed(seed, family)
             if progress is not None:
                 progress(len(verdicts), len(seeds), verdicts[seed])
     else:
@@ -54,7 +63,7 @@ def run_batch(
         with ProcessPoolExecutor(
             max_workers=jobs, mp_context=spawn, initializer=_init_worker
         ) as pool:
-            futures = {pool.submit(fly_seed, seed): seed for seed in seeds}
+            futures = {pool.submit(fly_seed, seed, family): seed for seed in seeds}
             for future in as_completed(futures):
                 verdict = future.result()
                 verdicts[futures[future]] = verdict
@@ -69,9 +78,18 @@ def summarize(verdicts: list[Verdict]) -> dict[str, Any]:
     sep = np.array([v.min_surface_distance_m for v in verdicts])
     avoid = np.array([v.avoidance_time_s for v in verdicts])
     causes = Counter(v.failure or "goal not reached" for v in verdicts if not v.passed)
+    # a safe outcome: the goal, or a stop reported by guidance (HOLD), without a collision
+    safe = [v.passed or (v.failure == "hold" and not v.collided) for v in verdicts]
+    by_family: dict[str, dict[str, int]] = {}
+    for v, ok in zip(verdicts, safe, strict=True):
+        fam = by_family.setdefault(v.scene.rsplit("-", 1)[0], {"runs": 0, "safe": 0})
+        fam["runs"] += 1
+        fam["safe"] += int(ok)
     return {
         "runs": n,
         "goal_reached_rate": sum(v.reached_goal for v in verdicts) / n,
+        "safe_outcome_rate": sum(safe) / n,
+        "by_family": by_family,
         "collision_rate": sum(v.collided for v in verdicts) / n,
         "min_separation_m": {
             "min": float(sep.min()),

@@ -256,8 +256,8 @@ def history_from_truth(
 ) -> History:
     """A lockstep :class:`History` from the truth log (time shifted so that t0 = 0).
 
-    The truth log has no setpoints or obstacle counts (the companion's business): those
-    columns are NaN.
+    The truth log has no setpoints, obstacle counts or envelope figures (the companion's
+    business): those columns are NaN.
     """
     h = History()
     t_all = truth["time_s"]
@@ -290,6 +290,11 @@ def history_from_truth(
             setpoint_down_m=math.nan,
             n_obstacles_seen=math.nan,
             tilt_saturated=truth["tilt_saturated"][i],
+            free_distance_m=math.nan,
+            speed_limit_mps=math.nan,
+            speed_mps=math.hypot(
+                truth["vel_n_mps"][i], truth["vel_e_mps"][i], truth["vel_d_mps"][i]
+            ),
         )
     return h
 

@@ -1,0 +1,274 @@
+"""The safety envelope (DESIGN.md): only into space seen free, never faster than it can stop.
+
+Guidance (the paper's Fig. 5: goal, or Eq. 28's aiming direction) says *where* to go; this
+module decides *how far* the position target may lie and *how fast* the vehicle may fly,
+from the known-space map (:mod:`companion.known_space`). Pure: the map is passed in as a
+query function, there is no clock or I/O.
+
+Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's setpoint:
+
+1. **Path direction.** ``u = (s - p) / |s - p|`` with its elevation clamped to
+   ``±max_path_elevation_deg`` (vertical motion limited to what the camera's ±18.5° view
+   covers; the horizontal part is kept). A purely vertical ``u`` is not clamped: its free
+   distance is what the map says (usually only the vehicle's own bubble).
+2. **Known-free distance** ``F`` along ``u`` for the vehicle's section
+   (``vehicle_radius_m`` wide, ``vehicle_half_height_m`` high;
+   ``KnownSpace.free_distance_m``), up to ``lookahead_m``.
+3. **Stopping distance** at the current speed: ``d_stop(v) = latency_s·v + v²/(2·accel_mps2)``
+   (reaction over the frame → command → autopilot latency, then constant braking).
+4. **Carrot**: the position target is ``p + c·u`` with
+   ``c = min(|s - p|, F - d_stop(v) - margin_m)``, set to 0 below ``min_advance_m``
+   (then the target is the vehicle's own position: brake). The autopilot holds the last
+   target if the companion dies; flying to it and stopping there stays inside known-free
+   space by ``margin_m``.
+   Never the far goal when the goal lies beyond what was seen.
+5. **Speed limit** stated to the autopilot: the largest ``v`` with
+   ``latency_s·v + v²/(2·accel_mps2) + margin_m ≤ F``, i.e.
+   ``v = a·(−τ + √(τ² + 2(F − margin)/a))``, capped at ``max_speed_mps``; ``overspeed``
+   is raised when the measured speed exceeds it by ``overspeed_tolerance_mps``.
+6. **Look before moving**: the yaw guidance commands faces ``u`` (not the carrot, which
+   may be at the vehicle), so a vehicle that must travel where it has not looked turns
+   first; the carrot grows only as the view fills the map with free space.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "EnvelopeConfig",
+    "EnvelopeOutput",
+    "envelope_step",
+    "speed_limit_mps",
+    "stopping_distance_m",
+]
+
+FreeDistanceFn = Callable[..., float]
+"""``(pos_ned_m, unit_dir_ned, radius_m, limit_m, half_height_m, body_m, near_field_m)``
+→ known-free metres (:meth:`companion.known_space.KnownSpace.free_distance_m`)."""
+
+
+@dataclass(frozen=True)
+class EnvelopeConfig:
+    """Parameters of the safety envelope (named assumptions, SI units).
+
+    Attributes
+    ----------
+    latency_s : float
+        Capture → command acting on the vehicle [s]: a frame period (33 ms), perception
+        and link (≤ 15 ms p99) and the autopilot's reaction, rounded up.
+    accel_mps2 : float
+        Braking deceleration the autopilot achieves [m/s²]. 2.0: below the paper
+        vehicle's g·tan 15° = 2.63 and ArduCopter's default WPNAV_ACCEL 2.5 m/s².
+    margin_m : float
+        Distance kept from the edge of known-free space after stopping [m].
+    vehicle_radius_m : float
+        Half-width of the section swept through known-free space [m] (arm 0.25 +
+        propeller 0.1).
+    vehicle_half_height_m : float
+        Half-height of that section [m] (body, propellers and a few centimetres of
+        height-hold error). The forward camera's ±18.5° view covers it 0.6 m ahead.
+    near_field_m : float
+        Within this distance ahead the section's rim may lie in unseen (never occupied)
+        space: the left eye (0.1 m left of the centre) sees 0.35 m to the right only
+        from (0.35 + 0.1) / tan 24° = 1.0 m ahead (see :mod:`companion.known_space`) [m].
+    min_advance_m : float
+        A carrot nearer than this is not sent: the target is the vehicle's position
+        (brake) [m]. Keeps the vehicle from creeping into unseen space by the width of
+        its own free bubble, one frame at a time.
+    max_speed_mps : float
+        Speed limit cap [m/s].
+    lookahead_m : float
+        Longest free-distance query [m] (the map's range is 8 m).
+    max_path_elevation_deg : float
+        Steepest climb or descent of the path [deg] (inside the ±18.5° vertical view).
+    overspeed_tolerance_mps : float
+        Measured speed above the limit by more than this raises ``overspeed`` [m/s].
+    """
+
+    latency_s: float = 0.15
+    accel_mps2: float = 2.0
+    margin_m: float = 0.3
+    vehicle_radius_m: float = 0.35
+    vehicle_half_height_m: float = 0.2
+    near_field_m: float = 1.05
+    min_advance_m: float = 0.15
+    max_speed_mps: float = 10.0
+    lookahead_m: float = 12.0
+    max_path_elevation_deg: float = 12.0
+    overspeed_tolerance_mps: float = 0.3
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"{f.name} must be a number, got {value!r}")
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{f.name} must be finite and >= 0, got {value!r}")
+            object.__setattr__(self, f.name, float(value))
+        if self.accel_mps2 <= 0.0:
+            raise ValueError(f"accel_mps2 must be > 0, got {self.accel_mps2!r}")
+        if not 0.0 < self.max_path_elevation_deg <= 90.0:
+            raise ValueError(
+                f"max_path_elevation_deg must be in (0, 90], got {self.max_path_elevation_deg}"
+            )
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> EnvelopeConfig:
+        """Build from a mapping; unknown keys raise ``TypeError`` naming them."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - names)
+        if unknown:
+            raise TypeError(
+                f"unknown envelope config key(s) {unknown}; valid keys: {sorted(names)}"
+            )
+        return cls(**dict(values))
+
+
+@dataclass(frozen=True, eq=False)
+class EnvelopeOutput:
+    """The command after the envelope.
+
+    Attributes
+    ----------
+    setpoint_ned_m : ndarray, shape (3,)
+        Position target actually sent [m, NED] (the carrot), read-only.
+    path_dir_ned : ndarray, shape (3,)
+        Unit direction of travel after the elevation clamp (zero when none).
+    free_distance_m : float
+        Known-free distance along it for the vehicle's disc [m].
+    stopping_distance_m : float
+        ``d_stop`` at the measured speed [m].
+    speed_limit_mps : float
+        The speed bound for ``free_distance_m`` [m/s].
+    speed_mps : float
+        Measured speed [m/s].
+    limited : bool
+        The carrot is nearer than guidance's setpoint (what lies beyond was not seen free).
+    overspeed : bool
+        Measured speed above the limit (plus tolerance).
+    """
+
+    setpoint_ned_m: np.ndarray
+    path_dir_ned: np.ndarray
+    free_distance_m: float
+    stopping_distance_m: float
+    speed_limit_mps: float
+    speed_mps: float
+    limited: bool
+    overspeed: bool
+
+
+def stopping_distance_m(speed_mps: float, latency_s: float, accel_mps2: float) -> float:
+    """Distance to stop from ``speed_mps``: ``τ·v + v²/(2a)`` [m]."""
+    v = max(float(speed_mps), 0.0)
+    return latency_s * v + v * v / (2.0 * accel_mps2)
+
+
+def speed_limit_mps(free_m: float, latency_s: float, accel_mps2: float, margin_m: float) -> float:
+    """Largest speed whose stopping distance plus ``margin_m`` fits in ``free_m`` [m/s].
+
+    Solves ``τ·v + v²/(2a) + margin = F`` for ``v ≥ 0``: ``v = a(−τ + √(τ² + 2(F−m)/a))``;
+    0 when ``F ≤ margin``.
+    """
+    room = float(free_m) - margin_m
+    if room <= 0.0:
+        return 0.0
+    a = accel_mps2
+    return a * (-latency_s + math.sqrt(latency_s * latency_s + 2.0 * room / a))
+
+
+def _path_direction(to_setpoint: np.ndarray, max_elev_rad: float) -> np.ndarray:
+    """Unit direction to the setpoint with its elevation clamped (see module docstring)."""
+    dist = math.sqrt(float(to_setpoint @ to_setpoint))
+    u = to_setpoint / dist
+    horiz = math.hypot(float(u[0]), float(u[1]))
+    if horiz < 1e-6:
+        return u
+    elev = math.atan2(-float(u[2]), horiz)  # NED: up is −z
+    if abs(elev) <= max_elev_rad:
+        return u
+    e = math.copysign(max_elev_rad, elev)
+    return np.array(
+        [u[0] / horiz * math.cos(e), u[1] / horiz * math.cos(e), -math.sin(e)], dtype=float
+    )
+
+
+def envelope_step(
+    *,
+    pos_ned_m,
+    vel_ned_mps,
+    setpoint_ned_m,
+    free_distance: FreeDistanceFn,
+    config: EnvelopeConfig | None = None,
+) -> EnvelopeOutput:
+    """Bound guidance's setpoint by known-free space and the stopping distance.
+
+    Parameters
+    ----------
+    pos_ned_m, vel_ned_mps : array_like, shape (3,)
+        Vehicle position [m] and velocity [m/s] at the frame's capture time, NED.
+    setpoint_ned_m : array_like, shape (3,)
+        Guidance's position setpoint [m, NED] (goal, aiming-direction point or hold).
+    free_distance : callable
+        ``(pos, unit_dir, radius_m, limit_m) -> metres`` of known-free travel, e.g.
+        :meth:`companion.known_space.KnownSpace.free_distance_m`.
+    config : EnvelopeConfig, optional
+
+    Returns
+    -------
+    EnvelopeOutput
+    """
+    cfg = EnvelopeConfig() if config is None else config
+    pos = np.asarray(pos_ned_m, dtype=float)
+    vel = np.asarray(vel_ned_mps, dtype=float)
+    target = np.asarray(setpoint_ned_m, dtype=float)
+    speed = math.sqrt(float(vel @ vel))
+    d_stop = stopping_distance_m(speed, cfg.latency_s, cfg.accel_mps2)
+    to_setpoint = target - pos
+    dist = math.sqrt(float(to_setpoint @ to_setpoint))
+    if dist < 1e-6:
+        direction = np.zeros(3)
+        free = 0.0
+        carrot = target.copy()
+        limited = False
+    else:
+        direction = _path_direction(to_setpoint, math.radians(cfg.max_path_elevation_deg))
+        free = float(
+            free_distance(
+                pos,
+                direction,
+                cfg.vehicle_radius_m,
+                cfg.lookahead_m,
+                cfg.vehicle_half_height_m,
+                cfg.vehicle_radius_m,
+                cfg.near_field_m,
+            )
+        )
+        reach = min(dist, max(0.0, free - d_stop - cfg.margin_m))
+        if reach < min(cfg.min_advance_m, dist):
+            reach = 0.0
+        clamped = not np.allclose(direction * dist, to_setpoint, atol=1e-9)
+        limited = clamped or reach < dist - 1e-9
+        carrot = pos + direction * reach if limited else target.copy()
+    limit = min(
+        speed_limit_mps(free, cfg.latency_s, cfg.accel_mps2, cfg.margin_m), cfg.max_speed_mps
+    )
+    carrot.setflags(write=False)
+    direction.setflags(write=False)
+    return EnvelopeOutput(
+        setpoint_ned_m=carrot,
+        path_dir_ned=direction,
+        free_distance_m=free,
+        stopping_distance_m=d_stop,
+        speed_limit_mps=limit,
+        speed_mps=speed,
+        limited=limited,
+        overspeed=speed > limit + cfg.overspeed_tolerance_mps,
+    )

@@ -1,0 +1,621 @@
+"""Known space: a bounded, vehicle-centred voxel map of what the camera has seen free.
+
+The safety envelope (DESIGN.md, "The safety envelope") needs to know, for a direction of
+travel, how far the vehicle's body can move through space that was *seen* free. This
+module keeps that knowledge; it is pure (no clock, no I/O) and fed once per depth frame
+with the pose at the frame's capture time.
+
+Model
+-----
+A grid of ``size_xy_vox × size_xy_vox × size_z_vox`` cubic voxels of ``voxel_m`` [m],
+aligned with LOCAL_NED, each UNKNOWN (0), FREE (1) or OCCUPIED (2). The grid is
+vehicle-centred: when the vehicle strays more than a quarter of the grid from its centre
+the grid is shifted by whole voxels (what falls off the edge is forgotten, what enters is
+UNKNOWN). Nothing is forgotten by a timer: OCCUPIED stays until a matched ray passes
+through it.
+
+Update, per depth frame (:meth:`KnownSpace.integrate`, a numba kernel casting one ray per
+``pixel_stride`` × ``pixel_stride`` block, through the block's centre, to the *nearest*
+matched depth in the block — min-pooling fills small matching holes conservatively and
+does not miss a thin obstacle between rays — when at least ``block_min_matched`` of the
+block is matched):
+
+* **Matched, in range** (finite depth, range ≤ ``max_range_m``): voxels along the ray are
+  FREE up to ``hit_clear_m`` short of the hit (also clearing OCCUPIED: seen free again);
+  the hit's voxel is OCCUPIED.
+* **Matched, beyond range** (finite or +inf depth, range > ``max_range_m``): FREE up to
+  ``max_range_m``, nothing occupied.
+* **Unmatched** (NaN depth: no match, the matcher's blind band, nearer than its minimum
+  range, invalid): UNKNOWN, nothing written — with one exception, the *open sky*. An
+  unmatched pixel whose column above it (to the top of the image) is unmatched too, which
+  lies outside the matcher's blind band and whose ray points no lower than
+  ``sky_min_elevation_deg`` below the horizon, is taken as open sky: FREE up to
+  ``max_range_m``, but only where still UNKNOWN (it never clears OCCUPIED). Without this a
+  stereo camera could never certify the space at its own altitude (the sky above the
+  horizon is textureless and never matches), and the vehicle could not fly level. The
+  column rule keeps the exception away from textureless obstacles in front of the sky:
+  their outline is matched at a finite depth, and every pixel below a matched pixel in
+  its column stays UNKNOWN. Named limitation: a textureless obstacle that fills the top
+  of the image with no matched edge is mistaken for sky.
+* **The vehicle itself**: OCCUPIED voxels centred within ``ego_clear_radius_m`` of the
+  vehicle become FREE (the vehicle is there). UNKNOWN is never made FREE around the
+  vehicle: a bubble that moved with it would let it creep into unseen space, one bubble
+  at a time. Only the first frame frees a ball of ``start_free_radius_m`` (named
+  assumption: the vehicle starts in a clear bubble, as after a take-off; the camera
+  cannot see beside or below itself).
+
+Query (:meth:`KnownSpace.free_distance_m`): the distance the vehicle's body, an ellipse
+normal to the direction (``radius_m`` wide, ``half_height_m`` high; its centre and 8
+points on its rim), can travel from a position along a direction, in steps of half a
+voxel, up to a limit: the centre must be in FREE voxels beyond ``body_m`` (inside it is
+the vehicle), the rim in FREE voxels beyond ``near_field_m`` and in voxels that are not
+OCCUPIED before it. The near field is where the rim is outside any forward camera's
+view (0.35 m to the right is in the left eye's ±24° view only from 1.0 m ahead): what
+the vehicle could not have looked at without being there, excused only when it was never
+seen occupied (named limitation: a thin obstacle that reaches into the rim's path only
+within 1 m ahead and never into the view). Outside the grid is UNKNOWN.
+
+Costs (``benchmarks/bench_known_space.py``): about 0.3–0.6 ms per 320 × 240 frame at the
+default stride of 4 (4 800 rays) on the 2-core machine; the budget is 2 ms.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numba
+import numpy as np
+
+from protocols.camera import R_FRD_FROM_CAM, StereoIntrinsics, eye_offset_frd_m
+
+__all__ = [
+    "FREE",
+    "OCCUPIED",
+    "UNKNOWN",
+    "KnownSpace",
+    "KnownSpaceConfig",
+]
+
+UNKNOWN = np.int8(0)
+FREE = np.int8(1)
+OCCUPIED = np.int8(2)
+
+
+@dataclass(frozen=True)
+class KnownSpaceConfig:
+    """Size, resolution and update rules of the known-space map.
+
+    Attributes
+    ----------
+    voxel_m : float
+        Voxel edge [m].
+    size_xy_vox, size_z_vox : int
+        Grid size in voxels, north/east and down (default 128 × 128 × 64: 25.6 × 25.6 ×
+        12.8 m at 0.2 m, 1 MiB).
+    max_range_m : float
+        Rays certify free space up to this range [m]; hits beyond it are not obstacles.
+        Must exceed the distance the vehicle needs to stop from its highest speed plus
+        the range at which the top of the tube ahead enters the view (see the module
+        docstring of :mod:`companion.guidance.envelope`).
+    pixel_stride : int
+        One ray per n × n pixel block (4 → 4 800 rays at 320 × 240).
+    block_min_matched : float
+        Fraction of a block's pixels that must be matched for its ray to be cast (to the
+        nearest of them); fewer is unknown (or open sky).
+    hit_clear_m : float
+        Free marking stops this far before a hit [m] (range noise must not clear the
+        surface voxel).
+    sky_min_elevation_deg : float
+        Open-sky rule: lowest ray elevation above the horizon [deg] (negative: below).
+    ego_clear_radius_m : float
+        OCCUPIED voxels centred within this distance of the vehicle become FREE (the
+        vehicle is there) [m].
+    start_free_radius_m : float
+        On the first frame, voxels within this distance become FREE [m] (assumption).
+    """
+
+    voxel_m: float = 0.2
+    size_xy_vox: int = 128
+    size_z_vox: int = 64
+    max_range_m: float = 8.0
+    pixel_stride: int = 4
+    block_min_matched: float = 0.25
+    hit_clear_m: float = 0.2
+    sky_min_elevation_deg: float = -5.0
+    ego_clear_radius_m: float = 0.25
+    start_free_radius_m: float = 1.2
+
+    def __post_init__(self) -> None:
+        for name in ("size_xy_vox", "size_z_vox", "pixel_stride"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
+        if self.size_xy_vox < 8 or self.size_z_vox < 8 or self.pixel_stride < 1:
+            raise ValueError("grid sizes must be >= 8 voxels and pixel_stride >= 1")
+        for name in ("voxel_m", "max_range_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} must be finite and positive, got {value!r}")
+        for name in (
+            "hit_clear_m",
+            "ego_clear_radius_m",
+            "start_free_radius_m",
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        if not 0.0 < self.block_min_matched <= 1.0:
+            raise ValueError(f"block_min_matched must be in (0, 1], got {self.block_min_matched}")
+        if not -90.0 <= self.sky_min_elevation_deg <= 90.0:
+            raise ValueError(
+                f"sky_min_elevation_deg must be in [-90, 90], got {self.sky_min_elevation_deg}"
+            )
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> KnownSpaceConfig:
+        """Build from a mapping; unknown keys raise ``TypeError`` naming them."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - names)
+        if unknown:
+            raise TypeError(
+                f"unknown known-space config key(s) {unknown}; valid keys: {sorted(names)}"
+            )
+        return cls(**dict(values))
+
+
+# ---- kernels -----------------------------------------------------------------------------
+
+
+@numba.njit(cache=True, inline="always")
+def _cell(grid, origin, inv_voxel, x, y, z):
+    """Grid indices of NED point (x, y, z), or (-1, 0, 0) outside the grid."""
+    i = math.floor(x * inv_voxel) - origin[0]
+    j = math.floor(y * inv_voxel) - origin[1]
+    k = math.floor(z * inv_voxel) - origin[2]
+    if i < 0 or j < 0 or k < 0 or i >= grid.shape[0] or j >= grid.shape[1] or k >= grid.shape[2]:
+        return -1, 0, 0
+    return i, j, k
+
+
+@numba.njit(cache=True)
+def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, clear_occupied):
+    """FREE in every voxel the segment from (ox, oy, oz) over ``length`` [m] crosses.
+
+    Amanatides–Woo traversal: each voxel is visited once, in order along the ray; the
+    walk stops at the grid's edge. ``(dx, dy, dz)`` is a unit direction.
+    """
+    inv = 1.0 / voxel
+    gx = ox * inv
+    gy = oy * inv
+    gz = oz * inv
+    i = math.floor(gx) - origin[0]
+    j = math.floor(gy) - origin[1]
+    k = math.floor(gz) - origin[2]
+    big = 1e30
+    si = 1 if dx > 0.0 else -1
+    sj = 1 if dy > 0.0 else -1
+    sk = 1 if dz > 0.0 else -1
+    # ray parameter [m] to the first boundary on each axis, and between boundaries
+    if dx != 0.0:
+        bx = math.floor(gx) + (1.0 if dx > 0.0 else 0.0)
+        tx = (bx - gx) * voxel / dx
+        ddx = voxel / abs(dx)
+    else:
+        tx = big
+        ddx = big
+    if dy != 0.0:
+        by = math.floor(gy) + (1.0 if dy > 0.0 else 0.0)
+        ty = (by - gy) * voxel / dy
+        ddy = voxel / abs(dy)
+    else:
+        ty = big
+        ddy = big
+    if dz != 0.0:
+        bz = math.floor(gz) + (1.0 if dz > 0.0 else 0.0)
+        tz = (bz - gz) * voxel / dz
+        ddz = voxel / abs(dz)
+    else:
+        tz = big
+        ddz = big
+    ni, nj, nk = grid.shape
+    t = 0.0
+    while True:
+        if i < 0 or j < 0 or k < 0 or i >= ni or j >= nj or k >= nk:
+            return
+        cur = grid[i, j, k]
+        if cur == 0 or (clear_occupied and cur == 2):
+            grid[i, j, k] = 1
+        if tx <= ty and tx <= tz:
+            t = tx
+            tx += ddx
+            i += si
+        elif ty <= tz:
+            t = ty
+            ty += ddy
+            j += sj
+        else:
+            t = tz
+            tz += ddz
+            k += sk
+        if t > length:
+            return
+
+
+@numba.njit(cache=True)
+def _integrate_depth(
+    grid,
+    origin,
+    voxel,
+    depth,
+    stride,
+    min_matched,
+    fx,
+    fy,
+    cx,
+    cy,
+    cam_ned,
+    R_ned_from_cam,
+    max_range,
+    hit_clear,
+    sky_min_sin_elev,
+    blind_band_px,
+):
+    """Cast one ray per ``stride`` × ``stride`` block of ``depth`` (float32, NaN unknown).
+
+    A block with at least ``min_matched`` matched pixels casts a ray through its centre to
+    the *nearest* of them (min-pooling: small holes are filled conservatively and a thin
+    obstacle between block centres is not missed); a block wholly above the first matched
+    pixel of each of its columns is open sky (see the module docstring); any other block
+    is unknown. Returns the number of rays cast.
+    """
+    height, width = depth.shape
+    inv = 1.0 / voxel
+    n_rays = 0
+    # first matched row of every column (0 in the blind band: never sky)
+    first_matched = np.empty(width, np.int64)
+    for u in range(width):
+        first_matched[u] = height
+        if u < blind_band_px:
+            first_matched[u] = 0
+            continue
+        for v in range(height):
+            if not math.isnan(depth[v, u]):
+                first_matched[u] = v
+                break
+    for bu in range(0, width - stride + 1, stride):
+        sky_rows = height
+        for u in range(bu, bu + stride):
+            sky_rows = min(sky_rows, first_matched[u])
+        xn = (bu + 0.5 * (stride - 1) - cx) / fx
+        for bv in range(0, height - stride + 1, stride):
+            n_matched = 0
+            d = np.inf
+            for v in range(bv, bv + stride):
+                for u in range(bu, bu + stride):
+                    dv = depth[v, u]
+                    if not math.isnan(dv):
+                        n_matched += 1
+                        if dv < d:
+                            d = dv
+            yn = (bv + 0.5 * (stride - 1) - cy) / fy
+            norm = math.sqrt(xn * xn + yn * yn + 1.0)
+            # unit ray direction, camera frame then NED
+            ux = xn / norm
+            uy = yn / norm
+            uz = 1.0 / norm
+            dx = R_ned_from_cam[0, 0] * ux + R_ned_from_cam[0, 1] * uy + R_ned_from_cam[0, 2] * uz
+            dy = R_ned_from_cam[1, 0] * ux + R_ned_from_cam[1, 1] * uy + R_ned_from_cam[1, 2] * uz
+            dz = R_ned_from_cam[2, 0] * ux + R_ned_from_cam[2, 1] * uy + R_ned_from_cam[2, 2] * uz
+            if n_matched < min_matched:
+                # open sky: the whole block above its columns' first matched pixels, not
+                # too far below the horizon (NED z down: elevation sine = -dz)
+                if n_matched == 0 and bv + stride <= sky_rows and -dz >= sky_min_sin_elev:
+                    _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
+                              dx, dy, dz, max_range, False)  # fmt: skip
+                    n_rays += 1
+                continue
+            if d <= 0.0:
+                continue
+            rng = d * norm  # depth along the optical axis → range along the ray
+            n_rays += 1
+            if rng > max_range:
+                _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
+                          dx, dy, dz, max_range, True)  # fmt: skip
+                continue
+            free_len = rng - hit_clear
+            if free_len > 0.0:
+                _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
+                          dx, dy, dz, free_len, True)  # fmt: skip
+            i, j, k = _cell(
+                grid, origin, inv, cam_ned[0] + rng * dx, cam_ned[1] + rng * dy,
+                cam_ned[2] + rng * dz,
+            )  # fmt: skip
+            if i >= 0:
+                grid[i, j, k] = 2
+    return n_rays
+
+
+@numba.njit(cache=True)
+def _mark_ball(grid, origin, voxel, px, py, pz, radius, clear_occupied):
+    """FREE for voxels centred within ``radius`` of (px, py, pz)."""
+    inv = 1.0 / voxel
+    r_vox = math.ceil(radius * inv) + 1
+    ci = math.floor(px * inv) - origin[0]
+    cj = math.floor(py * inv) - origin[1]
+    ck = math.floor(pz * inv) - origin[2]
+    r2 = radius * radius
+    for i in range(max(ci - r_vox, 0), min(ci + r_vox + 1, grid.shape[0])):
+        xc = (i + origin[0] + 0.5) * voxel - px
+        for j in range(max(cj - r_vox, 0), min(cj + r_vox + 1, grid.shape[1])):
+            yc = (j + origin[1] + 0.5) * voxel - py
+            for k in range(max(ck - r_vox, 0), min(ck + r_vox + 1, grid.shape[2])):
+                zc = (k + origin[2] + 0.5) * voxel - pz
+                if xc * xc + yc * yc + zc * zc <= r2:
+                    cur = grid[i, j, k]
+                    if cur == 0 or (clear_occupied and cur == 2):
+                        grid[i, j, k] = 1
+
+
+@numba.njit(cache=True)
+def _clear_occupied_ball(grid, origin, voxel, px, py, pz, radius):
+    """OCCUPIED → FREE for voxels centred within ``radius`` of (px, py, pz)."""
+    inv = 1.0 / voxel
+    r_vox = math.ceil(radius * inv) + 1
+    ci = math.floor(px * inv) - origin[0]
+    cj = math.floor(py * inv) - origin[1]
+    ck = math.floor(pz * inv) - origin[2]
+    r2 = radius * radius
+    for i in range(max(ci - r_vox, 0), min(ci + r_vox + 1, grid.shape[0])):
+        xc = (i + origin[0] + 0.5) * voxel - px
+        for j in range(max(cj - r_vox, 0), min(cj + r_vox + 1, grid.shape[1])):
+            yc = (j + origin[1] + 0.5) * voxel - py
+            for k in range(max(ck - r_vox, 0), min(ck + r_vox + 1, grid.shape[2])):
+                zc = (k + origin[2] + 0.5) * voxel - pz
+                if xc * xc + yc * yc + zc * zc <= r2 and grid[i, j, k] == 2:
+                    grid[i, j, k] = 1
+
+
+@numba.njit(cache=True)
+def _free_distance(
+    grid, origin, voxel, px, py, pz, ux, uy, uz, radius, half_height, limit, body, near_field
+):
+    """Largest s ≤ limit (half-voxel steps) with the body's section FREE from 0 to s.
+
+    ``(ux, uy, uz)`` is a unit direction; the section is an ellipse normal to it with
+    semi-axes ``radius`` (horizontal, ``e1 = u × down``) and ``half_height`` (``e2 = u ×
+    e1``). Returns -1.0 when the section at s = 0 is not FREE.
+    """
+    inv = 1.0 / voxel
+    # two unit vectors normal to u
+    if abs(uz) < 0.9:
+        ax, ay, az = 0.0, 0.0, 1.0
+    else:
+        ax, ay, az = 1.0, 0.0, 0.0
+    e1x = uy * az - uz * ay
+    e1y = uz * ax - ux * az
+    e1z = ux * ay - uy * ax
+    n1 = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+    e1x /= n1
+    e1y /= n1
+    e1z /= n1
+    e2x = uy * e1z - uz * e1y
+    e2y = uz * e1x - ux * e1z
+    e2z = ux * e1y - uy * e1x
+    offs = np.zeros((9, 3))
+    for m in range(8):
+        a = m * (math.pi / 4.0)
+        ca = math.cos(a) * radius
+        sa = math.sin(a) * half_height
+        offs[m + 1, 0] = ca * e1x + sa * e2x
+        offs[m + 1, 1] = ca * e1y + sa * e2y
+        offs[m + 1, 2] = ca * e1z + sa * e2z
+    step = 0.5 * voxel
+    n = int(limit / step)
+    last = -1.0
+    for s in range(n + 2):
+        t = min(s * step, limit)
+        for m in range(9):
+            i, j, k = _cell(
+                grid, origin, inv,
+                px + t * ux + offs[m, 0], py + t * uy + offs[m, 1], pz + t * uz + offs[m, 2],
+            )  # fmt: skip
+            if i < 0:
+                return last
+            cur = grid[i, j, k]
+            if cur == 1:
+                continue
+            if m == 0 and t <= body:
+                continue
+            if m > 0 and t < near_field and cur == 0:
+                continue
+            return last
+        last = t
+        if t >= limit:
+            break
+    return last
+
+
+@functools.cache
+def _warm_up() -> None:
+    """Compile (or load from numba's cache) the kernels once per process."""
+    grid = np.zeros((8, 8, 8), np.int8)
+    origin = np.zeros(3, np.int64)
+    depth = np.full((4, 4), np.nan, np.float32)
+    depth[2, 2] = 0.5
+    depth.flags.writeable = False  # perception's depth is read-only: its own specialization
+    _integrate_depth(
+        grid, origin, 0.2, depth, 2, 1, 2.0, 2.0, 1.5, 1.5, np.full(3, 0.8),
+        np.eye(3), 1.0, 0.1, -0.1, 0,
+    )  # fmt: skip
+    _mark_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3, True)
+    _free_distance(grid, origin, 0.2, 0.8, 0.8, 0.8, 1.0, 0.0, 0.0, 0.1, 0.1, 0.5, 0.1, 0.2)
+    _clear_occupied_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3)
+
+
+class KnownSpace:
+    """The known-space map (see the module docstring); one per vehicle.
+
+    Parameters
+    ----------
+    config : KnownSpaceConfig, optional
+    """
+
+    def __init__(self, config: KnownSpaceConfig | None = None) -> None:
+        self.config = KnownSpaceConfig() if config is None else config
+        c = self.config
+        self.grid = np.zeros((c.size_xy_vox, c.size_xy_vox, c.size_z_vox), np.int8)
+        self.origin_vox = np.zeros(3, np.int64)  # global voxel index of grid[0, 0, 0]
+        self._started = False
+        self.frames = 0
+        _warm_up()
+
+    # -- frame of the grid -----------------------------------------------------------------
+
+    def _centre_on(self, pos_ned_m: np.ndarray) -> None:
+        """Shift the grid (whole voxels) so ``pos_ned_m`` is near its centre."""
+        c = self.config
+        shape = np.array(self.grid.shape, np.int64)
+        vox = np.floor(np.asarray(pos_ned_m) / c.voxel_m).astype(np.int64)
+        centre = self.origin_vox + shape // 2
+        if self._started and np.all(np.abs(vox - centre) <= shape // 4):
+            return
+        new_origin = vox - shape // 2
+        shift = new_origin - self.origin_vox
+        new = np.zeros_like(self.grid)
+        if self._started:
+            src = tuple(slice(max(s, 0), min(n + s, n)) for s, n in zip(shift, shape, strict=True))
+            dst = tuple(slice(max(-s, 0), min(n - s, n)) for s, n in zip(shift, shape, strict=True))
+            if all(sl.stop > sl.start for sl in src):
+                new[dst] = self.grid[src]
+        self.grid = new
+        self.origin_vox = new_origin
+
+    # -- update ----------------------------------------------------------------------------
+
+    def integrate(
+        self,
+        depth_m: np.ndarray,
+        intrinsics: StereoIntrinsics,
+        pos_ned_m,
+        R_ned_from_frd,
+        blind_band_px: int = 0,
+    ) -> int:
+        """Fold one depth frame (left camera, NaN = unknown) in; returns the rays cast.
+
+        Parameters
+        ----------
+        depth_m : ndarray, shape (H, W), float32
+            Depth along the left camera's optical axis [m]; NaN unknown, +inf far.
+        intrinsics : StereoIntrinsics
+            The frame's camera (left eye at body ``y = -b/2``, looking along body +x).
+        pos_ned_m : array_like, shape (3,)
+            Vehicle position at the frame's capture time [m, NED].
+        R_ned_from_frd : array_like, shape (3, 3)
+            Body FRD → NED at the capture time.
+        blind_band_px : int
+            Left image columns the matcher cannot match (perception's
+            ``blind_band_px``): never open sky.
+        """
+        c = self.config
+        pos = np.asarray(pos_ned_m, dtype=float)
+        R = np.asarray(R_ned_from_frd, dtype=float)
+        self._centre_on(pos)
+        if not self._started:
+            _mark_ball(self.grid, self.origin_vox, c.voxel_m, *pos, c.start_free_radius_m, False)
+            self._started = True
+        cam_ned = pos + R @ eye_offset_frd_m(intrinsics.baseline_m, "left")
+        R_ned_from_cam = np.ascontiguousarray(R @ R_FRD_FROM_CAM)
+        depth = np.ascontiguousarray(depth_m, dtype=np.float32)
+        n = _integrate_depth(
+            self.grid,
+            self.origin_vox,
+            c.voxel_m,
+            depth,
+            c.pixel_stride,
+            max(1, math.ceil(c.block_min_matched * c.pixel_stride**2)),
+            float(intrinsics.fx_px),
+            float(intrinsics.fy_px),
+            float(intrinsics.cx_px),
+            float(intrinsics.cy_px),
+            cam_ned,
+            R_ned_from_cam,
+            c.max_range_m,
+            c.hit_clear_m,
+            math.sin(math.radians(c.sky_min_elevation_deg)),
+            int(blind_band_px),
+        )
+        self.mark_vehicle(pos)
+        self.frames += 1
+        return int(n)
+
+    def mark_vehicle(self, pos_ned_m) -> None:
+        """The vehicle is at ``pos_ned_m``: its surroundings are free (see module docstring)."""
+        c = self.config
+        pos = np.asarray(pos_ned_m, dtype=float)
+        self._centre_on(pos)
+        self._started = True
+        _clear_occupied_ball(self.grid, self.origin_vox, c.voxel_m, *pos, c.ego_clear_radius_m)
+
+    # -- queries ---------------------------------------------------------------------------
+
+    def state_at(self, point_ned_m) -> int:
+        """UNKNOWN, FREE or OCCUPIED at a NED point (UNKNOWN outside the grid)."""
+        c = self.config
+        idx = np.floor(np.asarray(point_ned_m, dtype=float) / c.voxel_m).astype(np.int64)
+        idx -= self.origin_vox
+        if np.any(idx < 0) or np.any(idx >= np.array(self.grid.shape)):
+            return int(UNKNOWN)
+        return int(self.grid[tuple(idx)])
+
+    def free_distance_m(
+        self,
+        pos_ned_m,
+        direction_ned,
+        radius_m: float,
+        limit_m: float,
+        half_height_m: float | None = None,
+        body_m: float = 0.0,
+        near_field_m: float = 0.0,
+    ) -> float:
+        """Known-free distance [m] for the vehicle's section moving along ``direction_ned``.
+
+        The section is an ellipse normal to the direction, ``radius_m`` wide on each side
+        (horizontal) and ``half_height_m`` (default ``radius_m``) high. Returns the largest
+        distance ≤ ``limit_m`` (multiples of half a voxel) over which its centre and 8 rim
+        points stay in FREE voxels (the centre within ``body_m`` and the rim within
+        ``near_field_m``: see the module docstring); 0 when the vehicle cannot move at
+        all (also for a zero direction).
+        """
+        u = np.asarray(direction_ned, dtype=float)
+        n = math.sqrt(float(u @ u))
+        if not n > 1e-9 or limit_m <= 0.0:
+            return 0.0
+        u = u / n
+        p = np.asarray(pos_ned_m, dtype=float)
+        d = _free_distance(
+            self.grid,
+            self.origin_vox,
+            self.config.voxel_m,
+            float(p[0]),
+            float(p[1]),
+            float(p[2]),
+            float(u[0]),
+            float(u[1]),
+            float(u[2]),
+            float(radius_m),
+            float(radius_m if half_height_m is None else half_height_m),
+            float(limit_m),
+            float(body_m),
+            float(near_field_m),
+        )
+        return max(float(d), 0.0)
+
+    def occupied_points_ned_m(self) -> np.ndarray:
+        """Centres of the OCCUPIED voxels [m, NED], shape (n, 3)."""
+        idx = np.argwhere(self.grid == OCCUPIED)
+        return (idx + self.origin_vox + 0.5) * self.config.voxel_m

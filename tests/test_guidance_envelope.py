@@ -1,0 +1,121 @@
+"""Safety envelope: carrot inside known-free space, speed limit from the stopping distance."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from companion.guidance.envelope import (
+    EnvelopeConfig,
+    envelope_step,
+    speed_limit_mps,
+    stopping_distance_m,
+)
+
+CFG = EnvelopeConfig()
+
+
+def _const_free(free_m: float):
+    calls = []
+
+    def free(pos, direction, radius_m, limit_m, half_height_m, body_m, near_field_m):
+        calls.append((np.array(pos), np.array(direction), radius_m, limit_m, half_height_m))
+        return min(free_m, limit_m)
+
+    free.calls = calls
+    return free
+
+
+def test_stopping_distance_closed_form():
+    # τ v + v²/(2a): 0.15·2 + 4/4 = 1.3 m
+    assert stopping_distance_m(2.0, 0.15, 2.0) == pytest.approx(1.3)
+    assert stopping_distance_m(0.0, 0.15, 2.0) == 0.0
+
+
+@pytest.mark.parametrize("free_m", [0.31, 1.0, 4.0, 8.0, 30.0])
+def test_speed_limit_is_the_inverse_of_the_stopping_distance(free_m):
+    v = speed_limit_mps(free_m, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+    assert v > 0.0
+    assert stopping_distance_m(v, CFG.latency_s, CFG.accel_mps2) + CFG.margin_m == (
+        pytest.approx(free_m, rel=1e-12)
+    )
+    assert speed_limit_mps(CFG.margin_m, CFG.latency_s, CFG.accel_mps2, CFG.margin_m) == 0.0
+    # faster than the limit does not fit, slower does
+    over = stopping_distance_m(1.01 * v, CFG.latency_s, CFG.accel_mps2) + CFG.margin_m
+    assert over > free_m
+
+
+@pytest.mark.parametrize("speed_mps", [0.0, 0.85, 2.0, 4.0])
+@pytest.mark.parametrize("free_m", [0.2, 1.0, 3.0, 6.0])
+def test_carrot_plus_stopping_distance_stays_inside_known_free_space(speed_mps, free_m):
+    pos = np.array([20.0, 0.0, -7.0])
+    goal = np.array([0.0, 0.0, -7.0])
+    out = envelope_step(
+        pos_ned_m=pos,
+        vel_ned_mps=(-speed_mps, 0.0, 0.0),
+        setpoint_ned_m=goal,
+        free_distance=_const_free(free_m),
+    )
+    reach = float(np.linalg.norm(out.setpoint_ned_m - pos))
+    d_stop = stopping_distance_m(speed_mps, CFG.latency_s, CFG.accel_mps2)
+    assert out.limited
+    assert reach + d_stop + CFG.margin_m <= free_m + 1e-9 or reach == 0.0
+    assert reach == pytest.approx(max(0.0, free_m - d_stop - CFG.margin_m), abs=CFG.min_advance_m)
+    # on the straight line to the goal, never beyond it
+    np.testing.assert_allclose(out.setpoint_ned_m[1:], pos[1:], atol=1e-12)
+    assert out.setpoint_ned_m[0] <= pos[0]
+    assert out.free_distance_m == free_m
+    assert out.overspeed == (speed_mps > out.speed_limit_mps + CFG.overspeed_tolerance_mps)
+
+
+def test_goal_inside_known_free_space_is_the_setpoint():
+    pos = np.array([0.0, 0.0, -7.0])
+    goal = np.array([2.0, 1.0, -7.0])
+    out = envelope_step(
+        pos_ned_m=pos, vel_ned_mps=(0, 0, 0), setpoint_ned_m=goal, free_distance=_const_free(8.0)
+    )
+    assert not out.limited
+    np.testing.assert_array_equal(out.setpoint_ned_m, goal)
+    assert out.speed_limit_mps == pytest.approx(
+        speed_limit_mps(8.0, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+    )
+
+
+def test_steep_climb_is_tilted_to_the_path_elevation_limit():
+    pos = np.array([0.0, 0.0, -7.0])
+    goal = np.array([3.0, 0.0, -17.0])  # 73° up
+    free = _const_free(2.0)
+    out = envelope_step(
+        pos_ned_m=pos, vel_ned_mps=(0, 0, 0), setpoint_ned_m=goal, free_distance=free
+    )
+    u = out.path_dir_ned
+    elev = math.degrees(math.atan2(-u[2], math.hypot(u[0], u[1])))
+    assert elev == pytest.approx(CFG.max_path_elevation_deg)
+    assert u[0] > 0 and u[1] == 0.0
+    # the query used the vehicle's section
+    _, _, radius, _, half_height = free.calls[-1]
+    assert (radius, half_height) == (CFG.vehicle_radius_m, CFG.vehicle_half_height_m)
+
+
+def test_too_little_room_brakes_at_the_current_position():
+    pos = np.array([1.0, 2.0, -3.0])
+    out = envelope_step(
+        pos_ned_m=pos,
+        vel_ned_mps=(0.5, 0, 0),
+        setpoint_ned_m=(10.0, 2.0, -3.0),
+        free_distance=_const_free(CFG.margin_m + 0.05),
+    )
+    np.testing.assert_array_equal(out.setpoint_ned_m, pos)
+    assert out.limited
+    assert out.speed_limit_mps < 0.3  # 2·(−0.15 + √(0.0225 + 0.05)) = 0.24 m/s
+
+
+def test_config_rejects_unknown_keys_and_bad_values():
+    with pytest.raises(TypeError, match="latency_ms"):
+        EnvelopeConfig.from_dict({"latency_ms": 5})
+    with pytest.raises(ValueError):
+        EnvelopeConfig(accel_mps2=0.0)
+    with pytest.raises(ValueError):
+        EnvelopeConfig(margin_m=-1.0)
