@@ -66,8 +66,7 @@ class ChildProcess:
         self._stderr = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 (closed in close())
         full_env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", **(env or {})}
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", module, *args],
-            cwd=REPO,
+            [sys.executable, "-m", module, *args],  # in the caller's working directory
             stdout=subprocess.PIPE,
             stderr=self._stderr,
             text=True,
@@ -336,7 +335,7 @@ def run_sil(
         load_scenario(options.scenario_path) if options.scenario_path else paper_scenario()
     )
     goal = scenario.goal_ned_m or (0.0, 0.0, -7.0)
-    out = Path(options.out_dir)
+    out = Path(options.out_dir).resolve()  # the children may run anywhere
     out.mkdir(parents=True, exist_ok=True)
     mav_port = free_port()
     zen_port = free_port(socket.SOCK_STREAM)

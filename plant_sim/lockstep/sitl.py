@@ -250,7 +250,7 @@ class SitlRig:
     def __init__(self, options: SitlOptions, progress: Callable[[str], None] | None = None):
         self.options = options
         self.say = progress or (lambda _text: None)
-        self.out = Path(options.out_dir)
+        self.out = Path(options.out_dir).resolve()
         self.sitl: ArduCopterSitl | None = None
         self.companion: ChildProcess | None = None
         self.plant: ChildProcess | None = None
