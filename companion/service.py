@@ -825,7 +825,7 @@ class CompanionService:
             else:
                 self._notice("Avoidance ended, heading to goal")
         if self.config.link.obstacle_distance:
-            self._send_obstacle_distance(out, pose)
+            self._send_obstacle_distance(out, pose, frame.intrinsics.hfov_deg)
         if self._status is not None:
             host_capture = frame.capture_ns if self.clock.frame_clock is FrameClock.HOST else None
             latency = {
@@ -951,17 +951,17 @@ class CompanionService:
         yaw = math.atan2(lookup.pose.R_ned_from_frd[1, 0], lookup.pose.R_ned_from_frd[0, 0])
         return PositionTarget((float(p[0]), float(p[1]), float(p[2])), yaw)
 
-    def _send_obstacle_distance(self, out, pose) -> None:
+    def _send_obstacle_distance(self, out, pose, hfov_deg: float) -> None:
+        """OBSTACLE_DISTANCE over the camera's own field of view (from the frame's model)."""
         pairs = []
         for o in out.perception.obstacles:
             rel_frd = pose.R_ned_from_frd.T @ (np.asarray(o.center_ned_m) - pose.pos_ned_m)
             pairs.append((math.atan2(rel_frd[1], rel_frd[0]), float(o.nearest_range_m)))
-        hfov = 48.0
         self.link.send(
             obstacle_distance_message(
                 out.perception.capture_ns // 1000,
                 pairs,
-                hfov,
+                hfov_deg,
                 self.config.perception.min_range_m,
                 self.config.perception.threshold_m,
             )

@@ -91,6 +91,11 @@ class StereoIntrinsics:
                 raise ValueError(f"{name} must be finite, got {value!r}")
 
     @property
+    def hfov_deg(self) -> float:
+        """Horizontal field of view [deg]: ``2 atan((W / 2) / fx)`` (inverse of CameraModel)."""
+        return math.degrees(2.0 * math.atan2(self.width_px / 2.0, self.fx_px))
+
+    @property
     def focal_baseline_m_px(self) -> float:
         """``fx · b`` [m·px]: depth [m] = this / disparity [px] (Eq. 27)."""
         return self.fx_px * self.baseline_m
