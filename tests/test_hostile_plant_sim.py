@@ -11,7 +11,6 @@ import math
 import socket
 import time
 
-import pytest
 from _hostile import HostileMavlink, flood_and_watch_heartbeats
 from _plant_sim_proc import PlantProcess, command, connect, recv
 from pymavlink import mavutil
@@ -40,22 +39,13 @@ PLANT_INPUT_TYPES = (
 )
 
 
-@pytest.fixture
-def plant_factory(tmp_path):
-    procs: list[PlantProcess] = []
-
-    def start(*args: str) -> PlantProcess:
-        log_dir = tmp_path / f"run{len(procs)}"
-        p = PlantProcess(["--mavlink", "udpin:127.0.0.1:0", "--log-dir", str(log_dir), *args])
-        procs.append(p)
-        p.wait_ready()
-        return p
-
-    yield start
-    for p in procs:
-        p.stop()
-        print(p.logs())  # pytest shows it only when the test fails
-        p.close()
+def _reposition(m, lat_e7: int, lon_e7: int, alt_m: float, flags: int = 0):
+    """DO_REPOSITION (COMMAND_INT, altitude above home, yaw unchanged) and its ACK."""
+    m.mav.command_int_send(
+        1, 1, mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mav.MAV_CMD_DO_REPOSITION,
+        0, 0, -1, flags, 0, math.nan, lat_e7, lon_e7, alt_m,
+    )  # fmt: skip
+    return recv(m, "COMMAND_ACK", 3, cond=lambda a: a.command == mav.MAV_CMD_DO_REPOSITION)
 
 
 def _fly_normally(plant: PlantProcess) -> None:
@@ -139,22 +129,7 @@ def test_do_reposition_and_global_target_move_the_vehicle_in_guided(plant_factor
     lat = home.latitude + round(10.0 / 6378137.0 * 180 / math.pi * 1e7)
     coslat = math.cos(math.radians(home.latitude * 1e-7))
     lon = home.longitude + round(5.0 / (6378137.0 * coslat) * 180 / math.pi * 1e7)
-    m.mav.command_int_send(
-        1,
-        1,
-        mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-        mav.MAV_CMD_DO_REPOSITION,
-        0,
-        0,
-        -1,
-        0,
-        0,
-        math.nan,
-        lat,
-        lon,
-        9.0,
-    )
-    ack = recv(m, "COMMAND_ACK", 3, cond=lambda a: a.command == mav.MAV_CMD_DO_REPOSITION)
+    ack = _reposition(m, lat, lon, 9.0, flags=0)
     assert ack is not None and ack.result == mav.MAV_RESULT_ACCEPTED, plant.logs()
 
     def at(n, e, d):
@@ -191,40 +166,10 @@ def test_do_reposition_and_global_target_move_the_vehicle_in_guided(plant_factor
     )
     # outside GUIDED without the change-mode flag: denied, as ArduCopter does
     assert command(m, mav.MAV_CMD_DO_SET_MODE, 1, 5).result == mav.MAV_RESULT_ACCEPTED
-    m.mav.command_int_send(
-        1,
-        1,
-        mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-        mav.MAV_CMD_DO_REPOSITION,
-        0,
-        0,
-        -1,
-        0,
-        0,
-        math.nan,
-        lat,
-        lon,
-        9.0,
-    )
-    ack = recv(m, "COMMAND_ACK", 3, cond=lambda a: a.command == mav.MAV_CMD_DO_REPOSITION)
+    ack = _reposition(m, lat, lon, 9.0, flags=0)
     assert ack is not None and ack.result == mav.MAV_RESULT_DENIED
     # with MAV_DO_REPOSITION_FLAGS_CHANGE_MODE it switches to GUIDED and goes
-    m.mav.command_int_send(
-        1,
-        1,
-        mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-        mav.MAV_CMD_DO_REPOSITION,
-        0,
-        0,
-        -1,
-        1,
-        0,
-        math.nan,
-        lat,
-        lon,
-        9.0,
-    )
-    ack = recv(m, "COMMAND_ACK", 3, cond=lambda a: a.command == mav.MAV_CMD_DO_REPOSITION)
+    ack = _reposition(m, lat, lon, 9.0, flags=1)
     assert ack is not None and ack.result == mav.MAV_RESULT_ACCEPTED
     assert recv(m, "HEARTBEAT", 3, cond=lambda h: h.custom_mode == GUIDED) is not None
     assert (

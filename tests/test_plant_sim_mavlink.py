@@ -12,29 +12,11 @@ import sys
 import time
 
 import pytest
-from _plant_sim_proc import PlantProcess, command, connect, recv
+from _plant_sim_proc import command, connect, recv
 from pymavlink import mavutil
 
 mav = mavutil.mavlink
 GUIDED, LOITER, LAND = 4, 5, 9
-
-
-@pytest.fixture
-def plant_factory(tmp_path):
-    procs: list[PlantProcess] = []
-
-    def start(*args: str, log_dir=True) -> PlantProcess:
-        extra = ["--log-dir", str(tmp_path / f"run{len(procs)}")] if log_dir else ["--no-logs"]
-        p = PlantProcess(["--mavlink", "udpin:127.0.0.1:0", *extra, *args])
-        procs.append(p)
-        p.wait_ready()
-        return p
-
-    yield start
-    for p in procs:
-        p.stop()
-        print(p.logs())  # pytest shows it only when the test fails
-        p.close()
 
 
 def _heartbeat_armed(hb) -> bool:

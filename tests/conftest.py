@@ -1,0 +1,24 @@
+"""Fixtures shared by the test modules (real plant-sim processes on 127.0.0.1)."""
+
+from __future__ import annotations
+
+import pytest
+from _plant_sim_proc import PlantProcess
+
+
+@pytest.fixture
+def plant_factory(tmp_path):
+    procs: list[PlantProcess] = []
+
+    def start(*args: str, log_dir=True) -> PlantProcess:
+        extra = ["--log-dir", str(tmp_path / f"run{len(procs)}")] if log_dir else ["--no-logs"]
+        p = PlantProcess(["--mavlink", "udpin:127.0.0.1:0", *extra, *args])
+        procs.append(p)
+        p.wait_ready()
+        return p
+
+    yield start
+    for p in procs:
+        p.stop()
+        print(p.logs())  # pytest shows it only when the test fails
+        p.close()
