@@ -73,7 +73,7 @@ def bench_perception(width: int, height: int, n: int, repeats: int) -> None:
     perception = StereoPerception()
     frame0 = decode(payloads[0])
     perception.process(frame0, *poses[0])
-    bare, _ = perception._matcher(frame0.intrinsics)
+    bare, _, _ = perception._matcher(frame0.intrinsics)
     bare = cv2.StereoBM_create(perception.num_disparities(frame0.intrinsics), bare.getBlockSize())
     cfg = perception.config
     bare.setTextureThreshold(cfg.texture_threshold)

@@ -3,7 +3,15 @@
 Pipeline for one rectified frame (:meth:`StereoPerception.process`):
 
 1. Disparity with OpenCV (``StereoBM`` by default; ``StereoSGBM`` 3-way selectable), one
-   matcher object per image geometry, built once and reused.
+   matcher object per image geometry, built once and reused. The pair is padded by the
+   disparity range on the left (and half a block on the other sides) so that every column is
+   searched: OpenCV computes nothing in the leftmost ``numDisparities`` columns of an unpadded
+   pair (64 px ≈ 10° at 320 px), although only what lies outside the right camera's view
+   (at 3 m the 0.2 m baseline hides ≈ 3.8°) is physically unmatchable. Left/right
+   consistency (``disp12MaxDiff``) and uniqueness refuse occluded and ambiguous pixels.
+   A coarse pass at a quarter of the resolution ranges surfaces nearer than ``min_range_m``
+   (which the main pass would miss or alias to a larger depth) down to ``near_range_m``.
+   The result is the **depth map** ``depth_m`` (NaN = unknown, see below).
 2. Obstacle pixels: valid disparity ``d ≥ f·b / threshold_m`` (depth below the threshold,
    Eq. 27, compared in disparity space so no per-pixel division).
 3. Noise filter: a morphological opening, then connected components
@@ -29,12 +37,13 @@ The per-obstacle steps (seed search, region sampling, sphere fit) are small numb
 one pass over the pixels or samples each instead of a dozen numpy temporaries; they are
 compiled (or loaded from numba's cache) when the first :class:`StereoPerception` is built.
 
-Unknown space: pixels without a valid disparity (textureless, occluded, or the left band of
-``num_disparities`` columns the right image cannot see) are never treated as free. They are
-never obstacles either (there is no range to put them at); instead :class:`PerceptionResult`
-reports ``unknown_fraction`` so the caller can refuse to fly into what it cannot see, and each
-obstacle says whether it was ``truncated`` by the image border or the unmatched band (then its
-true extent may be larger than estimated).
+Unknown space: :class:`PerceptionResult` carries ``depth_m`` (float32, depth along the
+optical axis [m]) with NaN wherever the depth is not known: unmatched (textureless,
+occluded, inconsistent), outside the right camera's view, beyond ``max_range_m``, or nearer
+than even the near pass reaches. Unknown is never free: the known-space model of the safety
+envelope consumes this map; :class:`ValidityCounts` says how many pixels are unknown and
+why. Obstacles are built only from known depth; each says whether it was ``truncated`` by
+the image border (then its true extent may be larger than estimated).
 """
 
 from __future__ import annotations
@@ -59,10 +68,19 @@ __all__ = [
     "PerceptionConfig",
     "PerceptionResult",
     "StereoPerception",
+    "ValidityCounts",
 ]
 
 _DISP_SCALE = 16  # OpenCV disparities are fixed point with 4 fractional bits
 _REFERENCE_WIDTH_PX = 320  # the paper's camera; block size scales from it
+_EDGE_MARGIN_PX = 2  # matches this close to the right image's left edge are unknown [px]
+_NEAR_SCALE = 4  # the near-range pass runs at a quarter of the resolution
+_NEAR_BLOCK_PX = 5  # its block (20 px at full resolution)
+_NEAR_TEXTURE = 400  # its StereoBM texture threshold (sum of |x-Sobel| over the block)
+_NEAR_UNIQUENESS = 50  # its uniqueness margin [%]
+_NEAR_SPECKLE_PX = 10  # its speckle window [coarse px]
+_NEAR_HALO_PX = 41  # main-pass matches this close to a too-near surface are unknown [px]
+_NEAR_HALO = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_NEAR_HALO_PX, _NEAR_HALO_PX))
 _NO_EDGE = np.zeros((0, 2), np.int32)  # no contour samples (stride 1: the grid is every pixel)
 
 
@@ -85,6 +103,13 @@ class PerceptionConfig:
         OpenCV matcher.
     min_range_m : float
         Nearest depth the matcher searches [m]; sets ``num_disparities`` (rounded up to 16).
+    near_range_m : float
+        Nearest depth of the coarse near-range pass [m] (quarter resolution, searched up to
+        ``f·b / near_range_m``): it catches what is nearer than ``min_range_m`` instead of
+        letting the main pass alias it to a larger depth; 0 disables it.
+    max_range_m : float
+        Farthest depth reported [m]: matches beyond it (disparity below ``f·b / max_range_m``,
+        where one pixel of disparity error is metres of depth) are unknown, not free.
     block_size_px : int or None
         Matching block size [px, odd]; ``None`` scales 9 px at 320 px width to the image.
     uniqueness_ratio : int
@@ -95,6 +120,10 @@ class PerceptionConfig:
         OpenCV speckle filter region size [px].
     speckle_range_px : int
         OpenCV speckle filter disparity range [px].
+    lr_max_diff_px : int
+        Left/right consistency: largest difference [px] between a pixel's disparity and the
+        one the right image's best match points back with (OpenCV ``disp12MaxDiff``); a pixel
+        the right camera cannot see (occluded, or outside its view) fails it. -1 disables.
     opening_px : int
         Kernel size of the morphological opening of the obstacle mask [px]; 1 disables it.
     min_blob_fraction : float
@@ -120,11 +149,14 @@ class PerceptionConfig:
     threshold_m: float = 4.0
     matcher: Matcher = Matcher.BM
     min_range_m: float = 1.2
+    near_range_m: float = 0.4
+    max_range_m: float = 20.0
     block_size_px: int | None = None
-    uniqueness_ratio: int = 10
+    uniqueness_ratio: int = 15
     texture_threshold: int = 10
     speckle_window_px: int = 100
-    speckle_range_px: int = 2
+    speckle_range_px: int = 3
+    lr_max_diff_px: int = 1
     opening_px: int = 3
     min_blob_fraction: float = 6e-4
     continuity_rel: float = 0.1
@@ -146,6 +178,17 @@ class PerceptionConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        if not (math.isfinite(self.max_range_m) and self.max_range_m > self.threshold_m):
+            raise ValueError(
+                f"max_range_m {self.max_range_m!r} must be finite and above threshold_m "
+                f"{self.threshold_m}"
+            )
+        if not (math.isfinite(self.near_range_m) and 0.0 <= self.near_range_m < self.min_range_m):
+            raise ValueError(
+                f"near_range_m {self.near_range_m!r} must be in [0, min_range_m {self.min_range_m})"
+            )
+        if self.lr_max_diff_px < -1:
+            raise ValueError(f"lr_max_diff_px must be >= -1, got {self.lr_max_diff_px}")
         if self.min_range_m >= self.threshold_m:
             raise ValueError(
                 f"min_range_m {self.min_range_m} must be below threshold_m {self.threshold_m}"
@@ -226,13 +269,45 @@ class PerceptionResult:
     obstacles : tuple of Obstacle
         Sorted by ``nearest_range_m`` (nearest first).
     unknown_fraction : float
-        Fraction of the image without a valid disparity (never free space).
+        Fraction of the image whose ``depth_m`` is unknown (NaN): never free space.
+    depth_m : numpy.ndarray
+        ``(H, W)`` float32 depth along the left camera's optical axis [m] (Eq. 27,
+        ``f·b / d``), read-only; NaN = unknown: unmatched (textureless, occluded, failed
+        the left/right or uniqueness checks), outside the right camera's view, beyond
+        ``max_range_m``, or too near to measure.
+    counts : ValidityCounts
+        How many pixels are known, and why the others are not.
     """
 
     sequence: int
     capture_ns: int
     obstacles: tuple[Obstacle, ...]
     unknown_fraction: float
+    depth_m: np.ndarray
+    counts: ValidityCounts
+
+
+@dataclass(frozen=True)
+class ValidityCounts:
+    """Pixel counts of one frame's depth map; the four add up to the image area.
+
+    Attributes
+    ----------
+    n_valid : int
+        Pixels with a depth in ``[min_range_m, max_range_m]`` (roughly: the matcher's range).
+    n_unmatched : int
+        No match: textureless, occluded, inconsistent, or outside the right camera's view.
+    n_beyond_range : int
+        Matched farther than ``max_range_m`` (sky, distant ground): unknown, not free.
+    n_too_near : int
+        Pixels only the coarse near-range pass matched (nearer than ``min_range_m``); their
+        depth is that pass's (conservative, coarse) and they count as valid depth.
+    """
+
+    n_valid: int
+    n_unmatched: int
+    n_beyond_range: int
+    n_too_near: int
 
 
 def _sample_stride(n_pixels: int, max_points: int) -> int:
@@ -421,6 +496,20 @@ def _warm_up() -> None:
     _fit_sphere(2 * xs, 2 * ys, n_grid, disp_s, 1.0, 1.0, 0.0, 0.0, 1.0, 0.1, 1.0)
 
 
+def _padded(image: np.ndarray, pad_x: int, pad_y: int) -> np.ndarray:
+    """``image`` with ``pad_x`` black columns on the left and ``pad_y`` replicated rows/columns
+    on the other sides.
+
+    OpenCV's matchers compute nothing in the leftmost ``numDisparities`` columns and the
+    half-block border; on the padded pair every real pixel is searched over the full range,
+    and a match into the black band (outside the right camera's view) has no texture to lock
+    on, fails the left/right check, or is refused by :meth:`StereoPerception.disparity_fixed`.
+    """
+    out = cv2.copyMakeBorder(image, pad_y, pad_y, pad_x, pad_y, cv2.BORDER_REPLICATE)
+    out[:, :pad_x] = 0
+    return out
+
+
 def _auto_block_size(width_px: int) -> int:
     size = round(9 * width_px / _REFERENCE_WIDTH_PX)
     return int(min(max(size | 1, 5), 255))
@@ -449,13 +538,16 @@ class StereoPerception:
     def num_disparities(self, intrinsics: StereoIntrinsics) -> int:
         """Disparity search range [px]: ``f·b / min_range_m`` rounded up to a multiple of 16."""
         d_max = intrinsics.focal_baseline_m_px / self.config.min_range_m
-        n = 16 * math.ceil(d_max / 16.0)
-        return int(min(n, 16 * ((intrinsics.width_px - 1) // 16)))
+        return int(16 * max(1, math.ceil(d_max / 16.0)))
 
-    def _matcher(self, intrinsics: StereoIntrinsics) -> tuple[cv2.StereoMatcher, int]:
+    def block_size(self, intrinsics: StereoIntrinsics) -> int:
+        """Matching block size [px] for this image width."""
+        return self.config.block_size_px or _auto_block_size(intrinsics.width_px)
+
+    def _matcher(self, intrinsics: StereoIntrinsics) -> tuple[cv2.StereoMatcher, int, int]:
         cfg = self.config
         n_disp = self.num_disparities(intrinsics)
-        block = cfg.block_size_px or _auto_block_size(intrinsics.width_px)
+        block = self.block_size(intrinsics)
         key = (intrinsics.width_px, n_disp, block)
         matcher = self._matchers.get(key)
         if matcher is None:
@@ -474,15 +566,80 @@ class StereoPerception:
             matcher.setUniquenessRatio(cfg.uniqueness_ratio)
             matcher.setSpeckleWindowSize(cfg.speckle_window_px)
             matcher.setSpeckleRange(cfg.speckle_range_px)
+            matcher.setDisp12MaxDiff(cfg.lr_max_diff_px)
             self._matchers[key] = matcher
-        return matcher, n_disp
+        return matcher, n_disp, block
 
     def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
-        """Raw OpenCV disparity of the frame: int16, 1/16 px units, negative where invalid."""
+        """Disparity of the frame's left image: int16, 1/16 px units, negative where unmatched.
+
+        The pair is padded before matching so that every column is searched (see
+        :func:`_padded`); a pixel whose match would lie left of the right image (outside the
+        right camera's view) is unmatched.
+        """
         if frame.encoding is not PixelEncoding.MONO8:
             raise ValueError(f"unsupported pixel encoding {frame.encoding!r}")
-        matcher, _ = self._matcher(frame.intrinsics)
-        return matcher.compute(frame.left, frame.right)
+        matcher, n_disp, block = self._matcher(frame.intrinsics)
+        height, width = frame.left.shape
+        pad_x, pad_y = n_disp, block // 2
+        out = matcher.compute(_padded(frame.left, pad_x, pad_y), _padded(frame.right, pad_x, pad_y))
+        disp = out[pad_y : pad_y + height, pad_x : pad_x + width]
+        # The right camera sees column x - d only if x - d >= 0; a match within
+        # _EDGE_MARGIN_PX of its edge leans on the black band (biased low): unknown too.
+        n_band = min(n_disp + _EDGE_MARGIN_PX, width)
+        band = disp[:, :n_band]
+        limit = _DISP_SCALE * (np.arange(n_band, dtype=np.int16) - _EDGE_MARGIN_PX)
+        band[band > limit] = -_DISP_SCALE
+        return disp
+
+    def near_disparity_fixed(self, frame: StereoFrame) -> np.ndarray | None:
+        """Coarse near-range pass: full-resolution int16 disparity (1/16 px) of the pixels
+        nearer than the main pass can range, -16 elsewhere; ``None`` when disabled.
+
+        The pair is matched at a quarter of the resolution (disparities are a quarter too, so
+        a 48-disparity search reaches 4 × 48 px at full resolution at 1/16 of the cost) with
+        the same padding and left/right check; only pixels whose coarse disparity is beyond
+        the main pass's largest (``num_disparities - 1``) are kept.
+        """
+        cfg = self.config
+        if cfg.near_range_m <= 0.0:
+            return None
+        k = frame.intrinsics
+        height, width = frame.left.shape
+        w4, h4 = width // _NEAR_SCALE, height // _NEAR_SCALE
+        n_main = self.num_disparities(k)
+        d_max = k.focal_baseline_m_px / cfg.near_range_m / _NEAR_SCALE
+        n_disp = int(16 * max(1, math.ceil(d_max / 16.0)))
+        if w4 < 8 or h4 < 8 or _NEAR_SCALE * n_disp <= n_main:
+            return None
+        key = ("near", n_disp)
+        matcher = self._matchers.get(key)
+        if matcher is None:
+            matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=_NEAR_BLOCK_PX)
+            matcher.setTextureThreshold(_NEAR_TEXTURE)
+            matcher.setUniquenessRatio(_NEAR_UNIQUENESS)
+            matcher.setSpeckleWindowSize(_NEAR_SPECKLE_PX)
+            matcher.setSpeckleRange(1)
+            matcher.setDisp12MaxDiff(max(cfg.lr_max_diff_px, 0))
+            self._matchers[key] = matcher
+        pad_y = _NEAR_BLOCK_PX // 2
+        small = [
+            _padded(cv2.resize(im, (w4, h4), interpolation=cv2.INTER_AREA), n_disp, pad_y)
+            for im in (frame.left, frame.right)
+        ]
+        coarse = matcher.compute(small[0], small[1])[pad_y : pad_y + h4, n_disp : n_disp + w4]
+        band = coarse[:, : min(n_disp, w4)]
+        band[band > _DISP_SCALE * np.arange(band.shape[1], dtype=np.int16)] = -_DISP_SCALE
+        # Beyond the main range (in coarse units, d * 4 > n_main - 1), else nothing.
+        beyond = coarse > (_DISP_SCALE * (n_main - 1)) // _NEAR_SCALE
+        if not beyond.any():
+            return np.full((height, width), -_DISP_SCALE, np.int16)
+        full = np.where(beyond, coarse * np.int16(_NEAR_SCALE), np.int16(-_DISP_SCALE))
+        out = np.full((height, width), -_DISP_SCALE, np.int16)
+        out[: _NEAR_SCALE * h4, : _NEAR_SCALE * w4] = np.repeat(
+            np.repeat(full, _NEAR_SCALE, axis=0), _NEAR_SCALE, axis=1
+        )
+        return out
 
     def process(self, frame: StereoFrame, pos_ned_m, R_ned_from_frd) -> PerceptionResult:
         """Detect obstacles in ``frame`` and place their safety spheres in NED.
@@ -502,19 +659,34 @@ class StereoPerception:
         """
         cfg = self.config
         k = frame.intrinsics
-        matcher, n_disp = self._matcher(k)
-        if frame.encoding is not PixelEncoding.MONO8:
-            raise ValueError(f"unsupported pixel encoding {frame.encoding!r}")
-        disp = matcher.compute(frame.left, frame.right)
+        disp = self.disparity_fixed(frame)
         height, width = disp.shape
         fb = k.focal_baseline_m_px
-        valid = disp >= 0
-        unknown_fraction = 1.0 - float(np.count_nonzero(valid)) / disp.size
+        near_pass = self.near_disparity_fixed(frame)
+        n_too_near = 0
+        if near_pass is not None:
+            # The coarse pass fills what the main pass could not match: a surface nearer than
+            # its range fails its checks. Where the main pass matched, it is trusted (at a
+            # quarter of the resolution, periodic and faint texture alias too).
+            too_near = near_pass > disp
+            n_too_near = int(np.count_nonzero(too_near))
+            if n_too_near:
+                # Around a surface nearer than the main range, a farther main-pass match is
+                # as likely aliased as right: unknown, not free.
+                around = cv2.dilate(too_near.view(np.uint8), _NEAR_HALO).view(bool)
+                disp = np.where(too_near, near_pass, np.where(around, -_DISP_SCALE, disp))
+        depth_m, counts = self._depth(disp, fb, n_too_near)
+        unknown_fraction = 1.0 - counts.n_valid / disp.size
+
+        def result(obstacles: tuple[Obstacle, ...]) -> PerceptionResult:
+            return PerceptionResult(
+                frame.sequence, frame.capture_ns, obstacles, unknown_fraction, depth_m, counts
+            )
 
         # Integer disparities: d >= x  <=>  d >= ceil(x), compared in int16 (no float copy).
         near = (disp >= math.ceil(_DISP_SCALE * fb / cfg.threshold_m)).view(np.uint8)
         if cv2.countNonZero(near) == 0:  # the common empty frame: nothing to open or label
-            return PerceptionResult(frame.sequence, frame.capture_ns, (), unknown_fraction)
+            return result(())
         if cfg.opening_px > 1:
             near = cv2.morphologyEx(near, cv2.MORPH_OPEN, self._kernel)
         # Blobs on a 2x subsampled mask: 4x cheaper labelling; areas count 4 pixels each.
@@ -523,14 +695,14 @@ class StereoPerception:
         # stats are shifted back to the half-resolution image, labels stay box-relative.
         bx, by, bw, bh = cv2.boundingRect(near_half)
         if bw == 0:
-            return PerceptionResult(frame.sequence, frame.capture_ns, (), unknown_fraction)
+            return result(())
         n_labels, labels, stats, _ = cv2.connectedComponentsWithStats(
             near_half[by : by + bh, bx : bx + bw], connectivity=8
         )
         min_area = max(1, math.ceil(cfg.min_blob_fraction * width * height / 4.0))
         blobs = [i for i in range(1, n_labels) if stats[i, cv2.CC_STAT_AREA] >= min_area]
         if not blobs:
-            return PerceptionResult(frame.sequence, frame.capture_ns, (), unknown_fraction)
+            return result(())
 
         # Depth-continuous flood fill from each blob out to threshold + extent margin, on
         # the same 2x subsampled grid as the blobs: a quarter of the pixels to convert and
@@ -558,8 +730,6 @@ class StereoPerception:
             )
             regions.append((value, rect, int(area)))
 
-        # Columns the right image cannot see at the largest disparity, plus half a block.
-        band_px = n_disp + (cfg.block_size_px or _auto_block_size(width)) // 2
         obstacles = []
         for value, rect, n_half in regions:
             x0, y0, w, h = rect
@@ -570,10 +740,7 @@ class StereoPerception:
                 fill, value, x0, y0, w, h, stride, edge, near_half, disp_px
             )
             truncated = bool(
-                2 * x0 <= band_px + 2
-                or y0 <= 0
-                or 2 * (x0 + w) >= width - 1
-                or 2 * (y0 + h) >= height - 1
+                x0 <= 0 or y0 <= 0 or 2 * (x0 + w) >= width - 1 or 2 * (y0 + h) >= height - 1
             )
             obstacles.append(
                 self._boundary(
@@ -590,9 +757,27 @@ class StereoPerception:
                 )
             )
         obstacles.sort(key=lambda o: (o.nearest_range_m, tuple(o.center_ned_m)))
-        return PerceptionResult(
-            frame.sequence, frame.capture_ns, tuple(obstacles), unknown_fraction
+        return result(tuple(obstacles))
+
+    def _depth(
+        self, disp: np.ndarray, fb: float, n_too_near: int
+    ) -> tuple[np.ndarray, ValidityCounts]:
+        """Depth map (NaN = unknown) and its counts from the fixed-point disparity."""
+        cfg = self.config
+        d_far = max(1, math.ceil(_DISP_SCALE * fb / cfg.max_range_m))
+        valid = disp >= d_far
+        depth = np.full(disp.shape, np.nan, np.float32)
+        np.divide(np.float32(_DISP_SCALE * fb), disp, out=depth, where=valid, casting="unsafe")
+        depth.flags.writeable = False
+        n_valid = int(np.count_nonzero(valid))
+        n_unmatched = int(np.count_nonzero(disp < 0))
+        counts = ValidityCounts(
+            n_valid=n_valid,
+            n_unmatched=n_unmatched,
+            n_beyond_range=disp.size - n_valid - n_unmatched,
+            n_too_near=n_too_near,
         )
+        return depth, counts
 
     def _boundary(
         self,
