@@ -519,6 +519,41 @@ def _fit_sphere(xs, ys, n_grid, disp, fx, fy, cx, cy, fb, cap_depth_m, max_half_
     return nearest_m, center_cam, max(radius_fit_m, math.sqrt(farthest_sq))
 
 
+@numba.njit(cache=True)
+def _merge_depth(disp, coarse, has_coarse, top, d_far, fb16, depth, too_near):
+    """Coarse pass into the main disparity (both int16, 1/16 px, negative = unmatched), in
+    place, and the depth map ``fb16 / disp`` (NaN below ``d_far`` or unmatched).
+
+    Returns (n_valid, n_unmatched, n_coarse, n_too_near); ``too_near`` (uint8) marks the
+    pixels the coarse pass ranged nearer than the main range (``> top``).
+    """
+    n_valid = 0
+    n_unmatched = 0
+    n_coarse = 0
+    n_too_near = 0
+    for y in range(disp.shape[0]):
+        for x in range(disp.shape[1]):
+            d = disp[y, x]
+            if has_coarse:
+                c = coarse[y, x]
+                if c > top and c > d:
+                    d = c
+                    too_near[y, x] = 1
+                    n_too_near += 1
+                elif d < 0 and c >= 0:
+                    d = c
+                    n_coarse += 1
+                disp[y, x] = d
+            if d >= d_far:
+                depth[y, x] = fb16 / d
+                n_valid += 1
+            else:
+                depth[y, x] = np.nan
+                if d < 0:
+                    n_unmatched += 1
+    return n_valid, n_unmatched, n_coarse, n_too_near
+
+
 @functools.cache
 def _warm_up() -> None:
     """Run every per-obstacle step once per process, on a tiny input with the argument types
@@ -547,6 +582,17 @@ def _warm_up() -> None:
             fill, 1, 0, 0, 2, 2, 1, edge, mask[1:3, 1:3].copy(), disp_px
         )
     _fit_sphere(2 * xs, 2 * ys, n_grid, disp_s, 1.0, 1.0, 0.0, 0.0, 1.0, 0.1, 1.0)
+    main = np.full((6, 8), -16, np.int16)[1:5, 2:6]  # a view, like the cropped matcher output
+    _merge_depth(
+        main,
+        main.copy(),
+        True,
+        16,
+        1,
+        16.0,
+        np.empty((4, 4), np.float32),
+        np.zeros((4, 4), np.uint8),
+    )
 
 
 def _padded(image: np.ndarray, pad_x: int, pad_y: int) -> np.ndarray:
@@ -563,14 +609,6 @@ def _padded(image: np.ndarray, pad_x: int, pad_y: int) -> np.ndarray:
     return out
 
 
-@functools.lru_cache(maxsize=16)
-def _gaussian_kernel(sigma: float) -> np.ndarray:
-    """1-D Gaussian kernel (3 sigma each side; the identity below 0.3 px)."""
-    if sigma < 0.3:
-        return np.ones(1, np.float32)
-    return cv2.getGaussianKernel(2 * math.ceil(3.0 * sigma) + 1, sigma, cv2.CV_32F)
-
-
 def noise_sigma(image: np.ndarray) -> float:
     """Sensor noise standard deviation of a grey image [grey levels] (Immerkær 1996: the mean
     absolute response to a Laplacian-difference mask that cancels smooth image structure)."""
@@ -584,8 +622,9 @@ def noise_sigma(image: np.ndarray) -> float:
 def _horizontal_edges(image: np.ndarray, block: int, ratio: float) -> np.ndarray:
     """Pixels whose block has less than ``ratio`` times as much horizontal as vertical
     gradient: near-horizontal edges, which only a perfect rectification matches right."""
-    gx = cv2.convertScaleAbs(cv2.Sobel(image, cv2.CV_16S, 1, 0, ksize=3))
-    gy = cv2.convertScaleAbs(cv2.Sobel(image, cv2.CV_16S, 0, 1, ksize=3))
+    dx, dy = cv2.spatialGradient(image)  # 3x3 Sobel, both directions in one pass
+    gx = cv2.convertScaleAbs(dx)
+    gy = cv2.convertScaleAbs(dy)
     ax = cv2.blur(gx, (block, block))
     ay = cv2.blur(gy, (block, block))
     return ax.astype(np.float32) < np.float32(ratio) * ay
@@ -682,10 +721,10 @@ class StereoPerception:
         sx, sy = self.prefilter_sigma_px(frame)
         if max(sx, sy) < 0.3:
             return frame.left, frame.right
-        kx = _gaussian_kernel(sx)
-        ky = _gaussian_kernel(sy)
+        # Kernels of ±2 sigma: OpenCV's fixed-point path for uint8 (the tails carry < 5 %).
+        ksize = (2 * math.ceil(2.0 * sx) + 1, 2 * math.ceil(2.0 * sy) + 1)
         return tuple(  # type: ignore[return-value]
-            cv2.sepFilter2D(im, -1, kx, ky, borderType=cv2.BORDER_REPLICATE)
+            cv2.GaussianBlur(im, ksize, sigmaX=sx, sigmaY=sy, borderType=cv2.BORDER_REPLICATE)
             for im in (frame.left, frame.right)
         )
 
@@ -762,24 +801,7 @@ class StereoPerception:
         height, width = disp.shape
         fb = k.focal_baseline_m_px
         coarse = self.coarse_disparity_fixed(frame)
-        n_too_near = n_coarse = 0
-        if coarse is not None:
-            # Holes of the main pass within its range take the coarse disparity.
-            top = _DISP_SCALE * (self.num_disparities(k) - 1)
-            hole = (disp < 0) & (coarse >= 0) & (coarse <= top)
-            n_coarse = int(np.count_nonzero(hole))
-            if n_coarse:
-                disp = np.where(hole, coarse, disp)
-            # Nearer than the main range: only the coarse pass can range it; the main pass
-            # missed or aliased it to a smaller disparity.
-            too_near = coarse > np.maximum(disp, top)
-            n_too_near = int(np.count_nonzero(too_near))
-            if n_too_near:
-                # Around a surface nearer than the main range, a farther main-pass match is
-                # as likely aliased as right: unknown, not free.
-                around = cv2.dilate(too_near.view(np.uint8), _NEAR_HALO).view(bool)
-                disp = np.where(too_near, coarse, np.where(around, -_DISP_SCALE, disp))
-        depth_m, counts = self._depth(disp, fb, n_too_near, n_coarse)
+        depth_m, counts = self._merge(disp, coarse, fb, self.num_disparities(k))
         unknown_fraction = 1.0 - counts.n_valid / disp.size
 
         def result(obstacles: tuple[Obstacle, ...]) -> PerceptionResult:
@@ -872,18 +894,40 @@ class StereoPerception:
         obstacles.sort(key=lambda o: (o.nearest_range_m, tuple(o.center_ned_m)))
         return result(tuple(obstacles))
 
-    def _depth(
-        self, disp: np.ndarray, fb: float, n_too_near: int, n_coarse: int
+    def _merge(
+        self, disp: np.ndarray, coarse: np.ndarray | None, fb: float, n_disp: int
     ) -> tuple[np.ndarray, ValidityCounts]:
-        """Depth map (NaN = unknown) and its counts from the fixed-point disparity."""
-        cfg = self.config
-        d_far = max(1, math.ceil(_DISP_SCALE * fb / cfg.max_range_m))
-        valid = disp >= d_far
-        depth = np.full(disp.shape, np.nan, np.float32)
-        np.divide(np.float32(_DISP_SCALE * fb), disp, out=depth, where=valid, casting="unsafe")
+        """Merge the coarse pass into ``disp`` (in place) and make the depth map.
+
+        Holes of the main pass within its range take the coarse disparity; where the coarse
+        pass sees a surface nearer than the main range (the main pass missed it or aliased
+        it to a smaller disparity) it wins, and main-pass matches within ``_NEAR_HALO_PX``
+        of it are unknown (as likely aliased as right). One compiled pass over the pixels.
+        """
+        d_far = max(1, math.ceil(_DISP_SCALE * fb / self.config.max_range_m))
+        depth = np.empty(disp.shape, np.float32)
+        too_near = np.zeros(disp.shape, np.uint8)
+        has_coarse = coarse is not None
+        n_valid, n_unmatched, n_coarse, n_too_near = _merge_depth(
+            disp,
+            coarse if has_coarse else disp,
+            has_coarse,
+            _DISP_SCALE * (n_disp - 1),
+            d_far,
+            float(_DISP_SCALE * fb),
+            depth,
+            too_near,
+        )
+        if n_too_near:
+            halo = cv2.dilate(too_near, _NEAR_HALO).view(bool) & (too_near == 0)
+            halo &= disp >= 0
+            n_halo = int(np.count_nonzero(halo))
+            if n_halo:
+                n_valid -= int(np.count_nonzero(halo & (disp >= d_far)))
+                n_unmatched += n_halo
+                disp[halo] = -_DISP_SCALE
+                depth[halo] = np.nan
         depth.flags.writeable = False
-        n_valid = int(np.count_nonzero(valid))
-        n_unmatched = int(np.count_nonzero(disp < 0))
         counts = ValidityCounts(
             n_valid=n_valid,
             n_unmatched=n_unmatched,
