@@ -536,3 +536,24 @@ def test_middlebury_scores_against_the_ground_truth_itself():
     left = frame.left[ys[pick], xs[pick]].astype(float)
     right = frame.right[ys[pick], np.round(xs[pick] - gt[ys[pick], xs[pick]]).astype(int)]
     assert np.median(np.abs(left - right)) <= 8.0
+
+
+@pytest.mark.parametrize("shape", ["wall", "pole"])
+def test_textured_wall_and_pole_become_obstacles(renderer, perception, shape):
+    """The obstacle model on the renderer's new shapes: a textured wall across the path and
+    a pole 3 m ahead are reported at their range, and the boundary holds the surface point
+    straight ahead (the wall) or the pole's axis at camera height."""
+    from plant_sim.world import Box, Cylinder
+
+    pos = np.array([0.0, 0.0, -7.0])
+    if shape == "wall":
+        world = World(boxes=(Box((3.1, 0.0, -7.0), (0.2, 12.0, 10.0)),), ground=GroundPlane(0.0))
+        surface_m, inside = 3.0, np.array([3.0, 0.0, -7.0])
+    else:
+        world = World(cylinders=(Cylinder((3.15, 0.3, -5.0), 0.15, 10.0),), ground=None)
+        surface_m, inside = 3.0, np.array([3.15, 0.3, -7.0])
+    result = _see(renderer, perception, world, pos, LEVEL)
+    assert result.obstacles
+    nearest = result.obstacles[0]
+    assert nearest.nearest_range_m == pytest.approx(surface_m, abs=0.15)
+    assert any(np.linalg.norm(o.center_ned_m - inside) <= o.radius_m for o in result.obstacles)
