@@ -2,8 +2,19 @@
 
 Pipeline for one rectified frame (:meth:`StereoPerception.process`):
 
-1. Disparity with OpenCV (``StereoBM`` by default; ``StereoSGBM`` 3-way selectable), one
-   matcher object per image geometry, built once and reused.
+1. Disparity with OpenCV ``StereoBM`` (SGBM was retired, see :class:`Matcher`), one
+   matcher object per image geometry, built once and reused. The pair is padded by the
+   disparity range on the left (and half a block on the other sides) so that every column is
+   searched: OpenCV computes nothing in the leftmost ``numDisparities`` columns of an unpadded
+   pair (64 px ≈ 10° at 320 px), although only what lies outside the right camera's view
+   (at 3 m the 0.2 m baseline hides ≈ 3.8°) is physically unmatchable. Left/right
+   consistency (``disp12MaxDiff``) and uniqueness refuse occluded and ambiguous pixels.
+   Both images are first smoothed by a Gaussian whose width follows the sensor noise
+   estimated in the frame, and a pixel on a near-horizontal edge (whose match depends on
+   perfect rectification) is refused. A coarse pass at a quarter of the resolution ranges
+   surfaces nearer than ``min_range_m`` (which the main pass would miss or alias to a larger
+   depth) down to ``near_range_m``, and fills the main pass's holes.
+   The result is the **depth map** ``depth_m`` (NaN = unknown, see below).
 2. Obstacle pixels: valid disparity ``d ≥ f·b / threshold_m`` (depth below the threshold,
    Eq. 27, compared in disparity space so no per-pixel division).
 3. Noise filter: a morphological opening, then connected components
@@ -29,12 +40,13 @@ The per-obstacle steps (seed search, region sampling, sphere fit) are small numb
 one pass over the pixels or samples each instead of a dozen numpy temporaries; they are
 compiled (or loaded from numba's cache) when the first :class:`StereoPerception` is built.
 
-Unknown space: pixels without a valid disparity (textureless, occluded, or the left band of
-``num_disparities`` columns the right image cannot see) are never treated as free. They are
-never obstacles either (there is no range to put them at); instead :class:`PerceptionResult`
-reports ``unknown_fraction`` so the caller can refuse to fly into what it cannot see, and each
-obstacle says whether it was ``truncated`` by the image border or the unmatched band (then its
-true extent may be larger than estimated).
+Unknown space: :class:`PerceptionResult` carries ``depth_m`` (float32, depth along the
+optical axis [m]) with NaN wherever the depth is not known: unmatched (textureless,
+occluded, inconsistent), outside the right camera's view, beyond ``max_range_m``, or nearer
+than even the coarse pass reaches. Unknown is never free: the known-space model of the safety
+envelope consumes this map; :class:`ValidityCounts` says how many pixels are unknown and
+why. Obstacles are built only from known depth; each says whether it was ``truncated`` by
+the image border (then its true extent may be larger than estimated).
 """
 
 from __future__ import annotations
@@ -59,18 +71,47 @@ __all__ = [
     "PerceptionConfig",
     "PerceptionResult",
     "StereoPerception",
+    "ValidityCounts",
 ]
 
 _DISP_SCALE = 16  # OpenCV disparities are fixed point with 4 fractional bits
 _REFERENCE_WIDTH_PX = 320  # the paper's camera; block size scales from it
+_PREFILTER_BASE_PX = 1.0  # Gaussian prefilter sigma on a clean image [px]
+_NOISE_FLOOR = 3.0  # [grey levels] above which the prefilter grows
+_PREFILTER_PER_NOISE = 0.1  # Gaussian prefilter sigma [px] per grey level of noise above it
+_PREFILTER_MAX_PX = 2.0
+_MIN_SIDE_CAP_PX = 20.0  # the size gate never asks for more than a 20 px square
+_EDGE_MARGIN_PX = 2  # matches this close to the right image's left edge are unknown [px]
+_NEAR_SCALE = 4  # the coarse pass runs at a quarter of the resolution
+_NEAR_BLOCK_PX = 5  # its block (20 px at full resolution)
+_NEAR_TEXTURE = 400  # its StereoBM texture threshold (sum of |x-Sobel| over the block)
+_NEAR_UNIQUENESS = 50  # its uniqueness margin [%]
+_NEAR_SPECKLE_PX = 10  # its speckle window [coarse px]
+_NEAR_HALO_PX = 41  # main-pass matches this close to a too-near surface are unknown [px]
+_NEAR_HALO = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_NEAR_HALO_PX, _NEAR_HALO_PX))
 _NO_EDGE = np.zeros((0, 2), np.int32)  # no contour samples (stride 1: the grid is every pixel)
 
 
 class Matcher(enum.Enum):
-    """OpenCV stereo matcher."""
+    """OpenCV stereo matcher.
 
-    BM = "bm"  # cv2.StereoBM: fastest, fewest false near pixels (default)
-    SGBM_3WAY = "sgbm_3way"  # cv2.StereoSGBM MODE_SGBM_3WAY: denser, ~1.7x slower
+    Only ``StereoBM`` is offered. ``sgbm_3way`` (``cv2.StereoSGBM`` 3-way) was retired in
+    issue 14: it is denser on real images (Middlebury motorcycle recall 0.97 at 3 m) but
+    fails the robustness suite (``benchmarks/bench_degradations.py``): its smoothness term
+    turns noise, gain mismatch and misrectification into coherent false surfaces (false
+    obstacles in 107-193 of 200 empty frames) and it is ~1.7x slower.
+    """
+
+    BM = "bm"  # cv2.StereoBM with the padding, gates and coarse pass of this module
+
+    @classmethod
+    def _missing_(cls, value):
+        if value == "sgbm_3way":
+            raise ValueError(
+                "matcher 'sgbm_3way' was retired (it fails the robustness suite of "
+                "benchmarks/bench_degradations.py); use 'bm'"
+            )
+        return None
 
 
 @dataclass(frozen=True)
@@ -85,6 +126,13 @@ class PerceptionConfig:
         OpenCV matcher.
     min_range_m : float
         Nearest depth the matcher searches [m]; sets ``num_disparities`` (rounded up to 16).
+    near_range_m : float
+        Nearest depth of the coarse pass [m] (quarter resolution, searched up to
+        ``f·b / near_range_m``): it catches what is nearer than ``min_range_m`` instead of
+        letting the main pass alias it to a larger depth; 0 disables it.
+    max_range_m : float
+        Farthest depth reported [m]: matches beyond it (disparity below ``f·b / max_range_m``,
+        where one pixel of disparity error is metres of depth) are unknown, not free.
     block_size_px : int or None
         Matching block size [px, odd]; ``None`` scales 9 px at 320 px width to the image.
     uniqueness_ratio : int
@@ -95,10 +143,27 @@ class PerceptionConfig:
         OpenCV speckle filter region size [px].
     speckle_range_px : int
         OpenCV speckle filter disparity range [px].
+    prefilter_sigma_px : float or None
+        Gaussian prefilter of both images before matching [px]; ``None`` adapts it to the
+        sensor noise estimated in each frame (1 px on a clean image, ~1.7 px at σ 10,
+        ~2.7 px at σ 20 grey levels): it lifts faint texture above the noise.
+    min_edge_ratio : float
+        A pixel whose block has less than this ratio of horizontal to vertical gradient (a
+        near-horizontal edge) is unknown: its match depends on perfect rectification. 0
+        disables the check.
+    lr_max_diff_px : int
+        Left/right consistency: largest difference [px] between a pixel's disparity and the
+        one the right image's best match points back with (OpenCV ``disp12MaxDiff``); a pixel
+        the right camera cannot see (occluded, or outside its view) fails it. -1 disables.
     opening_px : int
         Kernel size of the morphological opening of the obstacle mask [px]; 1 disables it.
     min_blob_fraction : float
         Smallest obstacle blob as a fraction of the image area (6e-4 ≈ 46 px at 320 × 240).
+    min_obstacle_size_m : float
+        Smallest obstacle reported [m]: a blob of near pixels covering less than a square of
+        this side at its depth is dropped (mismatch clusters from noise, JPEG blocks or
+        aliasing are a few pixels across; 0.15 m spans 13 px at 4 m; never more than a
+        20 px square is asked for).
     continuity_rel : float
         Largest relative disparity step between neighbours inside one obstacle.
     extent_margin_m : float
@@ -120,13 +185,19 @@ class PerceptionConfig:
     threshold_m: float = 4.0
     matcher: Matcher = Matcher.BM
     min_range_m: float = 1.2
+    near_range_m: float = 0.4
+    max_range_m: float = 20.0
     block_size_px: int | None = None
     uniqueness_ratio: int = 10
     texture_threshold: int = 10
     speckle_window_px: int = 100
-    speckle_range_px: int = 2
+    speckle_range_px: int = 3
+    lr_max_diff_px: int = 1
+    prefilter_sigma_px: float | None = None
+    min_edge_ratio: float = 0.1
     opening_px: int = 3
     min_blob_fraction: float = 6e-4
+    min_obstacle_size_m: float = 0.15
     continuity_rel: float = 0.1
     extent_margin_m: float = 3.0
     max_half_angle_deg: float = 64.0
@@ -142,10 +213,33 @@ class PerceptionConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be finite and positive, got {value!r}")
-        for name in ("extent_margin_m", "vehicle_radius_m", "safety_margin_m", "cap_depth_m"):
+        for name in (
+            "extent_margin_m",
+            "vehicle_radius_m",
+            "safety_margin_m",
+            "cap_depth_m",
+            "min_obstacle_size_m",
+        ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        if not (math.isfinite(self.max_range_m) and self.max_range_m > self.threshold_m):
+            raise ValueError(
+                f"max_range_m {self.max_range_m!r} must be finite and above threshold_m "
+                f"{self.threshold_m}"
+            )
+        if not (math.isfinite(self.near_range_m) and 0.0 <= self.near_range_m < self.min_range_m):
+            raise ValueError(
+                f"near_range_m {self.near_range_m!r} must be in [0, min_range_m {self.min_range_m})"
+            )
+        if self.prefilter_sigma_px is not None and not (
+            math.isfinite(self.prefilter_sigma_px) and self.prefilter_sigma_px >= 0.0
+        ):
+            raise ValueError(f"prefilter_sigma_px must be >= 0, got {self.prefilter_sigma_px!r}")
+        if not (math.isfinite(self.min_edge_ratio) and 0.0 <= self.min_edge_ratio < 1.0):
+            raise ValueError(f"min_edge_ratio must be in [0, 1), got {self.min_edge_ratio!r}")
+        if self.lr_max_diff_px < -1:
+            raise ValueError(f"lr_max_diff_px must be >= -1, got {self.lr_max_diff_px}")
         if self.min_range_m >= self.threshold_m:
             raise ValueError(
                 f"min_range_m {self.min_range_m} must be below threshold_m {self.threshold_m}"
@@ -226,21 +320,52 @@ class PerceptionResult:
     obstacles : tuple of Obstacle
         Sorted by ``nearest_range_m`` (nearest first).
     unknown_fraction : float
-        Fraction of the image without a valid disparity (never free space).
-    depth_m : numpy.ndarray or None
-        ``(H, W)`` float32 depth of the left image along its optical axis [m] (Eq. 27):
-        NaN = unknown (unmatched, the blind band, nearer than the matcher's range,
-        invalid), +inf = matched at zero disparity (farther than any range). Read-only.
+        Fraction of the image whose ``depth_m`` is unknown (NaN): never free space.
+    depth_m : numpy.ndarray
+        ``(H, W)`` float32 depth along the left camera's optical axis [m] (Eq. 27,
+        ``f·b / d``), read-only; NaN = unknown: unmatched (textureless, occluded, failed
+        the left/right or uniqueness checks), outside the right camera's view, beyond
+        ``max_range_m``, or too near to measure.
+    counts : ValidityCounts
+        How many pixels are known, and why the others are not.
     blind_band_px : int
-        Left image columns the matcher cannot match (its disparity range plus half a block).
+        Left image columns where the right camera cannot see a surface at the nearest
+        range the matcher measures (its disparity range plus half a block): depth there may
+        be known, but an unmatched pixel is never "open sky" (companion.known_space).
     """
 
     sequence: int
     capture_ns: int
     obstacles: tuple[Obstacle, ...]
     unknown_fraction: float
-    depth_m: np.ndarray | None = None
+    depth_m: np.ndarray
+    counts: ValidityCounts
     blind_band_px: int = 0
+
+
+@dataclass(frozen=True)
+class ValidityCounts:
+    """Pixel counts of one frame's depth map; the four add up to the image area.
+
+    Attributes
+    ----------
+    n_valid : int
+        Pixels with a depth in ``[min_range_m, max_range_m]`` (roughly: the matcher's range).
+    n_unmatched : int
+        No match: textureless, occluded, inconsistent, or outside the right camera's view.
+    n_beyond_range : int
+        Matched farther than ``max_range_m`` (sky, distant ground): unknown, not free.
+    n_too_near : int
+        Of ``n_valid``: nearer than ``min_range_m``, ranged by the coarse pass only.
+    n_coarse : int
+        Of ``n_valid``: holes of the main pass within its range filled by the coarse pass.
+    """
+
+    n_valid: int
+    n_unmatched: int
+    n_beyond_range: int
+    n_too_near: int
+    n_coarse: int
 
 
 def _sample_stride(n_pixels: int, max_points: int) -> int:
@@ -400,22 +525,38 @@ def _fit_sphere(xs, ys, n_grid, disp, fx, fy, cx, cy, fb, cap_depth_m, max_half_
 
 
 @numba.njit(cache=True)
-def _depth_from_fixed(disp, fb_fixed):
-    """Depth [m, float32] of an OpenCV fixed-point disparity image (Eq. 27).
+def _merge_depth(disp, coarse, has_coarse, top, d_far, fb16, depth, too_near):
+    """Coarse pass into the main disparity (both int16, 1/16 px, negative = unmatched), in
+    place, and the depth map ``fb16 / disp`` (NaN below ``d_far`` or unmatched).
 
-    ``fb_fixed`` is 16 · f · b; negative disparities (invalid) give NaN, zero gives +inf.
+    Returns (n_valid, n_unmatched, n_coarse, n_too_near); ``too_near`` (uint8) marks the
+    pixels the coarse pass ranged nearer than the main range (``> top``).
     """
-    out = np.empty(disp.shape, np.float32)
+    n_valid = 0
+    n_unmatched = 0
+    n_coarse = 0
+    n_too_near = 0
     for y in range(disp.shape[0]):
         for x in range(disp.shape[1]):
             d = disp[y, x]
-            if d < 0:
-                out[y, x] = np.nan
-            elif d == 0:
-                out[y, x] = np.inf
+            if has_coarse:
+                c = coarse[y, x]
+                if c > top and c > d:
+                    d = c
+                    too_near[y, x] = 1
+                    n_too_near += 1
+                elif d < 0 and c >= 0:
+                    d = c
+                    n_coarse += 1
+                disp[y, x] = d
+            if d >= d_far:
+                depth[y, x] = fb16 / d
+                n_valid += 1
             else:
-                out[y, x] = fb_fixed / np.float32(d)
-    return out
+                depth[y, x] = np.nan
+                if d < 0:
+                    n_unmatched += 1
+    return n_valid, n_unmatched, n_coarse, n_too_near
 
 
 @functools.cache
@@ -446,7 +587,52 @@ def _warm_up() -> None:
             fill, 1, 0, 0, 2, 2, 1, edge, mask[1:3, 1:3].copy(), disp_px
         )
     _fit_sphere(2 * xs, 2 * ys, n_grid, disp_s, 1.0, 1.0, 0.0, 0.0, 1.0, 0.1, 1.0)
-    _depth_from_fixed(disp, np.float32(16.0))
+    main = np.full((6, 8), -16, np.int16)[1:5, 2:6]  # a view, like the cropped matcher output
+    _merge_depth(
+        main,
+        main.copy(),
+        True,
+        16,
+        1,
+        16.0,
+        np.empty((4, 4), np.float32),
+        np.zeros((4, 4), np.uint8),
+    )
+
+
+def _padded(image: np.ndarray, pad_x: int, pad_y: int) -> np.ndarray:
+    """``image`` with ``pad_x`` black columns on the left and ``pad_y`` replicated rows/columns
+    on the other sides.
+
+    OpenCV's matchers compute nothing in the leftmost ``numDisparities`` columns and the
+    half-block border; on the padded pair every real pixel is searched over the full range,
+    and a match into the black band (outside the right camera's view) has no texture to lock
+    on, fails the left/right check, or is refused by :meth:`StereoPerception.disparity_fixed`.
+    """
+    out = cv2.copyMakeBorder(image, pad_y, pad_y, pad_x, pad_y, cv2.BORDER_REPLICATE)
+    out[:, :pad_x] = 0
+    return out
+
+
+def noise_sigma(image: np.ndarray) -> float:
+    """Sensor noise standard deviation of a grey image [grey levels] (Immerkær 1996: the mean
+    absolute response to a Laplacian-difference mask that cancels smooth image structure)."""
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    # A central third of the rows is plenty for one number, at a third of the cost.
+    rows = image.shape[0]
+    response = cv2.filter2D(image[rows // 3 : 2 * rows // 3 + 2], cv2.CV_32F, kernel)[1:-1, 1:-1]
+    return float(math.sqrt(math.pi / 2.0) / 6.0 * cv2.mean(np.abs(response))[0])
+
+
+def _horizontal_edges(image: np.ndarray, block: int, ratio: float) -> np.ndarray:
+    """Pixels whose block has less than ``ratio`` times as much horizontal as vertical
+    gradient: near-horizontal edges, which only a perfect rectification matches right."""
+    dx, dy = cv2.spatialGradient(image)  # 3x3 Sobel, both directions in one pass
+    gx = cv2.convertScaleAbs(dx)
+    gy = cv2.convertScaleAbs(dy)
+    ax = cv2.blur(gx, (block, block))
+    ay = cv2.blur(gy, (block, block))
+    return ax.astype(np.float32) < np.float32(ratio) * ay
 
 
 def _auto_block_size(width_px: int) -> int:
@@ -477,40 +663,126 @@ class StereoPerception:
     def num_disparities(self, intrinsics: StereoIntrinsics) -> int:
         """Disparity search range [px]: ``f·b / min_range_m`` rounded up to a multiple of 16."""
         d_max = intrinsics.focal_baseline_m_px / self.config.min_range_m
-        n = 16 * math.ceil(d_max / 16.0)
-        return int(min(n, 16 * ((intrinsics.width_px - 1) // 16)))
+        return int(16 * max(1, math.ceil(d_max / 16.0)))
 
-    def _matcher(self, intrinsics: StereoIntrinsics) -> tuple[cv2.StereoMatcher, int]:
+    def block_size(self, intrinsics: StereoIntrinsics) -> int:
+        """Matching block size [px] for this image width."""
+        return self.config.block_size_px or _auto_block_size(intrinsics.width_px)
+
+    def _matcher(self, intrinsics: StereoIntrinsics) -> tuple[cv2.StereoMatcher, int, int]:
         cfg = self.config
         n_disp = self.num_disparities(intrinsics)
-        block = cfg.block_size_px or _auto_block_size(intrinsics.width_px)
+        block = self.block_size(intrinsics)
         key = (intrinsics.width_px, n_disp, block)
         matcher = self._matchers.get(key)
         if matcher is None:
-            if cfg.matcher is Matcher.BM:
-                matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=block)
-                matcher.setTextureThreshold(cfg.texture_threshold)
-            else:
-                matcher = cv2.StereoSGBM_create(
-                    minDisparity=0,
-                    numDisparities=n_disp,
-                    blockSize=block,
-                    P1=8 * block * block,
-                    P2=32 * block * block,
-                    mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
-                )
+            matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=block)
+            matcher.setTextureThreshold(cfg.texture_threshold)
             matcher.setUniquenessRatio(cfg.uniqueness_ratio)
             matcher.setSpeckleWindowSize(cfg.speckle_window_px)
             matcher.setSpeckleRange(cfg.speckle_range_px)
+            matcher.setDisp12MaxDiff(cfg.lr_max_diff_px)
             self._matchers[key] = matcher
-        return matcher, n_disp
+        return matcher, n_disp, block
 
     def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
-        """Raw OpenCV disparity of the frame: int16, 1/16 px units, negative where invalid."""
+        """Disparity of the frame's left image: int16, 1/16 px units, negative where unmatched.
+
+        The pair is padded before matching so that every column is searched (see
+        :func:`_padded`); a pixel whose match would lie left of the right image (outside the
+        right camera's view) is unmatched.
+        """
         if frame.encoding is not PixelEncoding.MONO8:
             raise ValueError(f"unsupported pixel encoding {frame.encoding!r}")
-        matcher, _ = self._matcher(frame.intrinsics)
-        return matcher.compute(frame.left, frame.right)
+        matcher, n_disp, block = self._matcher(frame.intrinsics)
+        height, width = frame.left.shape
+        left, right = self._prefiltered(frame)
+        pad_x, pad_y = n_disp, block // 2
+        out = matcher.compute(_padded(left, pad_x, pad_y), _padded(right, pad_x, pad_y))
+        disp = out[pad_y : pad_y + height, pad_x : pad_x + width]
+        if self.config.min_edge_ratio > 0.0:
+            # Aperture: along a near-horizontal edge a match is only as good as the
+            # rectification (a 2 px vertical error on a 5° edge shifts it by 23 px).
+            disp[_horizontal_edges(left, block, self.config.min_edge_ratio)] = -_DISP_SCALE
+        # The right camera sees column x - d only if x - d >= 0; a match within
+        # _EDGE_MARGIN_PX of its edge leans on the black band (biased low): unknown too.
+        n_band = min(n_disp + _EDGE_MARGIN_PX, width)
+        band = disp[:, :n_band]
+        limit = _DISP_SCALE * (np.arange(n_band, dtype=np.int16) - _EDGE_MARGIN_PX)
+        band[band > limit] = -_DISP_SCALE
+        return disp
+
+    def prefilter_sigma_px(self, frame: StereoFrame) -> tuple[float, float]:
+        """Gaussian prefilter sigmas (x, y) [px] for this frame: ``prefilter_sigma_px`` if
+        set, else from the left image's estimated sensor noise (:func:`noise_sigma`)."""
+        cfg = self.config
+        if cfg.prefilter_sigma_px is not None:
+            return cfg.prefilter_sigma_px, cfg.prefilter_sigma_px
+        noise = noise_sigma(frame.left)
+        extra = min(_PREFILTER_PER_NOISE * max(0.0, noise - _NOISE_FLOOR), _PREFILTER_MAX_PX)
+        return _PREFILTER_BASE_PX + extra, _PREFILTER_BASE_PX + extra
+
+    def _prefiltered(self, frame: StereoFrame) -> tuple[np.ndarray, np.ndarray]:
+        sx, sy = self.prefilter_sigma_px(frame)
+        if max(sx, sy) < 0.3:
+            return frame.left, frame.right
+        # Kernels of ±2 sigma: OpenCV's fixed-point path for uint8 (the tails carry < 5 %).
+        ksize = (2 * math.ceil(2.0 * sx) + 1, 2 * math.ceil(2.0 * sy) + 1)
+        return tuple(  # type: ignore[return-value]
+            cv2.GaussianBlur(im, ksize, sigmaX=sx, sigmaY=sy, borderType=cv2.BORDER_REPLICATE)
+            for im in (frame.left, frame.right)
+        )
+
+    def coarse_disparity_fixed(self, frame: StereoFrame) -> np.ndarray | None:
+        """Coarse pass: full-resolution int16 disparity (1/16 px, each coarse pixel repeated
+        over its 4 × 4 block), -16 where unmatched; ``None`` when disabled.
+
+        The pair is matched at a quarter of the resolution (disparities are a quarter too, so
+        a 48-disparity search reaches 4 × 48 px at full resolution at 1/16 of the cost) with
+        the same padding and left/right check, and strict texture and uniqueness gates (its
+        4 × 4 averaging makes faint texture and sky seams look matchable). It ranges what is
+        nearer than the main pass can (``min_range_m``) down to ``near_range_m``, and fills
+        the main pass's holes (faint texture it cannot lock on at full resolution).
+        """
+        cfg = self.config
+        if cfg.near_range_m <= 0.0:
+            return None
+        k = frame.intrinsics
+        height, width = frame.left.shape
+        w4, h4 = width // _NEAR_SCALE, height // _NEAR_SCALE
+        n_main = self.num_disparities(k)
+        d_max = k.focal_baseline_m_px / cfg.near_range_m / _NEAR_SCALE
+        n_disp = int(16 * max(1, math.ceil(d_max / 16.0)))
+        if w4 < 8 or h4 < 8 or _NEAR_SCALE * n_disp <= n_main:
+            return None
+        key = ("near", n_disp)
+        matcher = self._matchers.get(key)
+        if matcher is None:
+            matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=_NEAR_BLOCK_PX)
+            matcher.setTextureThreshold(_NEAR_TEXTURE)
+            matcher.setUniquenessRatio(_NEAR_UNIQUENESS)
+            matcher.setSpeckleWindowSize(_NEAR_SPECKLE_PX)
+            matcher.setSpeckleRange(1)
+            matcher.setDisp12MaxDiff(max(cfg.lr_max_diff_px, 0))
+            self._matchers[key] = matcher
+        pad_y = _NEAR_BLOCK_PX // 2
+        small = [
+            _padded(cv2.resize(im, (w4, h4), interpolation=cv2.INTER_AREA), n_disp, pad_y)
+            for im in (frame.left, frame.right)
+        ]
+        coarse = matcher.compute(small[0], small[1])[pad_y : pad_y + h4, n_disp : n_disp + w4]
+        band = coarse[:, : min(n_disp, w4)]
+        band[band > _DISP_SCALE * np.arange(band.shape[1], dtype=np.int16)] = -_DISP_SCALE
+        coarse = np.ascontiguousarray(coarse)
+        np.multiply(coarse, _NEAR_SCALE, out=coarse, where=coarse >= 0)
+        up = cv2.resize(
+            coarse, (_NEAR_SCALE * w4, _NEAR_SCALE * h4), interpolation=cv2.INTER_NEAREST
+        )
+        if up.shape == (height, width):
+            return up
+        out = np.full((height, width), -_DISP_SCALE, np.int16)
+        out[: _NEAR_SCALE * h4, : _NEAR_SCALE * w4] = up
+        return out
 
     def process(self, frame: StereoFrame, pos_ned_m, R_ned_from_frd) -> PerceptionResult:
         """Detect obstacles in ``frame`` and place their safety spheres in NED.
@@ -530,26 +802,31 @@ class StereoPerception:
         """
         cfg = self.config
         k = frame.intrinsics
-        matcher, n_disp = self._matcher(k)
-        if frame.encoding is not PixelEncoding.MONO8:
-            raise ValueError(f"unsupported pixel encoding {frame.encoding!r}")
-        disp = matcher.compute(frame.left, frame.right)
+        disp = self.disparity_fixed(frame)
         height, width = disp.shape
         fb = k.focal_baseline_m_px
-        valid = disp >= 0
-        unknown_fraction = 1.0 - float(np.count_nonzero(valid)) / disp.size
-        # Columns the right image cannot see at the largest disparity, plus half a block.
-        band_px = n_disp + (cfg.block_size_px or _auto_block_size(width)) // 2
-        depth_m = _depth_from_fixed(disp, np.float32(_DISP_SCALE * fb))
-        depth_m.flags.writeable = False
-        empty = PerceptionResult(
-            frame.sequence, frame.capture_ns, (), unknown_fraction, depth_m, band_px
-        )
+        coarse = self.coarse_disparity_fixed(frame)
+        depth_m, counts = self._merge(disp, coarse, fb, self.num_disparities(k))
+        unknown_fraction = 1.0 - counts.n_valid / disp.size
+
+        # columns the right camera cannot see at the nearest measured range
+        band_px = self.num_disparities(k) + (cfg.block_size_px or _auto_block_size(width)) // 2
+
+        def result(obstacles: tuple[Obstacle, ...]) -> PerceptionResult:
+            return PerceptionResult(
+                frame.sequence,
+                frame.capture_ns,
+                obstacles,
+                unknown_fraction,
+                depth_m,
+                counts,
+                band_px,
+            )
 
         # Integer disparities: d >= x  <=>  d >= ceil(x), compared in int16 (no float copy).
         near = (disp >= math.ceil(_DISP_SCALE * fb / cfg.threshold_m)).view(np.uint8)
         if cv2.countNonZero(near) == 0:  # the common empty frame: nothing to open or label
-            return empty
+            return result(())
         if cfg.opening_px > 1:
             near = cv2.morphologyEx(near, cv2.MORPH_OPEN, self._kernel)
         # Blobs on a 2x subsampled mask: 4x cheaper labelling; areas count 4 pixels each.
@@ -558,14 +835,14 @@ class StereoPerception:
         # stats are shifted back to the half-resolution image, labels stay box-relative.
         bx, by, bw, bh = cv2.boundingRect(near_half)
         if bw == 0:
-            return empty
+            return result(())
         n_labels, labels, stats, _ = cv2.connectedComponentsWithStats(
             near_half[by : by + bh, bx : bx + bw], connectivity=8
         )
         min_area = max(1, math.ceil(cfg.min_blob_fraction * width * height / 4.0))
         blobs = [i for i in range(1, n_labels) if stats[i, cv2.CC_STAT_AREA] >= min_area]
         if not blobs:
-            return empty
+            return result(())
 
         # Depth-continuous flood fill from each blob out to threshold + extent margin, on
         # the same 2x subsampled grid as the blobs: a quarter of the pixels to convert and
@@ -579,11 +856,20 @@ class StereoPerception:
         h_half, w_half = disp_px.shape
         fill = np.zeros((h_half + 2, w_half + 2), np.uint8)
         step_px = cfg.continuity_rel * fb / cfg.threshold_m
+        b_m = k.baseline_m
         regions: list[tuple[int, tuple[int, int, int, int], int]] = []
         seed_x, seed_y = _blob_seeds(labels, disp_half[by : by + bh, bx : bx + bw], n_labels)
         # Largest blob first, so the obstacle numbering is deterministic and meaningful.
         for label in sorted(blobs, key=lambda i: (-stats[i, cv2.CC_STAT_AREA], i)):
             seed = (int(bx + seed_x[label]), int(by + seed_y[label]))  # nearest blob pixel
+            # A square of side s at the blob's depth spans s·d/b pixels (d = f·b/z).
+            # Capped: a near surface's coverage is patchy, mismatch clusters stay small.
+            side_px = min(
+                cfg.min_obstacle_size_m * disp_half[seed[1], seed[0]] / (_DISP_SCALE * b_m),
+                _MIN_SIDE_CAP_PX,
+            )
+            if 4 * stats[label, cv2.CC_STAT_AREA] < side_px * side_px:
+                continue  # smaller than the smallest obstacle reported: a mismatch cluster
             if fill[seed[1] + 1, seed[0] + 1] or len(regions) >= 254:
                 continue  # same surface as an earlier blob (one obstacle), or too many
             value = len(regions) + 1
@@ -603,10 +889,7 @@ class StereoPerception:
                 fill, value, x0, y0, w, h, stride, edge, near_half, disp_px
             )
             truncated = bool(
-                2 * x0 <= band_px + 2
-                or y0 <= 0
-                or 2 * (x0 + w) >= width - 1
-                or 2 * (y0 + h) >= height - 1
+                x0 <= 0 or y0 <= 0 or 2 * (x0 + w) >= width - 1 or 2 * (y0 + h) >= height - 1
             )
             obstacles.append(
                 self._boundary(
@@ -623,9 +906,50 @@ class StereoPerception:
                 )
             )
         obstacles.sort(key=lambda o: (o.nearest_range_m, tuple(o.center_ned_m)))
-        return PerceptionResult(
-            frame.sequence, frame.capture_ns, tuple(obstacles), unknown_fraction, depth_m, band_px
+        return result(tuple(obstacles))
+
+    def _merge(
+        self, disp: np.ndarray, coarse: np.ndarray | None, fb: float, n_disp: int
+    ) -> tuple[np.ndarray, ValidityCounts]:
+        """Merge the coarse pass into ``disp`` (in place) and make the depth map.
+
+        Holes of the main pass within its range take the coarse disparity; where the coarse
+        pass sees a surface nearer than the main range (the main pass missed it or aliased
+        it to a smaller disparity) it wins, and main-pass matches within ``_NEAR_HALO_PX``
+        of it are unknown (as likely aliased as right). One compiled pass over the pixels.
+        """
+        d_far = max(1, math.ceil(_DISP_SCALE * fb / self.config.max_range_m))
+        depth = np.empty(disp.shape, np.float32)
+        too_near = np.zeros(disp.shape, np.uint8)
+        has_coarse = coarse is not None
+        n_valid, n_unmatched, n_coarse, n_too_near = _merge_depth(
+            disp,
+            coarse if has_coarse else disp,
+            has_coarse,
+            _DISP_SCALE * (n_disp - 1),
+            d_far,
+            float(_DISP_SCALE * fb),
+            depth,
+            too_near,
         )
+        if n_too_near:
+            halo = cv2.dilate(too_near, _NEAR_HALO).view(bool) & (too_near == 0)
+            halo &= disp >= 0
+            n_halo = int(np.count_nonzero(halo))
+            if n_halo:
+                n_valid -= int(np.count_nonzero(halo & (disp >= d_far)))
+                n_unmatched += n_halo
+                disp[halo] = -_DISP_SCALE
+                depth[halo] = np.nan
+        depth.flags.writeable = False
+        counts = ValidityCounts(
+            n_valid=n_valid,
+            n_unmatched=n_unmatched,
+            n_beyond_range=disp.size - n_valid - n_unmatched,
+            n_too_near=n_too_near,
+            n_coarse=n_coarse,
+        )
+        return depth, counts
 
     def _boundary(
         self,

@@ -19,9 +19,21 @@ error that names the key (``camera.fps`` → "unknown key 'camera.fps'"). Exampl
     lon_deg = 8.545594
     alt_amsl_m = 488.0
 
-    [[obstacles]]
+    [[obstacles]]            # shape = "sphere" (default), "box" or "cylinder"
     center_ned_m = [10.0, 0.0, -7.0]
     radius_m = 1.5
+    material = "textured"    # or "low_texture", "textureless"
+
+    [[obstacles]]            # a wall across the path
+    shape = "box"
+    center_ned_m = [5.0, 0.0, -5.0]
+    size_m = [0.2, 12.0, 10.0]   # north, east, down extent [m]
+
+    [[obstacles]]            # a pole
+    shape = "cylinder"
+    center_ned_m = [14.0, 2.0, -5.0]
+    radius_m = 0.15
+    height_m = 10.0
 
     [ground]
     down_m = 0.0             # or: ground = false for none
@@ -31,6 +43,12 @@ error that names the key (``camera.fps`` → "unknown key 'camera.fps'"). Exampl
     rate_hz = 30.0           # simulation time
     width_px = 320
     height_px = 240
+    noise_std = 2.0          # sensor noise [grey levels]; image degradations:
+    gain_right = 1.0         # right/left gain mismatch
+    misrect_v_px = 0.0       # right image shifted down [px]
+    blur_h_px = 0.0          # horizontal / vertical motion blur length [px]
+    blur_v_px = 0.0
+    jpeg_quality = 0         # 1..100 compresses both images; 0 = off
 
     [streams]                # default rates [Hz of simulation time]; 0 = off
     LOCAL_POSITION_NED = 4.0
@@ -60,7 +78,7 @@ from plant_sim.autopilot.modes import FlightMode
 from plant_sim.params import ControlParams, QuadrotorParams, from_dict
 from plant_sim.profiles import profile
 from plant_sim.stereo_camera import RenderParams
-from plant_sim.world import GroundPlane, Sphere, World, paper_world
+from plant_sim.world import Box, Cylinder, GroundPlane, Material, Sphere, World, paper_world
 from protocols.camera import CameraModel
 from protocols.keys import validate_vehicle_id
 
@@ -233,24 +251,51 @@ def _origin(d: Any) -> GeoOrigin:
     return GeoOrigin(**kw)
 
 
-def _obstacles(items: Any) -> tuple[Sphere, ...]:
+_SHAPE_KEYS = {
+    "sphere": {"center_ned_m", "radius_m"},
+    "box": {"center_ned_m", "size_m"},
+    "cylinder": {"center_ned_m", "radius_m", "height_m"},
+}
+
+
+def _obstacles(items: Any) -> tuple[tuple[Sphere, ...], tuple[Box, ...], tuple[Cylinder, ...]]:
+    """Obstacle tables → (spheres, boxes, cylinders); ``shape`` defaults to ``"sphere"``."""
     if not isinstance(items, list):
         raise ScenarioError(f"obstacles must be a list of tables, got {items!r}")
-    spheres = []
+    shapes: dict[str, list] = {"sphere": [], "box": [], "cylinder": []}
     for i, item in enumerate(items):
         where = f"obstacles[{i}]"
-        item = _check_keys(item, {"center_ned_m", "radius_m", "texture_seed"}, where)
-        for required in ("center_ned_m", "radius_m"):
-            if required not in item:
-                raise ScenarioError(f"{where}.{required} is required")
-        spheres.append(
-            Sphere(
-                center_ned_m=_vec3(item["center_ned_m"], f"{where}.center_ned_m"),
-                radius_m=_number(item["radius_m"], f"{where}.radius_m", positive=True),
-                texture_seed=int(item.get("texture_seed", i)),
-            )
-        )
-    return tuple(spheres)
+        if not isinstance(item, Mapping):
+            raise ScenarioError(f"{where} must be a table/object, got {item!r}")
+        shape = item.get("shape", "sphere")
+        if shape not in _SHAPE_KEYS:
+            raise ScenarioError(f"{where}.shape {shape!r} is not one of {sorted(_SHAPE_KEYS)}")
+        required = _SHAPE_KEYS[shape]
+        item = _check_keys(item, required | {"shape", "texture_seed", "material"}, where)
+        for name in sorted(required):
+            if name not in item:
+                raise ScenarioError(f"{where}.{name} is required for a {shape}")
+        try:
+            material = Material(item.get("material", "textured"))
+        except ValueError:
+            raise ScenarioError(
+                f"{where}.material {item['material']!r} is not one of {[m.value for m in Material]}"
+            ) from None
+        kw: dict[str, Any] = {
+            "center_ned_m": _vec3(item["center_ned_m"], f"{where}.center_ned_m"),
+            "texture_seed": int(item.get("texture_seed", i)),
+            "material": material,
+        }
+        for name in ("radius_m", "height_m"):
+            if name in required:
+                kw[name] = _number(item[name], f"{where}.{name}", positive=True)
+        if shape == "box":
+            size = _vec3(item["size_m"], f"{where}.size_m")
+            if min(size) <= 0.0:
+                raise ScenarioError(f"{where}.size_m must be positive, got {list(size)}")
+            kw["size_m"] = size
+        shapes[shape].append({"sphere": Sphere, "box": Box, "cylinder": Cylinder}[shape](**kw))
+    return tuple(shapes["sphere"]), tuple(shapes["box"]), tuple(shapes["cylinder"])
 
 
 def _ground(value: Any) -> GroundPlane | None:
@@ -338,9 +383,12 @@ def scenario_from_dict(d: Mapping[str, Any]) -> Scenario:
     if "origin" in d:
         kw["origin"] = _origin(d["origin"])
     default_world = paper_world()
-    spheres = _obstacles(d["obstacles"]) if "obstacles" in d else default_world.spheres
+    if "obstacles" in d:
+        spheres, boxes, cylinders = _obstacles(d["obstacles"])
+    else:
+        spheres, boxes, cylinders = default_world.spheres, (), ()
     ground = _ground(d["ground"]) if "ground" in d else default_world.ground
-    kw["world"] = World(spheres=spheres, ground=ground)
+    kw["world"] = World(spheres=spheres, ground=ground, boxes=boxes, cylinders=cylinders)
     if "camera" in d:
         kw["camera"] = _camera(d["camera"])
     if "streams" in d:

@@ -1,4 +1,4 @@
-"""Synthetic rectified stereo camera: ray-cast textured spheres, ground and sky (numba).
+"""Synthetic rectified stereo camera: ray-cast spheres, boxes, cylinders, ground, sky (numba).
 
 The camera model and frames are :mod:`protocols.camera`'s: optical frame x right, y down,
 z forward; the camera looks along body +x; left eye (reference) at body ``y = -b/2``, right
@@ -48,6 +48,17 @@ class RenderParams:
         Peak-to-peak contrast of the sky's clouds [grey levels].
     lattice_seed : int
         Seed of the value-noise lattice (the world's look).
+    gain_right : float
+        Right sensor's gain relative to the left (exposure/gain mismatch; 1 = matched).
+    misrect_v_px : float
+        Vertical misrectification [px]: the right image is shifted this much down (bilinear,
+        border replicated); 0 = perfectly rectified.
+    blur_h_px, blur_v_px : float
+        Length of a horizontal / vertical motion blur [px] (a normalised line kernel of both
+        images, applied before the sensor noise); 0 = sharp.
+    jpeg_quality : int
+        JPEG-compress both images at this quality (1-100) after the noise, as a compressed
+        video link would; 0 = uncompressed.
     """
 
     texture_cell_m: float = 0.03
@@ -55,16 +66,40 @@ class RenderParams:
     noise_std: float = 2.0
     sky_cloud_amplitude: float = 12.0
     lattice_seed: int = 12345
+    gain_right: float = 1.0
+    misrect_v_px: float = 0.0
+    blur_h_px: float = 0.0
+    blur_v_px: float = 0.0
+    jpeg_quality: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("texture_cell_m", "ground_cell_m"):
+        for name in ("texture_cell_m", "ground_cell_m", "gain_right"):
             value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be finite and positive, got {value!r}")
-        for name in ("noise_std", "sky_cloud_amplitude"):
+        for name in ("noise_std", "sky_cloud_amplitude", "blur_h_px", "blur_v_px"):
             value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        if not (isinstance(self.misrect_v_px, int | float) and math.isfinite(self.misrect_v_px)):
+            raise ValueError(f"misrect_v_px must be finite, got {self.misrect_v_px!r}")
+        if not (
+            isinstance(self.jpeg_quality, int)
+            and not isinstance(self.jpeg_quality, bool)
+            and 0 <= self.jpeg_quality <= 100
+        ):
+            raise ValueError(f"jpeg_quality must be an int in 0..100, got {self.jpeg_quality!r}")
+
+    @property
+    def degraded(self) -> bool:
+        """Whether any image degradation beyond the sensor noise is set."""
+        return (
+            self.gain_right != 1.0
+            or self.misrect_v_px != 0.0
+            or self.blur_h_px > 0.0
+            or self.blur_v_px > 0.0
+            or self.jpeg_quality > 0
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -202,6 +237,64 @@ def _trace(eye_sph, e, n_spheres, dx, dy, dz, aa):
 
 
 @numba.njit(cache=True, inline="always")
+def _trace_shapes(boxes, cyls, n_spheres, ox, oy, oz, dx, dy, dz, t_best, hit):
+    """Nearer box or cylinder hit than ``(t_best, hit)`` of a ray from ``o``: ``(t, hit)``.
+
+    Boxes are hit codes ``n_spheres + j``, cylinders ``n_spheres + n_boxes + m``.
+    """
+    n_boxes = boxes.shape[0]
+    for j in range(n_boxes):
+        t_near = -np.inf
+        t_far = np.inf
+        for a in range(3):
+            o = (ox, oy, oz)[a] - boxes[j, a]
+            d = (dx, dy, dz)[a]
+            h = boxes[j, 3 + a]
+            if d == 0.0:
+                if abs(o) > h:
+                    t_near = np.inf
+                continue
+            t1 = (-h - o) / d
+            t2 = (h - o) / d
+            if t1 > t2:
+                t1, t2 = t2, t1
+            t_near = max(t_near, t1)
+            t_far = min(t_far, t2)
+        if t_near <= t_far:
+            t = t_near if t_near > 1e-6 else t_far  # inside the box: its far wall
+            if 1e-6 < t < t_best:
+                t_best = t
+                hit = n_spheres + j
+    for m in range(cyls.shape[0]):
+        px = ox - cyls[m, 0]
+        py = oy - cyls[m, 1]
+        pz = oz - cyls[m, 2]
+        r = cyls[m, 3]
+        hh = cyls[m, 4]
+        a2 = dx * dx + dy * dy
+        if a2 > 0.0:
+            b = px * dx + py * dy
+            disc = b * b - a2 * (px * px + py * py - r * r)
+            if disc >= 0.0:
+                sq = math.sqrt(disc)
+                for t in ((-b - sq) / a2, (-b + sq) / a2):
+                    if 1e-6 < t < t_best and abs(pz + t * dz) <= hh:
+                        t_best = t
+                        hit = n_spheres + n_boxes + m
+                        break
+        if dz != 0.0:
+            for cap in (-hh, hh):
+                t = (cap - pz) / dz
+                if 1e-6 < t < t_best:
+                    qx = px + t * dx
+                    qy = py + t * dy
+                    if qx * qx + qy * qy <= r * r:
+                        t_best = t
+                        hit = n_spheres + n_boxes + m
+    return t_best, hit
+
+
+@numba.njit(cache=True, inline="always")
 def _noise_hash(h):
     """Sensor-noise hash to a float in [0, 1), given the pre-mixed sum ``h`` (any int64).
 
@@ -219,9 +312,23 @@ def _noise_hash(h):
 
 
 @numba.njit(cache=True, inline="always")
+def _obstacle_grey(tex, contrast, nx, ny, nz):
+    """Grey value of an obstacle surface: texture (scaled by the material's contrast about
+    its mean) times Lambert shading of the unit normal ``n``."""
+    lx, ly, lz = 0.36, 0.48, -0.8  # unit vector towards the light (north-east, above), NED
+    if contrast != 1.0:
+        tex = 0.5 + contrast * (tex - 0.5)
+    lambert = nx * lx + ny * ly + nz * lz
+    shade = 0.45 + 0.55 * max(lambert, 0.0)
+    return 10.0 + 235.0 * shade * (0.15 + 0.85 * tex)
+
+
+@numba.njit(cache=True, inline="always")
 def _shade(
     lat,
     spheres,
+    boxes,
+    cyls,
     hit,
     t_best,
     ox,
@@ -236,18 +343,51 @@ def _shade(
     ground_cell,
     ground_seed,
 ):
-    """Grey value (before noise) of a ray from ``o`` that hit sphere ``hit`` ≥ 0 or ground (-1)."""
-    lx, ly, lz = 0.36, 0.48, -0.8  # unit vector towards the light (north-east, above), NED
+    """Grey value (before noise) of a ray from ``o`` that hit obstacle ``hit`` >= 0 or the
+    ground (-1)."""
+    lz = -0.8
     footprint = t_best / fx * math.sqrt(aa)
-    if hit >= 0:
+    n_spheres = spheres.shape[0]
+    n_boxes = boxes.shape[0]
+    if hit >= 0 and hit < n_spheres:
         px = ox + t_best * dx - spheres[hit, 0]
         py = oy + t_best * dy - spheres[hit, 1]
         pz = oz + t_best * dz - spheres[hit, 2]
         r = spheres[hit, 3]
         tex = _sphere_texture(lat, px, py, pz, texture_cell, footprint, spheres[hit, 4])
-        lambert = (px * lx + py * ly + pz * lz) / r
-        shade = 0.45 + 0.55 * max(lambert, 0.0)
-        return 10.0 + 235.0 * shade * (0.15 + 0.85 * tex)
+        return _obstacle_grey(tex, spheres[hit, 5], px / r, py / r, pz / r)
+    if hit >= n_spheres and hit < n_spheres + n_boxes:
+        j = hit - n_spheres
+        p0 = ox + t_best * dx - boxes[j, 0]
+        p1 = oy + t_best * dy - boxes[j, 1]
+        p2 = oz + t_best * dz - boxes[j, 2]
+        # The face hit is the axis where the point is nearest the box's half-size.
+        f0 = abs(p0) / boxes[j, 3]
+        f1 = abs(p1) / boxes[j, 4]
+        f2 = abs(p2) / boxes[j, 5]
+        seed = boxes[j, 6]
+        if f0 >= f1 and f0 >= f2:
+            tex = _ground_texture(lat, p1, p2, texture_cell, footprint, seed)
+            return _obstacle_grey(tex, boxes[j, 7], math.copysign(1.0, p0), 0.0, 0.0)
+        if f1 >= f2:
+            tex = _ground_texture(lat, p0, p2, texture_cell, footprint, seed + 2.0)
+            return _obstacle_grey(tex, boxes[j, 7], 0.0, math.copysign(1.0, p1), 0.0)
+        tex = _ground_texture(lat, p0, p1, texture_cell, footprint, seed + 4.0)
+        return _obstacle_grey(tex, boxes[j, 7], 0.0, 0.0, math.copysign(1.0, p2))
+    if hit >= 0:
+        m = hit - n_spheres - n_boxes
+        px = ox + t_best * dx - cyls[m, 0]
+        py = oy + t_best * dy - cyls[m, 1]
+        pz = oz + t_best * dz - cyls[m, 2]
+        r = cyls[m, 3]
+        seed = cyls[m, 5]
+        radial = math.sqrt(px * px + py * py)
+        if abs(pz) >= cyls[m, 4] - 1e-6 and radial < r * (1.0 - 1e-6):  # a cap
+            tex = _ground_texture(lat, px, py, texture_cell, footprint, seed + 2.0)
+            return _obstacle_grey(tex, cyls[m, 6], 0.0, 0.0, math.copysign(1.0, pz))
+        arc = r * math.atan2(py, px)
+        tex = _ground_texture(lat, arc, pz, texture_cell, footprint, seed)
+        return _obstacle_grey(tex, cyls[m, 6], px / r, py / r, 0.0)
     px = ox + t_best * dx
     py = oy + t_best * dy
     tex = _ground_texture(lat, px, py, ground_cell, footprint, ground_seed)
@@ -267,6 +407,8 @@ def _render_pair(
     cx,
     cy,
     spheres,
+    boxes,
+    cyls,
     has_ground,
     ground_down,
     ground_seed,
@@ -277,6 +419,7 @@ def _render_pair(
     noise_seed,
     cloud_amp,
     row_step,
+    gain_right,
 ):
     """Both eyes in one parallel pass over rows; ray directions and the sky are shared.
 
@@ -315,6 +458,7 @@ def _render_pair(
     ground0 = ground_ok[0]
     ground1 = ground_ok[1]
     quiet = not noise_std > 0.0
+    has_shapes = boxes.shape[0] + cyls.shape[0] > 0
     for i in numba.prange(H):
         v = (i * row_step) % H
         yc = (v - cy) / fy
@@ -329,12 +473,20 @@ def _render_pair(
             dz = R[2, 0] * xc + R[2, 1] * yc + R[2, 2]
             aa = dx * dx + dy * dy + dz * dz
             t0, hit0 = _trace(eye_sph, 0, n_spheres, dx, dy, dz, aa)
+            if has_shapes:
+                t0, hit0 = _trace_shapes(
+                    boxes, cyls, n_spheres, o0x, o0y, o0z, dx, dy, dz, t0, hit0
+                )
             if ground0 and dz > 0.0:
                 t = (ground_down - o0z) / dz
                 if t < t0:
                     t0 = t
                     hit0 = -1
             t1, hit1 = _trace(eye_sph, 1, n_spheres, dx, dy, dz, aa)
+            if has_shapes:
+                t1, hit1 = _trace_shapes(
+                    boxes, cyls, n_spheres, o1x, o1y, o1z, dx, dy, dz, t1, hit1
+                )
             if ground1 and dz > 0.0:
                 t = (ground_down - o1z) / dz
                 if t < t1:
@@ -354,6 +506,8 @@ def _render_pair(
                 value0 = _shade(
                     lat,
                     spheres,
+                    boxes,
+                    cyls,
                     hit0,
                     t0,
                     o0x,
@@ -373,6 +527,8 @@ def _render_pair(
                 value1 = _shade(
                     lat,
                     spheres,
+                    boxes,
+                    cyls,
                     hit1,
                     t1,
                     o1x,
@@ -387,6 +543,7 @@ def _render_pair(
                     ground_cell,
                     ground_seed,
                 )
+            value1 *= gain_right
             if not quiet:
                 n1 = _noise_hash(row_a0 + u * 0x9E3779B1)
                 n2 = _noise_hash(row_b0 + u * 0x85EBCA77)
@@ -399,6 +556,50 @@ def _render_pair(
             left[v, u] = np.uint8(value0 + 0.5)
             right[v, u] = np.uint8(value1 + 0.5)
             depth[v, u] = t0
+
+
+def _line_kernel(length_px: float) -> np.ndarray:
+    """Normalised 1-D motion-blur kernel of ``length_px`` (fractional ends weighted)."""
+    n = 2 * math.ceil((length_px - 1.0) / 2.0) + 1 if length_px > 1.0 else 1
+    kernel = np.ones(n, np.float32)
+    if n > 1:
+        kernel[[0, -1]] = 0.5 * (length_px - (n - 2))
+    return kernel / kernel.sum()
+
+
+def _degrade(left: np.ndarray, right: np.ndarray, p: RenderParams, seed: int):
+    """The optical and transport degradations of :class:`RenderParams`, in physical order:
+    misrectification and motion blur (optics), sensor noise (only here when blurred: the
+    kernel adds it otherwise), then JPEG (the link). Deterministic in ``seed``."""
+    import cv2  # OpenCV is already a dependency (the companion's matcher); plant-side only here
+
+    if p.misrect_v_px != 0.0:
+        shift = np.float32([[1.0, 0.0, 0.0], [0.0, 1.0, p.misrect_v_px]])
+        right = cv2.warpAffine(
+            right,
+            shift,
+            (right.shape[1], right.shape[0]),
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
+    if p.blur_h_px > 0.0 or p.blur_v_px > 0.0:
+        kx = _line_kernel(p.blur_h_px)
+        ky = _line_kernel(p.blur_v_px)
+        rng = np.random.default_rng((p.lattice_seed, seed))
+        out = []
+        for image in (left, right):
+            blurred = cv2.sepFilter2D(image.astype(np.float32), -1, kx, ky)
+            if p.noise_std > 0.0:
+                blurred += rng.normal(0.0, p.noise_std, blurred.shape).astype(np.float32)
+            out.append(np.clip(blurred + 0.5, 0.0, 255.0).astype(np.uint8))
+        left, right = out
+    if p.jpeg_quality > 0:
+        params = [cv2.IMWRITE_JPEG_QUALITY, p.jpeg_quality]
+        left, right = (
+            cv2.imdecode(cv2.imencode(".jpg", image, params)[1], cv2.IMREAD_GRAYSCALE)
+            for image in (left, right)
+        )
+    return left, right
 
 
 def _coprime_step(n: int) -> int:
@@ -457,11 +658,36 @@ class StereoCameraRenderer:
         R_ned_cam = np.ascontiguousarray(R_frd @ R_FRD_FROM_CAM)
         spheres = np.array(
             [
-                (*s.center_ned_m, s.radius_m, 7 * s.texture_seed + 3 * i)
+                (*s.center_ned_m, s.radius_m, 7 * s.texture_seed + 3 * i, s.material.contrast)
                 for i, s in enumerate(world.spheres)
             ],
             dtype=np.float64,
-        ).reshape(-1, 5)
+        ).reshape(-1, 6)
+        boxes = np.array(
+            [
+                (
+                    *b.center_ned_m,
+                    *(0.5 * np.asarray(b.size_m)),
+                    5 * b.texture_seed + 3 * i + 13,
+                    b.material.contrast,
+                )
+                for i, b in enumerate(world.boxes)
+            ],
+            dtype=np.float64,
+        ).reshape(-1, 8)
+        cyls = np.array(
+            [
+                (
+                    *c.center_ned_m,
+                    c.radius_m,
+                    0.5 * c.height_m,
+                    5 * c.texture_seed + 3 * i + 17,
+                    c.material.contrast,
+                )
+                for i, c in enumerate(world.cylinders)
+            ],
+            dtype=np.float64,
+        ).reshape(-1, 7)
         ground = world.ground
         has_ground = ground is not None
         ground_down = ground.down_m if ground is not None else 0.0
@@ -471,6 +697,7 @@ class StereoCameraRenderer:
         right = np.empty(shape, dtype=np.uint8)
         depth = np.empty(shape, dtype=np.float32)
         p = self.params
+        blurred = p.blur_h_px > 0.0 or p.blur_v_px > 0.0
         seed = int(noise_seed) & 0x7FFFFFFF
         origins = np.array(
             [pos + R_frd @ np.array([0.0, side * cam.baseline_m, 0.0]) for side in (-0.5, 0.5)]
@@ -486,15 +713,20 @@ class StereoCameraRenderer:
             cam.cx_px,
             cam.cy_px,
             spheres,
+            boxes,
+            cyls,
             has_ground,
             ground_down,
             ground_seed,
             self._lattice_flat,
             p.texture_cell_m,
             p.ground_cell_m,
-            p.noise_std,
+            0.0 if blurred else p.noise_std,
             seed,
             p.sky_cloud_amplitude,
             _coprime_step(cam.height_px),
+            float(p.gain_right),
         )
+        if p.degraded:
+            left, right = _degrade(left, right, p, seed)
         return StereoRender(left=left, right=right, depth_left_m=depth)

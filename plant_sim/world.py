@@ -1,17 +1,38 @@
 """World description for the SIL plant: obstacles and ground in LOCAL_NED (pure, immutable).
 
+Obstacles are spheres (the paper's), axis-aligned boxes (walls, buildings) and vertical
+cylinders (poles, trunks); each has a :class:`Material` that sets how much texture a stereo
+matcher finds on it.
+
 The paper's scenario (§6, DESIGN.md): one sphere of radius 1.5 m centred at NED
 (10, 0, −7) between the start (20, 0, −7) and the goal (0, 0, −7); see :func:`paper_world`.
 """
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GroundPlane", "Sphere", "World", "paper_world"]
+__all__ = ["Box", "Cylinder", "GroundPlane", "Material", "Sphere", "World", "paper_world"]
+
+
+class Material(enum.Enum):
+    """Surface appearance: the contrast of the procedural texture."""
+
+    TEXTURED = "textured"  # full contrast (the default; what the paper's images show)
+    LOW_TEXTURE = "low_texture"  # 12 % of the contrast: a few grey levels, near the noise
+    TEXTURELESS = "textureless"  # no texture at all: only the smooth Lambert shading
+
+    @property
+    def contrast(self) -> float:
+        """Texture contrast relative to :attr:`TEXTURED`."""
+        return _CONTRAST[self]
+
+
+_CONTRAST = {Material.TEXTURED: 1.0, Material.LOW_TEXTURE: 0.12, Material.TEXTURELESS: 0.0}
 
 
 def _finite_vec3(name: str, value) -> tuple[float, float, float]:
@@ -33,14 +54,18 @@ class Sphere:
         Radius [m], > 0.
     texture_seed : int
         Selects the procedural surface texture (different spheres look different).
+    material : Material
+        Texture contrast.
     """
 
     center_ned_m: tuple[float, float, float]
     radius_m: float
     texture_seed: int = 0
+    material: Material = Material.TEXTURED
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "center_ned_m", _finite_vec3("center_ned_m", self.center_ned_m))
+        object.__setattr__(self, "material", Material(self.material))
         if not (math.isfinite(self.radius_m) and self.radius_m > 0.0):
             raise ValueError(f"radius_m must be finite and positive, got {self.radius_m!r}")
 
@@ -48,6 +73,83 @@ class Sphere:
         """Distance from ``point_ned_m`` to the sphere's surface [m] (negative inside)."""
         d = np.asarray(point_ned_m, dtype=float) - np.asarray(self.center_ned_m)
         return float(np.linalg.norm(d)) - self.radius_m
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned box in LOCAL_NED (a wall is a thin one), textured on its faces.
+
+    Attributes
+    ----------
+    center_ned_m : tuple of 3 float
+        Centre in LOCAL_NED [m].
+    size_m : tuple of 3 float
+        Full extent along north, east and down [m], each > 0.
+    texture_seed : int
+        Selects the procedural surface texture.
+    material : Material
+        Texture contrast.
+    """
+
+    center_ned_m: tuple[float, float, float]
+    size_m: tuple[float, float, float]
+    texture_seed: int = 0
+    material: Material = Material.TEXTURED
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "center_ned_m", _finite_vec3("center_ned_m", self.center_ned_m))
+        object.__setattr__(self, "size_m", _finite_vec3("size_m", self.size_m))
+        object.__setattr__(self, "material", Material(self.material))
+        if min(self.size_m) <= 0.0:
+            raise ValueError(f"size_m must be positive, got {self.size_m!r}")
+
+    def surface_distance_m(self, point_ned_m) -> float:
+        """Distance from ``point_ned_m`` to the box's surface [m] (negative inside)."""
+        q = np.abs(np.asarray(point_ned_m, dtype=float) - np.asarray(self.center_ned_m))
+        q -= 0.5 * np.asarray(self.size_m)
+        outside = float(np.linalg.norm(np.maximum(q, 0.0)))
+        return outside + min(float(q.max()), 0.0)
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """A vertical (NED z-axis) cylinder with flat caps: a pole, a trunk, a mast.
+
+    Attributes
+    ----------
+    center_ned_m : tuple of 3 float
+        Centre of the axis in LOCAL_NED [m] (half-way between the caps).
+    radius_m : float
+        Radius [m], > 0.
+    height_m : float
+        Length along NED down [m], > 0.
+    texture_seed : int
+        Selects the procedural surface texture.
+    material : Material
+        Texture contrast.
+    """
+
+    center_ned_m: tuple[float, float, float]
+    radius_m: float
+    height_m: float
+    texture_seed: int = 0
+    material: Material = Material.TEXTURED
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "center_ned_m", _finite_vec3("center_ned_m", self.center_ned_m))
+        object.__setattr__(self, "material", Material(self.material))
+        for name in ("radius_m", "height_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} must be finite and positive, got {value!r}")
+
+    def surface_distance_m(self, point_ned_m) -> float:
+        """Distance from ``point_ned_m`` to the cylinder's surface [m] (negative inside)."""
+        d = np.asarray(point_ned_m, dtype=float) - np.asarray(self.center_ned_m)
+        radial = math.hypot(d[0], d[1]) - self.radius_m
+        axial = abs(d[2]) - 0.5 * self.height_m
+        outside = math.hypot(max(radial, 0.0), max(axial, 0.0))
+        return outside + min(max(radial, axial), 0.0)
 
 
 @dataclass(frozen=True)
@@ -80,16 +182,36 @@ class World:
         Spherical obstacles.
     ground : GroundPlane or None
         The ground plane, or ``None`` for none.
+    boxes : tuple of Box
+        Box obstacles (walls).
+    cylinders : tuple of Cylinder
+        Vertical cylinders (poles).
     """
 
     spheres: tuple[Sphere, ...] = ()
     ground: GroundPlane | None = GroundPlane()
+    boxes: tuple[Box, ...] = ()
+    cylinders: tuple[Cylinder, ...] = ()
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "spheres", tuple(self.spheres))
-        for sphere in self.spheres:
-            if not isinstance(sphere, Sphere):
-                raise TypeError(f"spheres must hold Sphere objects, got {type(sphere).__name__}")
+        for name, cls in (("spheres", Sphere), ("boxes", Box), ("cylinders", Cylinder)):
+            items = tuple(getattr(self, name))
+            object.__setattr__(self, name, items)
+            for item in items:
+                if not isinstance(item, cls):
+                    raise TypeError(
+                        f"{name} must hold {cls.__name__} objects, got {type(item).__name__}"
+                    )
+
+    @property
+    def obstacles(self) -> tuple[Sphere | Box | Cylinder, ...]:
+        """Every obstacle: spheres, then boxes, then cylinders."""
+        return self.spheres + self.boxes + self.cylinders
+
+    def surface_distance_m(self, point_ned_m) -> float:
+        """Distance from ``point_ned_m`` to the nearest obstacle surface [m] (``inf`` if none;
+        the ground is not an obstacle here)."""
+        return min((o.surface_distance_m(point_ned_m) for o in self.obstacles), default=math.inf)
 
 
 def paper_world() -> World:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from plant_sim.stereo_camera import RenderParams, StereoCameraRenderer
-from plant_sim.world import GroundPlane, Sphere, World, paper_world
+from plant_sim.world import Box, Cylinder, GroundPlane, Material, Sphere, World, paper_world
 from protocols.camera import R_FRD_FROM_CAM, CameraModel
 from protocols.frames import rotation_321
 
@@ -146,3 +146,171 @@ def test_world_validation():
     with pytest.raises(TypeError, match="Sphere"):
         World(spheres=("sphere",))
     assert paper_world().spheres[0].surface_distance_m([20.0, 0.0, -7.0]) == pytest.approx(8.5)
+
+
+# --- shapes, materials and degradations (issue 14) -------------------------------------------
+
+
+def _analytic_shapes_depth(world: World, pos, R, camera: CameraModel) -> np.ndarray:
+    """Left-eye depth of boxes (slabs) and vertical cylinders (side and caps), numpy."""
+    k = camera.intrinsics
+    u, v = np.meshgrid(np.arange(k.width_px), np.arange(k.height_px))
+    rays_cam = np.stack(((u - k.cx_px) / k.fx_px, (v - k.cy_px) / k.fy_px, np.ones(u.shape)), -1)
+    d = rays_cam @ (R @ R_FRD_FROM_CAM).T
+    eye = pos + R @ np.array([0.0, -k.baseline_m / 2, 0.0])
+    depth = _analytic_depth(World(spheres=world.spheres, ground=world.ground), pos, R, camera)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for b in world.boxes:
+            lo = np.asarray(b.center_ned_m) - 0.5 * np.asarray(b.size_m) - eye
+            hi = np.asarray(b.center_ned_m) + 0.5 * np.asarray(b.size_m) - eye
+            t1, t2 = lo / d, hi / d
+            t_near = np.nanmax(np.minimum(t1, t2), axis=-1)
+            t_far = np.nanmin(np.maximum(t1, t2), axis=-1)
+            hit = (t_near <= t_far) & (t_near > 0)
+            depth = np.minimum(depth, np.where(hit, t_near, np.inf))
+        for c in world.cylinders:
+            o = eye - np.asarray(c.center_ned_m)
+            a = d[..., 0] ** 2 + d[..., 1] ** 2
+            bb = o[0] * d[..., 0] + o[1] * d[..., 1]
+            cc = o[0] ** 2 + o[1] ** 2 - c.radius_m**2
+            disc = bb * bb - a * cc
+            t = (-bb - np.sqrt(np.maximum(disc, 0))) / a
+            side = (disc >= 0) & (t > 0) & (np.abs(o[2] + t * d[..., 2]) <= c.height_m / 2)
+            depth = np.minimum(depth, np.where(side, t, np.inf))
+            for cap in (-c.height_m / 2, c.height_m / 2):
+                t = (cap - o[2]) / d[..., 2]
+                r2 = (o[0] + t * d[..., 0]) ** 2 + (o[1] + t * d[..., 1]) ** 2
+                depth = np.minimum(depth, np.where((t > 0) & (r2 <= c.radius_m**2), t, np.inf))
+    return depth
+
+
+def test_box_and_cylinder_depth_match_closed_form(renderer):
+    world = World(
+        spheres=(Sphere((9.0, 3.0, -7.0), 1.0),),
+        boxes=(Box((6.0, -1.5, -7.0), (0.3, 3.0, 4.0)), Box((12.0, 0.0, -6.0), (1.0, 8.0, 2.0))),
+        cylinders=(Cylinder((5.0, 1.2, -6.0), 0.25, 6.0), Cylinder((8.0, -3.0, -8.5), 0.8, 1.0)),
+        ground=GroundPlane(0.0),
+    )
+    R = rotation_321(math.radians(3), math.radians(-6), math.radians(-4))
+    out = renderer.render(world, POS, R)
+    expected = _analytic_shapes_depth(world, POS, R, CAMERA)
+    finite = np.isfinite(expected)
+    np.testing.assert_array_equal(np.isfinite(out.depth_left_m), finite)
+    np.testing.assert_allclose(out.depth_left_m[finite], expected[finite], rtol=1e-5)
+    # Every shape is in view (a depth no other shape or the ground gives).
+    for d_m in (6.0 - 0.15, 11.5):
+        assert np.any(np.isclose(out.depth_left_m, d_m, atol=0.02))
+
+
+def test_world_surface_distance_and_validation():
+    box = Box((10.0, 0.0, -7.0), (0.2, 10.0, 10.0))
+    pole = Cylinder((10.0, 5.0, -5.0), 0.5, 10.0)
+    world = World(boxes=(box,), cylinders=(pole,))
+    assert box.surface_distance_m((5.0, 0.0, -7.0)) == pytest.approx(4.9)
+    assert box.surface_distance_m((10.0, 0.0, -7.0)) == pytest.approx(-0.1)
+    assert pole.surface_distance_m((10.0, 5.0, -12.0)) == pytest.approx(2.0)
+    assert pole.surface_distance_m((13.0, 9.0, -5.0)) == pytest.approx(4.5)
+    assert world.surface_distance_m((0.0, 0.0, -7.0)) == pytest.approx(9.9)
+    assert World().surface_distance_m((0.0, 0.0, 0.0)) == math.inf
+    with pytest.raises(ValueError, match="size_m"):
+        Box((0.0, 0.0, 0.0), (1.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match="height_m"):
+        Cylinder((0.0, 0.0, 0.0), 1.0, -1.0)
+    with pytest.raises(ValueError):
+        Sphere((0.0, 0.0, 0.0), 1.0, material="shiny")
+    with pytest.raises(TypeError, match="Box"):
+        World(boxes=(Sphere((0.0, 0.0, 0.0), 1.0),))
+
+
+@pytest.mark.parametrize("shape", ["sphere", "box"])
+def test_materials_set_the_texture_contrast(shape):
+    """Patch contrast scales with Material.contrast (1, 0.12, 0): the texture's spread about
+    the smooth shading."""
+    renderer = StereoCameraRenderer(CAMERA, RenderParams(noise_std=0.0))
+    spread = {}
+    for material in Material:
+        if shape == "sphere":
+            obstacle = {"spheres": (Sphere((4.5, -0.1, -7.0), 1.5, material=material),)}
+        else:
+            obstacle = {"boxes": (Box((3.0, 0.0, -7.0), (0.2, 6.0, 6.0), material=material),)}
+        out = renderer.render(World(ground=None, **obstacle), POS, LEVEL)
+        patch = out.left[100:140, 140:180].astype(float)
+        smooth = cv2.GaussianBlur(patch, (0, 0), 6.0)
+        spread[material] = float(np.std(patch - smooth)) + float(np.std(np.diff(patch, axis=1)))
+    assert spread[Material.TEXTURED] > 6.0
+    ratio = spread[Material.LOW_TEXTURE] / spread[Material.TEXTURED]
+    assert 0.05 <= ratio <= 0.25, ratio  # 0.12 in contrast; 8-bit rounding adds a little
+    assert spread[Material.TEXTURELESS] <= 1.0
+
+
+def test_degradations_gain_misrectification_blur_jpeg():
+    world = paper_world()
+    pos = np.array([5.0, 0.0, -7.0])
+    clean = StereoCameraRenderer(CAMERA, RenderParams(noise_std=0.0)).render(world, pos, LEVEL)
+
+    def render(**kw):
+        return StereoCameraRenderer(CAMERA, RenderParams(noise_std=0.0, **kw)).render(
+            world, pos, LEVEL
+        )
+
+    gain = render(gain_right=0.7)
+    np.testing.assert_array_equal(gain.left, clean.left)
+    ratio = gain.right.astype(float).sum() / clean.right.astype(float).sum()
+    assert ratio == pytest.approx(0.7, abs=0.01)
+    shifted = render(misrect_v_px=2.0)
+    np.testing.assert_array_equal(shifted.right[2:], clean.right[:-2])  # 2 px lower, exactly
+    np.testing.assert_array_equal(shifted.left, clean.left)
+    for axis, kw in ((1, {"blur_h_px": 5.0}), (0, {"blur_v_px": 5.0})):
+        blurred = render(**kw)
+        # A 5 px line kernel: the gradient along it drops, across it much less.
+        along = np.abs(np.diff(blurred.left.astype(float), axis=axis)).mean()
+        across = np.abs(np.diff(blurred.left.astype(float), axis=1 - axis)).mean()
+        along_clean = np.abs(np.diff(clean.left.astype(float), axis=axis)).mean()
+        assert along < 0.6 * along_clean and along < across
+    jpeg = render(jpeg_quality=30)
+    err = np.abs(jpeg.left.astype(float) - clean.left.astype(float))
+    assert 0.5 < err.mean() < 8.0  # lossy, but the same picture
+    np.testing.assert_array_equal(jpeg.left, render(jpeg_quality=30).left)  # deterministic
+    noisy = StereoCameraRenderer(CAMERA, RenderParams(noise_std=10.0, blur_h_px=3.0))
+    a = noisy.render(world, pos, LEVEL, noise_seed=1)
+    b = noisy.render(world, pos, LEVEL, noise_seed=2)
+    diff = a.left.astype(float) - b.left.astype(float)
+    assert np.std(diff) == pytest.approx(10.0 * math.sqrt(2.0), rel=0.1)  # noise after blur
+    with pytest.raises(ValueError, match="jpeg_quality"):
+        RenderParams(jpeg_quality=101)
+    with pytest.raises(ValueError, match="gain_right"):
+        RenderParams(gain_right=0.0)
+
+
+def test_scenario_options_for_shapes_materials_and_degradations():
+    from plant_sim.scenario import ScenarioError, scenario_from_dict
+
+    scenario = scenario_from_dict(
+        {
+            "obstacles": [
+                {"shape": "box", "center_ned_m": [5, 0, -5], "size_m": [0.2, 12, 10]},
+                {"center_ned_m": [10, 0, -7], "radius_m": 1.5, "material": "low_texture"},
+                {
+                    "shape": "cylinder",
+                    "center_ned_m": [14, 2, -5],
+                    "radius_m": 0.15,
+                    "height_m": 10,
+                },
+            ],
+            "camera": {"jpeg_quality": 30, "misrect_v_px": 2.0, "gain_right": 0.7},
+        }
+    )
+    world = scenario.world
+    assert world.boxes == (Box((5.0, 0.0, -5.0), (0.2, 12.0, 10.0)),)
+    assert world.spheres[0].material is Material.LOW_TEXTURE
+    assert world.cylinders[0].height_m == 10.0
+    render = scenario.camera.render
+    assert (render.jpeg_quality, render.misrect_v_px, render.gain_right) == (30, 2.0, 0.7)
+    for bad, match in (
+        ({"obstacles": [{"shape": "cone", "center_ned_m": [0, 0, 0]}]}, "shape"),
+        ({"obstacles": [{"shape": "box", "center_ned_m": [0, 0, 0]}]}, "size_m"),
+        ({"obstacles": [{"center_ned_m": [0, 0, 0], "radius_m": 1, "material": "x"}]}, "material"),
+        ({"camera": {"blur_h_px": -1.0}}, "blur_h_px"),
+    ):
+        with pytest.raises(ScenarioError, match=match):
+            scenario_from_dict(bad)
