@@ -167,11 +167,13 @@ class CameraOnlyService:
                     autoreconnect=True,
                 )
                 break
-            except (OSError, ValueError) as exc:
+            except (ConnectionRefusedError, ConnectionResetError, TimeoutError) as exc:
                 if time.monotonic() >= deadline:
                     raise OSError(f"cannot connect to the autopilot at {url!r}: {exc}") from None
                 _log.info("autopilot at %s not reachable yet (%s); retrying", url, exc)
                 time.sleep(0.5)
+            except (OSError, ValueError) as exc:  # a bad URL or host: retrying will not help
+                raise OSError(f"cannot connect to the autopilot at {url!r}: {exc}") from None
         conn.mav.robust_parsing = True
         self._conn = conn
         if self.config.log_dir is not None:
