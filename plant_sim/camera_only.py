@@ -30,7 +30,6 @@ Coordinates: the scenario (obstacles, goal, ground) is in the autopilot's LOCAL_
 from __future__ import annotations
 
 import collections
-import json
 import logging
 import math
 import os
@@ -413,8 +412,3 @@ class CameraOnlyService:
 
 def _round(value: float | None) -> float | None:
     return None if value is None else round(value, 3)
-
-
-def stats_line(stats: dict) -> str:
-    """``PLANT_SIM STATS {json}`` printed at exit."""
-    return "PLANT_SIM STATS " + json.dumps(stats, sort_keys=True)
