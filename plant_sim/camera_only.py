@@ -30,7 +30,6 @@ Coordinates: the scenario (obstacles, goal, ground) is in the autopilot's LOCAL_
 from __future__ import annotations
 
 import collections
-import json
 import logging
 import math
 import os
@@ -167,11 +166,13 @@ class CameraOnlyService:
                     autoreconnect=True,
                 )
                 break
-            except (OSError, ValueError) as exc:
+            except (ConnectionRefusedError, ConnectionResetError, TimeoutError) as exc:
                 if time.monotonic() >= deadline:
                     raise OSError(f"cannot connect to the autopilot at {url!r}: {exc}") from None
                 _log.info("autopilot at %s not reachable yet (%s); retrying", url, exc)
                 time.sleep(0.5)
+            except (OSError, ValueError) as exc:  # a bad URL or host: retrying will not help
+                raise OSError(f"cannot connect to the autopilot at {url!r}: {exc}") from None
         conn.mav.robust_parsing = True
         self._conn = conn
         if self.config.log_dir is not None:
@@ -411,8 +412,3 @@ class CameraOnlyService:
 
 def _round(value: float | None) -> float | None:
     return None if value is None else round(value, 3)
-
-
-def stats_line(stats: dict) -> str:
-    """``PLANT_SIM STATS {json}`` printed at exit."""
-    return "PLANT_SIM STATS " + json.dumps(stats, sort_keys=True)

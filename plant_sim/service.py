@@ -36,7 +36,12 @@ from plant_sim.autopilot.modes import (
     ModeTimings,
 )
 from plant_sim.autopilot.params import ParamTable, timings_from_params
-from plant_sim.autopilot.px4 import Px4Modes, px4_custom_mode
+from plant_sim.autopilot.px4 import (
+    PX4_PARAM_SPECS,
+    Px4Modes,
+    px4_custom_mode,
+    rules_from_params,
+)
 from plant_sim.autopilot.ratelimit import RequestLimiter
 from plant_sim.autopilot.setpoints import (
     SetpointError,
@@ -139,7 +144,8 @@ class PlantService:
                 "ANGLE_MAX": sc.control.max_tilt_deg * 100.0,
                 "SIM_SPEEDUP": config.speedup if math.isfinite(config.speedup) else 0.0,
                 "SIM_CAM_RATE": sc.camera.rate_hz if sc.camera.enabled else 0.0,
-            }
+            },
+            extra_specs=PX4_PARAM_SPECS if config.autopilot_flavour == "px4" else (),
         )
         self._base_timings = ModeTimings(land_detect_s=fs.land_detect_s)
         home = (pos[0], pos[1], ground if ground is not None else 0.0)
@@ -156,7 +162,7 @@ class PlantService:
         self.px4: Px4Modes | None = None
         if config.autopilot_flavour == "px4":
             self.machine.set_mode(FlightMode.LOITER, kin)  # PX4 starts in Hold
-            self.px4 = Px4Modes(self.machine, self._home_amsl_m())
+            self.px4 = Px4Modes(self.machine, self._home_amsl_m(), rules_from_params(self.params))
         self._apply_machine()
         self.telemetry = TelemetryBuilder(
             VehicleIdentity(sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.alt_amsl_m)
@@ -711,6 +717,8 @@ class PlantService:
             self._param_value(index)  # echo: the new value, or the unchanged one if refused
         if reason is None:
             self.machine.timings = timings_from_params(self._base_timings, self.params)
+            if self.px4 is not None:
+                self.px4.rules = rules_from_params(self.params)
             _log.info("param %s set to %g", name, self.params.value(name))
 
 

@@ -105,6 +105,8 @@ def test_pose_from_refuses_the_flags_of_its_own_autopilot():
     for extra in (["--speedup", "4"], ["--mavlink", "udpin:0.0.0.0:14550"], ["--duration", "5"]):
         with pytest.raises(ValueError, match="external autopilot"):
             config_from_args(parse(["--pose-from", "tcp:127.0.0.1:5762", *extra]))
+    with pytest.raises(ValueError, match="signing is not supported"):
+        config_from_args(parse(["--pose-from", "udpin:0.0.0.0:1", "--signing-key", "k"]))
     with pytest.raises(ValueError, match="pose rate"):
         config_from_args(parse(["--pose-from", "udpin:0.0.0.0:1", "--pose-rate-hz", "10"]))
 

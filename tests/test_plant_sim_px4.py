@@ -161,8 +161,9 @@ def test_companion_px4_path_flies_the_paper_scene_from_the_ground(rig):
 
 @pytest.mark.slow
 def test_mavsdk_offboard_plugin_flies_the_px4_flavour(tmp_path):
-    """MAVSDK (a PX4-first SDK) arms, takes off (NAV_TAKEOFF, MIS_TAKEOFF_ALT) and flies a
-    position through its offboard plugin; Offboard.stop() returns to Hold."""
+    """MAVSDK (a PX4-first SDK) sets MIS_TAKEOFF_ALT, arms, takes off (NAV_TAKEOFF with NaN
+    altitude) and flies a position through its offboard plugin; Offboard.stop() returns
+    to Hold."""
     from _plant_sim_proc import PlantProcess, free_port
     from mavsdk import Autopilot, ComponentType, Configuration, ConnectionResult, Mavsdk
     from mavsdk.plugins.action import Action, ActionResult
@@ -205,12 +206,14 @@ def test_mavsdk_offboard_plugin_flies_the_px4_flavour(tmp_path):
             raise AssertionError(f"{probe} still {probe()!r} after {timeout_s} s")
 
         wait(tel.flight_mode, lambda m: m == MavsdkMode.HOLD, 10)
+        assert action.get_takeoff_altitude() == pytest.approx(2.5)  # MIS_TAKEOFF_ALT
+        assert action.set_takeoff_altitude(4.0) == ActionResult.SUCCESS  # PARAM_SET
         assert action.arm() == ActionResult.SUCCESS
         assert action.takeoff() == ActionResult.SUCCESS
         wait(tel.flight_mode, lambda m: m == MavsdkMode.TAKEOFF, 5)
         wait(tel.flight_mode, lambda m: m == MavsdkMode.HOLD, 20)
         alt = tel.position_velocity_ned().position.down_m
-        assert alt == pytest.approx(-2.5, abs=0.2)  # MIS_TAKEOFF_ALT
+        assert alt == pytest.approx(-4.0, abs=0.2)  # MIS_TAKEOFF_ALT as set
         target = PositionNedYaw(north_m=18.0, east_m=2.0, down_m=-4.0, yaw_deg=0.0)
         start = tel.position_velocity_ned().position
         target.north_m, target.east_m = start.north_m - 2.0, start.east_m + 2.0

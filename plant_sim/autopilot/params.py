@@ -77,10 +77,15 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
 
 
 class ParamTable:
-    """Current values of :data:`PARAM_SPECS`; ``overrides`` replace defaults by name."""
+    """Current values of :data:`PARAM_SPECS` (and ``extra_specs``, appended: a flavour's
+    own parameters); ``overrides`` replace defaults by name."""
 
-    def __init__(self, overrides: dict[str, float] | None = None) -> None:
-        self._specs = PARAM_SPECS
+    def __init__(
+        self,
+        overrides: dict[str, float] | None = None,
+        extra_specs: tuple[ParamSpec, ...] = (),
+    ) -> None:
+        self._specs = PARAM_SPECS + tuple(extra_specs)
         self._index = {s.name: i for i, s in enumerate(self._specs)}
         self._values = [float(s.default) for s in self._specs]
         for name, value in (overrides or {}).items():

@@ -42,14 +42,17 @@ from collections import deque
 from dataclasses import dataclass
 
 from plant_sim.autopilot.modes import FlightMode, FlightModeMachine, GuidedTarget, Kinematics
+from plant_sim.autopilot.params import ParamSpec, ParamTable, ParamType
 
 __all__ = [
     "PX4_OFFBOARD_LOST_TEXT",
+    "PX4_PARAM_SPECS",
     "Px4Main",
     "Px4Modes",
     "Px4Rules",
     "Px4Sub",
     "px4_custom_mode",
+    "rules_from_params",
 ]
 
 PX4_OFFBOARD_LOST_TEXT = "Failsafe: offboard lost, holding"
@@ -96,6 +99,21 @@ class Px4Rules:
     min_stream_hz: float = 2.0  # OFFBOARD needs more than this
     stream_window_s: float = 1.0  # over this window [s]
     takeoff_alt_m: float = 2.5  # MIS_TAKEOFF_ALT [m above home]
+
+
+#: PX4's parameters behind :class:`Px4Rules` (ground stations and MAVSDK set them).
+PX4_PARAM_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("COM_OF_LOSS_T", ParamType.REAL32, 1.0, 0.0, 60.0),  # s
+    ParamSpec("MIS_TAKEOFF_ALT", ParamType.REAL32, 2.5, 0.5, 100.0),  # m above home
+)
+
+
+def rules_from_params(table: ParamTable) -> Px4Rules:
+    """:class:`Px4Rules` with the values of :data:`PX4_PARAM_SPECS`."""
+    return Px4Rules(
+        loss_timeout_s=table.value("COM_OF_LOSS_T"),
+        takeoff_alt_m=table.value("MIS_TAKEOFF_ALT"),
+    )
 
 
 class Px4Modes:

@@ -34,6 +34,7 @@ import shutil
 import signal
 import socket
 import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -82,6 +83,23 @@ radius_m = 1.5
 [ground]
 down_m = 0.0
 """
+
+
+def _die_with_parent_hook() -> Callable[[], None] | None:
+    """A ``preexec_fn`` (Linux): the child gets SIGTERM when its parent dies, so a killed
+    test run leaves no SITL behind on a shared machine. libc is looked up here, in the
+    parent; the child only makes the one ``prctl`` call before exec."""
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+    pr_set_pdeathsig, sigterm = 1, int(signal.SIGTERM)
+
+    def hook() -> None:
+        prctl(pr_set_pdeathsig, sigterm)
+
+    return hook
 
 
 def find_arducopter_sitl(environ: Mapping[str, str] | None = None) -> Path | None:
@@ -162,6 +180,7 @@ class ArduCopterSitl:
             stdin=subprocess.DEVNULL,
             stdout=self._log,
             stderr=subprocess.STDOUT,
+            preexec_fn=_die_with_parent_hook(),
         )
 
     def port(self, serial: int) -> int:
