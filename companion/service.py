@@ -93,6 +93,7 @@ _STREAMS = (
 _SEV_INFO = mavlink.MAV_SEVERITY_INFO
 _SEV_WARNING = mavlink.MAV_SEVERITY_WARNING
 _REBOOT_BACKSTEP_MS = 500  # time_boot_ms going back this far: the autopilot restarted
+_WPNAV_SPEED = "WPNAV_SPEED"  # ArduCopter's horizontal speed limit parameter [cm/s]
 _MAX_TIMESYNC_PENDING = 32  # our outstanding TIMESYNC requests (replies must match one)
 _IN_CONTROL_STATES = frozenset({mavlink.MAV_STATE_ACTIVE, mavlink.MAV_STATE_CRITICAL})
 
@@ -260,6 +261,8 @@ class CompanionService:
             cfg.failsafe.resume_after_s,
         )
         self._last_boot_ms: int | None = None
+        self._wpnav_speed_mps: float | None = None  # the autopilot's own speed limit
+        self._next_param_request_s = 0.0
         self._telemetry_newest_ns: int | None = None  # read by the Zenoh thread too
         self.boot_time = BootTimeMonitor(backstep_ms=_REBOOT_BACKSTEP_MS)
         self._newest_frame_ns: int | None = None  # processed
@@ -374,6 +377,24 @@ class CompanionService:
             self._on_ack(msg, now_s)
         elif mtype == "STATUSTEXT":
             _log.info("autopilot: %s", _statustext(msg))
+        elif mtype == "PARAM_VALUE":
+            self._on_param_value(msg)
+
+    def _on_param_value(self, msg) -> None:
+        """WPNAV_SPEED [cm/s]: the ceiling of every speed limit we state (ArduPilot)."""
+        name = (
+            msg.param_id
+            if isinstance(msg.param_id, str)
+            else msg.param_id.decode("ascii", "replace")
+        )
+        value = float(msg.param_value)
+        if name.split("\x00", 1)[0] != _WPNAV_SPEED or not (math.isfinite(value) and value > 0):
+            return
+        if self._wpnav_speed_mps is None:
+            _log.info(
+                "autopilot WPNAV_SPEED %.2f m/s: stated speed limits stay below it", value / 100.0
+            )
+        self._wpnav_speed_mps = value / 100.0
 
     def _frame_time_plausible(self, capture_ns: int) -> bool | None:
         """Capture time within the window around the clock model's now (any thread)."""
@@ -877,7 +898,20 @@ class CompanionService:
         :mod:`companion.link.speed_limit`); other autopilots: the carrot alone."""
         if self.modes.flavour is not Flavour.ARDUPILOT:
             return
-        speed = self.speed_policy.due(limit_mps, now_s)
+        if self._wpnav_speed_mps is None:
+            # DO_CHANGE_SPEED overrides WPNAV_SPEED (no clip): never state a speed before we
+            # know the pilot's own limit, so that ours can only lower it (the carrot bounds
+            # the speed meanwhile)
+            if now_s >= self._next_param_request_s:
+                self._next_param_request_s = now_s + 2.0
+                cfg = self.config.link
+                self.link.send(
+                    mavlink.MAVLink_param_request_read_message(
+                        cfg.target_system, cfg.target_component, _WPNAV_SPEED.encode(), -1
+                    )
+                )
+            return
+        speed = self.speed_policy.due(min(limit_mps, self._wpnav_speed_mps), now_s)
         if speed is None:
             return
         cfg = self.config.link
