@@ -36,6 +36,8 @@ optional, and an unknown key anywhere is an error that names it (``link.rate`` â
 
     [perception]                         # companion.perception.PerceptionConfig fields
     [guidance]                           # companion.guidance.GuidanceConfig fields
+    [known_space]                        # companion.known_space.KnownSpaceConfig fields
+    [envelope]                           # companion.guidance.envelope.EnvelopeConfig fields
 
 CLI flags override the file (:func:`config_from_args`, the only place flags become config).
 """
@@ -55,6 +57,8 @@ from typing import Any
 
 from companion.clock_model import FrameClock
 from companion.guidance import GuidanceConfig
+from companion.guidance.envelope import EnvelopeConfig
+from companion.known_space import KnownSpaceConfig
 from companion.perception import PerceptionConfig
 from protocols.keys import validate_vehicle_id
 from protocols.process import add_signing_arguments, add_zenoh_arguments, signing_key_text
@@ -171,6 +175,8 @@ class CompanionConfig:
     failsafe: FailsafeConfig = field(default_factory=FailsafeConfig)
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
     guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
+    known_space: KnownSpaceConfig = field(default_factory=KnownSpaceConfig)
+    envelope: EnvelopeConfig = field(default_factory=EnvelopeConfig)
     status_log_period_s: float = 1.0  # progress log line period [s wall]
 
     def __post_init__(self) -> None:
@@ -197,6 +203,8 @@ _TOP_KEYS = {
     "failsafe",
     "perception",
     "guidance",
+    "known_space",
+    "envelope",
 }
 
 
@@ -278,6 +286,10 @@ def config_from_dict(d: Mapping[str, Any]) -> CompanionConfig:
             kw["perception"] = PerceptionConfig.from_dict(dict(d["perception"]))
         if "guidance" in d:
             kw["guidance"] = GuidanceConfig.from_dict(dict(d["guidance"]))
+        if "known_space" in d:
+            kw["known_space"] = KnownSpaceConfig.from_dict(dict(d["known_space"]))
+        if "envelope" in d:
+            kw["envelope"] = EnvelopeConfig.from_dict(dict(d["envelope"]))
     except (TypeError, ValueError) as exc:
         raise ConfigError(str(exc)) from None
     return CompanionConfig(**kw)

@@ -8,7 +8,7 @@ with the pose at the frame's capture time.
 Model
 -----
 A grid of ``size_xy_vox × size_xy_vox × size_z_vox`` cubic voxels of ``voxel_m`` [m],
-aligned with LOCAL_NED, each UNKNOWN (0), FREE (1) or OCCUPIED (2). The grid is
+aligned with LOCAL_NED, each UNKNOWN (0), FREE (1), OCCUPIED (2) or TENTATIVE (3). The grid is
 vehicle-centred: when the vehicle strays more than a quarter of the grid from its centre
 the grid is shifted by whole voxels (what falls off the edge is forgotten, what enters is
 UNKNOWN). Nothing is forgotten by a timer: OCCUPIED stays until a matched ray passes
@@ -22,7 +22,9 @@ block is matched):
 
 * **Matched, in range** (finite depth, range ≤ ``max_range_m``): voxels along the ray are
   FREE up to ``hit_clear_m`` short of the hit (also clearing OCCUPIED: seen free again);
-  the hit's voxel is OCCUPIED.
+  the hit's voxel becomes TENTATIVE (3) on its first frame and OCCUPIED when hit again in
+  a later frame (a one-frame false match — a speckle, a mismatch — is not an obstacle; a
+  real surface is hit in every frame). TENTATIVE is not free either.
 * **Matched, beyond range** (finite or +inf depth, range > ``max_range_m``): FREE up to
   ``max_range_m``, nothing occupied.
 * **Unmatched** (NaN depth: no match, the matcher's blind band, nearer than its minimum
@@ -49,14 +51,16 @@ normal to the direction (``radius_m`` wide, ``half_height_m`` high; its centre a
 points on its rim), can travel from a position along a direction, in steps of half a
 voxel, up to a limit: the centre must be in FREE voxels beyond ``body_m`` (inside it is
 the vehicle), the rim in FREE voxels beyond ``near_field_m`` and in voxels that are not
-OCCUPIED before it. The near field is where the rim is outside any forward camera's
-view (0.35 m to the right is in the left eye's ±24° view only from 1.0 m ahead): what
-the vehicle could not have looked at without being there, excused only when it was never
-seen occupied (named limitation: a thin obstacle that reaches into the rim's path only
-within 1 m ahead and never into the view). Outside the grid is UNKNOWN.
+OCCUPIED (UNKNOWN or TENTATIVE) before it. The near field is where the rim is outside
+any forward camera's view (0.35 m to the right is in the left eye's ±24° view only from
+1.0 m ahead): what the vehicle could not have looked at without being there, excused
+only when it was never seen occupied (named limitation: a thin obstacle that reaches
+into the rim's path only within 1 m ahead and never into the view). Outside the grid is
+UNKNOWN.
 
-Costs (``benchmarks/bench_known_space.py``): about 0.3–0.6 ms per 320 × 240 frame at the
-default stride of 4 (4 800 rays) on the 2-core machine; the budget is 2 ms.
+Costs (``benchmarks/bench_known_space.py``): median 0.9–1.1 ms per 320 × 240 frame at the
+default stride of 4 (up to 4 800 rays) on the 2-core machine under a load of 8–9; the
+budget is 2 ms.
 """
 
 from __future__ import annotations
@@ -76,6 +80,7 @@ from protocols.camera import R_FRD_FROM_CAM, StereoIntrinsics, eye_offset_frd_m
 __all__ = [
     "FREE",
     "OCCUPIED",
+    "TENTATIVE",
     "UNKNOWN",
     "KnownSpace",
     "KnownSpaceConfig",
@@ -84,6 +89,8 @@ __all__ = [
 UNKNOWN = np.int8(0)
 FREE = np.int8(1)
 OCCUPIED = np.int8(2)
+TENTATIVE = np.int8(3)  # hit in one frame only: not free, not yet an obstacle
+_NEW_HIT = 4  # hit in the frame being integrated (becomes TENTATIVE at its end)
 
 
 @dataclass(frozen=True)
@@ -228,7 +235,7 @@ def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, clear_occupie
         if i < 0 or j < 0 or k < 0 or i >= ni or j >= nj or k >= nk:
             return
         cur = grid[i, j, k]
-        if cur == 0 or (clear_occupied and cur == 2):
+        if cur == 0 or (clear_occupied and cur >= 2):
             grid[i, j, k] = 1
         if tx <= ty and tx <= tz:
             t = tx
@@ -276,6 +283,8 @@ def _integrate_depth(
     height, width = depth.shape
     inv = 1.0 / voxel
     n_rays = 0
+    new_hits = np.empty((((width // stride) * (height // stride)), 3), np.int64)
+    n_new = 0
     # first matched row of every column (0 in the blind band: never sky)
     first_matched = np.empty(width, np.int64)
     for u in range(width):
@@ -336,7 +345,18 @@ def _integrate_depth(
                 cam_ned[2] + rng * dz,
             )  # fmt: skip
             if i >= 0:
-                grid[i, j, k] = 2
+                cur = grid[i, j, k]
+                if cur == 2 or cur == 3:  # seen in an earlier frame too: an obstacle
+                    grid[i, j, k] = 2
+                elif cur != _NEW_HIT:
+                    grid[i, j, k] = _NEW_HIT
+                    new_hits[n_new, 0] = i
+                    new_hits[n_new, 1] = j
+                    new_hits[n_new, 2] = k
+                    n_new += 1
+    for h in range(n_new):  # this frame's first hits are tentative from now on
+        if grid[new_hits[h, 0], new_hits[h, 1], new_hits[h, 2]] == _NEW_HIT:
+            grid[new_hits[h, 0], new_hits[h, 1], new_hits[h, 2]] = 3
     return n_rays
 
 
@@ -357,13 +377,13 @@ def _mark_ball(grid, origin, voxel, px, py, pz, radius, clear_occupied):
                 zc = (k + origin[2] + 0.5) * voxel - pz
                 if xc * xc + yc * yc + zc * zc <= r2:
                     cur = grid[i, j, k]
-                    if cur == 0 or (clear_occupied and cur == 2):
+                    if cur == 0 or (clear_occupied and cur >= 2):
                         grid[i, j, k] = 1
 
 
 @numba.njit(cache=True)
 def _clear_occupied_ball(grid, origin, voxel, px, py, pz, radius):
-    """OCCUPIED → FREE for voxels centred within ``radius`` of (px, py, pz)."""
+    """OCCUPIED or TENTATIVE → FREE for voxels centred within ``radius`` of (px, py, pz)."""
     inv = 1.0 / voxel
     r_vox = math.ceil(radius * inv) + 1
     ci = math.floor(px * inv) - origin[0]
@@ -376,7 +396,7 @@ def _clear_occupied_ball(grid, origin, voxel, px, py, pz, radius):
             yc = (j + origin[1] + 0.5) * voxel - py
             for k in range(max(ck - r_vox, 0), min(ck + r_vox + 1, grid.shape[2])):
                 zc = (k + origin[2] + 0.5) * voxel - pz
-                if xc * xc + yc * yc + zc * zc <= r2 and grid[i, j, k] == 2:
+                if xc * xc + yc * yc + zc * zc <= r2 and grid[i, j, k] >= 2:
                     grid[i, j, k] = 1
 
 
@@ -431,7 +451,7 @@ def _free_distance(
                 continue
             if m == 0 and t <= body:
                 continue
-            if m > 0 and t < near_field and cur == 0:
+            if m > 0 and t < near_field and (cur == 0 or cur == 3):
                 continue
             return last
         last = t

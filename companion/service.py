@@ -250,7 +250,9 @@ class CompanionService:
     def _reset_vehicle_state(self) -> None:
         cfg = self.config
         self._waypoint = 0
-        self.pipeline = AvoidancePipeline(cfg.waypoints_ned_m[0], cfg.perception, cfg.guidance)
+        self.pipeline = AvoidancePipeline(
+            cfg.waypoints_ned_m[0], cfg.perception, cfg.guidance, cfg.known_space, cfg.envelope
+        )
         self.clock.autopilot.reset()
         self.poses.clear()
         self.modes.reset()

@@ -119,3 +119,12 @@ def test_config_rejects_unknown_keys_and_bad_values():
         EnvelopeConfig(accel_mps2=0.0)
     with pytest.raises(ValueError):
         EnvelopeConfig(margin_m=-1.0)
+
+
+def test_companion_config_sections_for_the_map_and_the_envelope():
+    from companion.config import ConfigError, config_from_dict
+
+    cfg = config_from_dict({"envelope": {"accel_mps2": 3.0}, "known_space": {"voxel_m": 0.1}})
+    assert cfg.envelope.accel_mps2 == 3.0 and cfg.known_space.voxel_m == 0.1
+    with pytest.raises(ConfigError, match="accel"):
+        config_from_dict({"envelope": {"accel": 3.0}})

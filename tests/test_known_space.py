@@ -7,7 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from companion.known_space import FREE, OCCUPIED, UNKNOWN, KnownSpace, KnownSpaceConfig
+from companion.known_space import (
+    FREE,
+    OCCUPIED,
+    TENTATIVE,
+    UNKNOWN,
+    KnownSpace,
+    KnownSpaceConfig,
+)
 from protocols.camera import R_FRD_FROM_CAM, CameraModel
 from protocols.frames import rotation_321
 
@@ -54,7 +61,8 @@ def test_free_distance_to_a_wall_is_its_distance_less_the_clearance(radius_m):
     """Fronto-parallel wall 5 m ahead: free along the axis up to 5 m − hit_clear_m."""
     space = KnownSpace()
     pos = np.array([0.05, 0.05, -7.05])
-    space.integrate(_wall_depth(5.0), K, pos, LEVEL_NORTH)
+    for _ in range(2):  # a surface is an obstacle once hit in two frames
+        space.integrate(_wall_depth(5.0), K, pos, LEVEL_NORTH)
     expected = 5.0 - space.config.hit_clear_m
     free = space.free_distance_m(pos, (1.0, 0.0, 0.0), radius_m, 20.0)
     assert free == pytest.approx(expected, abs=1.5 * VOXEL_M), free
@@ -134,7 +142,8 @@ def test_occupied_persists_until_seen_free_again():
     space = KnownSpace()
     pos = np.array([0.0, 0.0, -7.0])
     wall_point = pos + np.array([4.0 + 0.01, 0.0, 0.0])
-    space.integrate(_wall_depth(4.0), K, pos, LEVEL_NORTH)
+    for _ in range(2):  # a surface is an obstacle once hit in two frames
+        space.integrate(_wall_depth(4.0), K, pos, LEVEL_NORTH)
     assert space.state_at(wall_point) == OCCUPIED
     # turn away (east) and see a far wall; then see nothing at all: still occupied
     east = rotation_321(0.0, 0.0, math.pi / 2)
@@ -151,7 +160,8 @@ def test_occupied_persists_until_seen_free_again():
 def test_the_grid_follows_the_vehicle_and_keeps_what_stays_inside():
     space = KnownSpace()
     pos = np.array([0.0, 0.0, -7.0])
-    space.integrate(_wall_depth(4.0), K, pos, LEVEL_NORTH)
+    for _ in range(2):  # a surface is an obstacle once hit in two frames
+        space.integrate(_wall_depth(4.0), K, pos, LEVEL_NORTH)
     wall_point = pos + np.array([4.01, 0.0, 0.0])
     half_xy = space.config.size_xy_vox * VOXEL_M / 2
     space.mark_vehicle(pos + np.array([0.0, 0.6 * half_xy, 0.0]))  # shifts the grid east
@@ -227,3 +237,17 @@ def test_near_field_excuses_unseen_rim_but_never_an_obstacle():
     wall_north_m = (space.origin_vox[0] + space.grid.shape[0] // 2 + 2) * VOXEL_M
     blocked = space.free_distance_m(pos, (1, 0, 0), 0.35, 10.0, 0.2, 0.35, 1.05)
     assert blocked <= wall_north_m - pos[0]
+
+
+def test_a_one_frame_hit_is_tentative_and_confirmed_by_a_second_frame():
+    space = KnownSpace()
+    pos = np.array([0.0, 0.0, -7.0])
+    wall_point = pos + np.array([3.01, 0.0, 0.0])
+    space.integrate(_wall_depth(3.0), K, pos, LEVEL_NORTH)
+    assert space.state_at(wall_point) == TENTATIVE  # not free, not yet an obstacle
+    assert space.free_distance_m(pos, (1, 0, 0), 0.0, 10.0) < 3.0
+    space.integrate(_wall_depth(30.0), K, pos, LEVEL_NORTH)  # a false match: seen through
+    assert space.state_at(wall_point) == FREE
+    space.integrate(_wall_depth(3.0), K, pos, LEVEL_NORTH)
+    space.integrate(_wall_depth(3.0), K, pos, LEVEL_NORTH)
+    assert space.state_at(wall_point) == OCCUPIED

@@ -8,6 +8,8 @@ a mode, the avoidance flag of Fig. 11, a position setpoint and a yaw out.
 * :mod:`~companion.guidance.memory` — obstacles remembered out of the field of view.
 * :mod:`~companion.guidance.avoidance` — NAVIGATE / AVOID / HOLD with hysteresis.
 * :mod:`~companion.guidance.config` — the tuning, one frozen dataclass.
+* :mod:`~companion.guidance.envelope` — the safety envelope: the carrot inside known-free
+  space (:mod:`companion.known_space`) and the stopping-distance speed limit.
 """
 
 from companion.guidance.avoidance import (

@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from companion.guidance import GuidanceConfig, Mode
+from companion.guidance.envelope import EnvelopeConfig
+from companion.known_space import KnownSpaceConfig
 from companion.perception import PerceptionConfig
 from companion.pipeline import AvoidancePipeline, PoseAtCapture
 from plant_sim.lockstep.history import History
@@ -53,6 +55,8 @@ class RunConfig:
     render: RenderParams = field(default_factory=RenderParams)
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
     guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
+    known_space: KnownSpaceConfig = field(default_factory=KnownSpaceConfig)
+    envelope: EnvelopeConfig = field(default_factory=EnvelopeConfig)
     vehicle: QuadrotorParams = field(default_factory=QuadrotorParams)
     control: ControlParams = field(default_factory=ControlParams)
     # The companion's death (SIGKILL) in lockstep: from this simulation time on, no frame
@@ -155,7 +159,9 @@ def run_scene(
     )
     renderer = StereoCameraRenderer(cfg.camera, cfg.render)
     intrinsics = cfg.camera.intrinsics
-    pipeline = AvoidancePipeline(scene.goal_ned_m, cfg.perception, cfg.guidance)
+    pipeline = AvoidancePipeline(
+        scene.goal_ned_m, cfg.perception, cfg.guidance, cfg.known_space, cfg.envelope
+    )
     goal = np.asarray(scene.goal_ned_m, dtype=float)
     history = History()
     frame_period_s = 1.0 / cfg.camera_rate_hz
