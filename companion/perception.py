@@ -692,7 +692,8 @@ class StereoPerception:
         matcher, n_disp, block = self._matcher(frame.intrinsics)
         height, width = frame.left.shape
         left, right = self._prefiltered(frame)
-        pad_x, pad_y = n_disp, block // 2
+        # Half a block on each side; more on a frame shorter than a block (OpenCV refuses it).
+        pad_x, pad_y = n_disp, max(block // 2, (block + 2 - height) // 2)
         out = matcher.compute(_padded(left, pad_x, pad_y), _padded(right, pad_x, pad_y))
         disp = out[pad_y : pad_y + height, pad_x : pad_x + width]
         if self.config.min_edge_ratio > 0.0:
@@ -760,7 +761,7 @@ class StereoPerception:
             matcher.setSpeckleRange(1)
             matcher.setDisp12MaxDiff(max(cfg.lr_max_diff_px, 0))
             self._matchers[key] = matcher
-        pad_y = _NEAR_BLOCK_PX // 2
+        pad_y = max(_NEAR_BLOCK_PX // 2, (_NEAR_BLOCK_PX + 2 - h4) // 2)
         small = [
             _padded(cv2.resize(im, (w4, h4), interpolation=cv2.INTER_AREA), n_disp, pad_y)
             for im in (frame.left, frame.right)
