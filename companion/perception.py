@@ -700,11 +700,13 @@ class StereoPerception:
             # Aperture: along a near-horizontal edge a match is only as good as the
             # rectification (a 2 px vertical error on a 5° edge shifts it by 23 px).
             disp[_horizontal_edges(left, block, self.config.min_edge_ratio)] = -_DISP_SCALE
-        # The right camera sees column x - d only if x - d >= 0; a match within
-        # _EDGE_MARGIN_PX of its edge leans on the black band (biased low): unknown too.
-        n_band = min(n_disp + _EDGE_MARGIN_PX, width)
+        # The right camera sees column x - d only if x - d >= 0; a match whose right block
+        # reaches into the black band (x - d < half a block + _EDGE_MARGIN_PX) leans on it
+        # and is as likely wrong as right: unknown too.
+        margin = block // 2 + _EDGE_MARGIN_PX
+        n_band = min(n_disp + margin, width)
         band = disp[:, :n_band]
-        limit = _DISP_SCALE * (np.arange(n_band, dtype=np.int16) - _EDGE_MARGIN_PX)
+        limit = _DISP_SCALE * (np.arange(n_band, dtype=np.int16) - margin)
         band[band > limit] = -_DISP_SCALE
         return disp
 
