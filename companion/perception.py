@@ -627,7 +627,9 @@ def _horizontal_edges(image: np.ndarray, block: int, ratio: float) -> np.ndarray
     gy = cv2.convertScaleAbs(dy)
     ax = cv2.blur(gx, (block, block))
     ay = cv2.blur(gy, (block, block))
-    return ax.astype(np.float32) < np.float32(ratio) * ay
+    # ax < ratio·ay as ax / ratio < ay in uint8: where ax / ratio saturates, ay (<= 255)
+    # cannot exceed it, which is the right answer.
+    return cv2.compare(cv2.convertScaleAbs(ax, alpha=1.0 / ratio), ay, cv2.CMP_LT).view(bool)
 
 
 def _auto_block_size(width_px: int) -> int:
