@@ -80,7 +80,7 @@ _PREFILTER_BASE_PX = 1.0  # Gaussian prefilter sigma on a clean image [px]
 _NOISE_FLOOR = 3.0  # [grey levels] above which the prefilter grows
 _PREFILTER_PER_NOISE = 0.1  # Gaussian prefilter sigma [px] per grey level of noise above it
 _PREFILTER_MAX_PX = 2.0
-_MIN_SIDE_CAP_PX = 20.0  # the size gate never asks for more than a 20 px square
+_MIN_SIDE_CAP_PX = 20.0  # the size gate never asks for more than a 20 px square (at 320 px)
 _EDGE_MARGIN_PX = 2  # matches this close to the right image's left edge are unknown [px]
 _NEAR_SCALE = 4  # the coarse pass runs at a quarter of the resolution
 _NEAR_BLOCK_PX = 5  # its block (20 px at full resolution)
@@ -857,7 +857,7 @@ class StereoPerception:
             # Capped: a near surface's coverage is patchy, mismatch clusters stay small.
             side_px = min(
                 cfg.min_obstacle_size_m * disp_half[seed[1], seed[0]] / (_DISP_SCALE * b_m),
-                _MIN_SIDE_CAP_PX,
+                _MIN_SIDE_CAP_PX * width / _REFERENCE_WIDTH_PX,
             )
             if 4 * stats[label, cv2.CC_STAT_AREA] < side_px * side_px:
                 continue  # smaller than the smallest obstacle reported: a mismatch cluster
