@@ -868,6 +868,19 @@ class StereoPerception:
             area, _, _, rect = cv2.floodFill(
                 disp_px, fill, seed, 0, loDiff=step_px, upDiff=step_px, flags=flags
             )
+            blob_area = int(stats[label, cv2.CC_STAT_AREA])
+            if 2 * area < blob_area:
+                # The nearest pixel was a lone wrong match (no depth-continuous neighbours):
+                # fill again from the blob's pixel of median disparity.
+                x, y, w, h = (int(v) for v in stats[label, :4])
+                ys, xs = np.nonzero(labels[y : y + h, x : x + w] == label)
+                d = disp_half[by + y + ys, bx + x + xs]
+                pick = int(np.argsort(d, kind="stable")[len(d) // 2])
+                seed = (int(bx + x + xs[pick]), int(by + y + ys[pick]))
+                if not fill[seed[1] + 1, seed[0] + 1]:
+                    area, _, _, rect = cv2.floodFill(
+                        disp_px, fill, seed, 0, loDiff=step_px, upDiff=step_px, flags=flags
+                    )
             regions.append((value, rect, int(area)))
 
         obstacles = []
