@@ -80,7 +80,7 @@ _PREFILTER_BASE_PX = 1.0  # Gaussian prefilter sigma on a clean image [px]
 _NOISE_FLOOR = 3.0  # [grey levels] above which the prefilter grows
 _PREFILTER_PER_NOISE = 0.1  # Gaussian prefilter sigma [px] per grey level of noise above it
 _PREFILTER_MAX_PX = 2.0
-_MIN_SIDE_CAP_PX = 20.0  # the size gate never asks for more than a 20 px square
+_MIN_SIDE_CAP_PX = 20.0  # the size gate never asks for more than a 20 px square (at 320 px)
 _EDGE_MARGIN_PX = 2  # matches this close to the right image's left edge are unknown [px]
 _NEAR_SCALE = 4  # the coarse pass runs at a quarter of the resolution
 _NEAR_BLOCK_PX = 5  # its block (20 px at full resolution)
@@ -632,7 +632,9 @@ def _horizontal_edges(image: np.ndarray, block: int, ratio: float) -> np.ndarray
     gy = cv2.convertScaleAbs(dy)
     ax = cv2.blur(gx, (block, block))
     ay = cv2.blur(gy, (block, block))
-    return ax.astype(np.float32) < np.float32(ratio) * ay
+    # ax < ratio·ay as ax / ratio < ay in uint8: where ax / ratio saturates, ay (<= 255)
+    # cannot exceed it, which is the right answer.
+    return cv2.compare(cv2.convertScaleAbs(ax, alpha=1.0 / ratio), ay, cv2.CMP_LT).view(bool)
 
 
 def _auto_block_size(width_px: int) -> int:
@@ -697,18 +699,21 @@ class StereoPerception:
         matcher, n_disp, block = self._matcher(frame.intrinsics)
         height, width = frame.left.shape
         left, right = self._prefiltered(frame)
-        pad_x, pad_y = n_disp, block // 2
+        # Half a block on each side; more on a frame shorter than a block (OpenCV refuses it).
+        pad_x, pad_y = n_disp, max(block // 2, (block + 2 - height) // 2)
         out = matcher.compute(_padded(left, pad_x, pad_y), _padded(right, pad_x, pad_y))
         disp = out[pad_y : pad_y + height, pad_x : pad_x + width]
         if self.config.min_edge_ratio > 0.0:
             # Aperture: along a near-horizontal edge a match is only as good as the
             # rectification (a 2 px vertical error on a 5° edge shifts it by 23 px).
             disp[_horizontal_edges(left, block, self.config.min_edge_ratio)] = -_DISP_SCALE
-        # The right camera sees column x - d only if x - d >= 0; a match within
-        # _EDGE_MARGIN_PX of its edge leans on the black band (biased low): unknown too.
-        n_band = min(n_disp + _EDGE_MARGIN_PX, width)
+        # The right camera sees column x - d only if x - d >= 0; a match whose right block
+        # reaches into the black band (x - d < half a block + _EDGE_MARGIN_PX) leans on it
+        # and is as likely wrong as right: unknown too.
+        margin = block // 2 + _EDGE_MARGIN_PX
+        n_band = min(n_disp + margin, width)
         band = disp[:, :n_band]
-        limit = _DISP_SCALE * (np.arange(n_band, dtype=np.int16) - _EDGE_MARGIN_PX)
+        limit = _DISP_SCALE * (np.arange(n_band, dtype=np.int16) - margin)
         band[band > limit] = -_DISP_SCALE
         return disp
 
@@ -765,7 +770,7 @@ class StereoPerception:
             matcher.setSpeckleRange(1)
             matcher.setDisp12MaxDiff(max(cfg.lr_max_diff_px, 0))
             self._matchers[key] = matcher
-        pad_y = _NEAR_BLOCK_PX // 2
+        pad_y = max(_NEAR_BLOCK_PX // 2, (_NEAR_BLOCK_PX + 2 - h4) // 2)
         small = [
             _padded(cv2.resize(im, (w4, h4), interpolation=cv2.INTER_AREA), n_disp, pad_y)
             for im in (frame.left, frame.right)
@@ -866,7 +871,7 @@ class StereoPerception:
             # Capped: a near surface's coverage is patchy, mismatch clusters stay small.
             side_px = min(
                 cfg.min_obstacle_size_m * disp_half[seed[1], seed[0]] / (_DISP_SCALE * b_m),
-                _MIN_SIDE_CAP_PX,
+                _MIN_SIDE_CAP_PX * width / _REFERENCE_WIDTH_PX,
             )
             if 4 * stats[label, cv2.CC_STAT_AREA] < side_px * side_px:
                 continue  # smaller than the smallest obstacle reported: a mismatch cluster
@@ -877,6 +882,19 @@ class StereoPerception:
             area, _, _, rect = cv2.floodFill(
                 disp_px, fill, seed, 0, loDiff=step_px, upDiff=step_px, flags=flags
             )
+            blob_area = int(stats[label, cv2.CC_STAT_AREA])
+            if 2 * area < blob_area:
+                # The nearest pixel was a lone wrong match (no depth-continuous neighbours):
+                # fill again from the blob's pixel of median disparity.
+                x, y, w, h = (int(v) for v in stats[label, :4])
+                ys, xs = np.nonzero(labels[y : y + h, x : x + w] == label)
+                d = disp_half[by + y + ys, bx + x + xs]
+                pick = int(np.argsort(d, kind="stable")[len(d) // 2])
+                seed = (int(bx + x + xs[pick]), int(by + y + ys[pick]))
+                if not fill[seed[1] + 1, seed[0] + 1]:
+                    area, _, _, rect = cv2.floodFill(
+                        disp_px, fill, seed, 0, loDiff=step_px, upDiff=step_px, flags=flags
+                    )
             regions.append((value, rect, int(area)))
 
         obstacles = []

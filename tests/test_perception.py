@@ -557,3 +557,23 @@ def test_textured_wall_and_pole_become_obstacles(renderer, perception, shape):
     nearest = result.obstacles[0]
     assert nearest.nearest_range_m == pytest.approx(surface_m, abs=0.15)
     assert any(np.linalg.norm(o.center_ned_m - inside) <= o.radius_m for o in result.obstacles)
+
+
+@pytest.mark.parametrize("size", [(1, 1), (5, 1), (8, 4), (2, 9), (33, 200), (321, 17)])
+def test_any_frame_size_gives_a_depth_map_not_an_error(perception, size):
+    """Tiny and odd frames (smaller than a matching block, narrower than the disparity
+    range): a depth map of the frame's shape, unknown where nothing can be matched."""
+    width, height = size
+    k = CameraModel(width_px=width, height_px=height).intrinsics
+    rng = np.random.default_rng(width * 1000 + height)
+    for left, right in (
+        (rng.integers(0, 256, (height, width), dtype=np.uint8),) * 2,
+        (np.zeros((height, width), np.uint8), np.full((height, width), 255, np.uint8)),
+    ):
+        result = perception.process(StereoFrame(0, 0, k, left, right), np.zeros(3), LEVEL)
+        assert result.depth_m.shape == (height, width)
+        c = result.counts
+        assert c.n_valid + c.n_unmatched + c.n_beyond_range == width * height
+    flat = np.full((height, width), 90, np.uint8)
+    result = perception.process(StereoFrame(0, 0, k, flat, flat), np.zeros(3), LEVEL)
+    assert result.obstacles == () and np.all(np.isnan(result.depth_m))
