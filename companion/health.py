@@ -3,8 +3,8 @@
 The companion (``--health-file PATH``) rewrites one small JSON file about once a second,
 atomically (write + rename)::
 
-    {"healthy": false, "state": "no_telemetry", "reason": "heartbeats from the autopilot
-     but no LOCAL_POSITION_NED/ATTITUDE for 4.0 s", "time_unix": 1763937000.1, "pid": 7}
+    {"healthy": false, "state": "no_telemetry", "reason": "autopilot heartbeats but no new
+     LOCAL_POSITION_NED/ATTITUDE for 4.0 s", "time_unix": 1763937000.1, "pid": 7}
 
 It is healthy only while autopilot heartbeats and telemetry (poses) arrive, and, once the
 companion steers or holds the vehicle, stereo frames too. ``--ready-file`` stays what it
@@ -20,6 +20,7 @@ Only the standard library is imported here: a healthcheck runs every few seconds
 from __future__ import annotations
 
 import argparse
+import enum
 import json
 import os
 import sys
@@ -28,7 +29,27 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["HealthFile", "HealthInputs", "HealthReport", "HealthTracker", "check", "main"]
+__all__ = [
+    "HealthFile",
+    "HealthInputs",
+    "HealthReport",
+    "HealthState",
+    "HealthTracker",
+    "check",
+    "main",
+]
+
+
+class HealthState(enum.Enum):
+    """Why the companion can or cannot steer (the file's ``state``)."""
+
+    OK = "ok"
+    NO_AUTOPILOT = "no_autopilot"  # nothing from the autopilot yet, or no heartbeat
+    LINK_LOST = "link_lost"  # it was there, now nothing arrives
+    NO_TELEMETRY = "no_telemetry"  # heartbeats, but no (new) LOCAL_POSITION_NED/ATTITUDE
+    NO_FRAMES = "no_frames"  # steering or holding, but no (new) stereo frame
+    FATAL = "fatal"  # a terminal error (a refused takeoff): the service stops
+    STOPPED = "stopped"  # the service has stopped
 
 
 @dataclass(frozen=True)
@@ -48,8 +69,8 @@ class HealthInputs:
 @dataclass(frozen=True)
 class HealthReport:
     healthy: bool
-    state: str  # ok | no_autopilot | link_lost | no_telemetry | no_frames | fatal | stopped
-    reason: str
+    state: HealthState
+    reason: str  # one line for people
 
 
 class HealthTracker:
@@ -76,24 +97,30 @@ class HealthTracker:
         if x.frames_received != self._frames:
             self._frames, self._frames_s = x.frames_received, x.now_s
         if x.fatal is not None:
-            return HealthReport(False, "fatal", x.fatal)
+            return HealthReport(False, HealthState.FATAL, x.fatal)
         if not x.link_up:
             if self._ever_up:
                 return HealthReport(
-                    False, "link_lost", f"autopilot link lost: nothing received on {x.link_url}"
+                    False,
+                    HealthState.LINK_LOST,
+                    f"autopilot link lost: nothing received on {x.link_url}",
                 )
             return HealthReport(
-                False, "no_autopilot", f"no message from the autopilot on {x.link_url} yet"
+                False,
+                HealthState.NO_AUTOPILOT,
+                f"no message from the autopilot on {x.link_url} yet",
             )
         self._ever_up = True
         if not x.autopilot_seen:
             return HealthReport(
-                False, "no_autopilot", f"messages on {x.link_url} but no autopilot heartbeat"
+                False,
+                HealthState.NO_AUTOPILOT,
+                f"messages on {x.link_url} but no autopilot heartbeat",
             )
         if self._stamp_s is None:
             return HealthReport(
                 False,
-                "no_telemetry",
+                HealthState.NO_TELEMETRY,
                 "autopilot heartbeats but no LOCAL_POSITION_NED/ATTITUDE yet "
                 "(no EKF origin/GPS, or streams refused)",
             )
@@ -101,23 +128,29 @@ class HealthTracker:
         if age > self.telemetry_timeout_s:
             return HealthReport(
                 False,
-                "no_telemetry",
+                HealthState.NO_TELEMETRY,
                 f"autopilot heartbeats but no new LOCAL_POSITION_NED/ATTITUDE for {age:.1f} s",
             )
         if x.flying:
             if self._frames_s is None:
-                return HealthReport(False, "no_frames", "steering the vehicle but no frame yet")
+                return HealthReport(
+                    False, HealthState.NO_FRAMES, "steering the vehicle but no frame yet"
+                )
             frame_age = x.now_s - self._frames_s
             if frame_age > self.frame_timeout_s:
                 return HealthReport(
                     False,
-                    "no_frames",
+                    HealthState.NO_FRAMES,
                     f"steering the vehicle but no stereo frame for {frame_age:.1f} s",
                 )
-            return HealthReport(True, "ok", "autopilot heartbeats, telemetry and frames arrive")
+            return HealthReport(
+                True, HealthState.OK, "autopilot heartbeats, telemetry and frames arrive"
+            )
         frames = "frames arrive" if self._frames_s is not None else "no frames yet"
         return HealthReport(
-            True, "ok", f"autopilot heartbeats and telemetry arrive (not steering; {frames})"
+            True,
+            HealthState.OK,
+            f"autopilot heartbeats and telemetry arrive (not steering; {frames})",
         )
 
 
@@ -138,7 +171,7 @@ class HealthFile:
         self.last = report
         record = {
             "healthy": report.healthy,
-            "state": report.state,
+            "state": report.state.value,
             "reason": report.reason,
             "time_unix": round(time.time(), 3),
             "pid": os.getpid(),
@@ -148,7 +181,7 @@ class HealthFile:
         partial.replace(self.path)
 
     def stopped(self, why: str = "the companion stopped") -> None:
-        self.write(HealthReport(False, "stopped", why))
+        self.write(HealthReport(False, HealthState.STOPPED, why))
 
 
 def check(path: Path, max_age_s: float, now_unix: float | None = None) -> tuple[bool, str]:

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from companion.config import ConfigError, build_parser, config_from_args
-from companion.health import HealthFile, HealthInputs, HealthTracker, check
+from companion.health import HealthFile, HealthInputs, HealthState, HealthTracker, check
 from protocols.logfile import LogFileError, start_log_file
 
 URL = "udpin:0.0.0.0:14550"
@@ -33,13 +33,13 @@ def _inputs(now_s, **kw):
 
 def test_nothing_from_the_autopilot_is_unhealthy_with_the_url():
     report = HealthTracker().update(_inputs(0.0, link_up=False, autopilot_seen=False))
-    assert not report.healthy and report.state == "no_autopilot"
+    assert not report.healthy and report.state is HealthState.NO_AUTOPILOT
     assert URL in report.reason
 
 
 def test_heartbeats_without_telemetry_are_unhealthy():
     report = HealthTracker().update(_inputs(0.0))
-    assert not report.healthy and report.state == "no_telemetry"
+    assert not report.healthy and report.state is HealthState.NO_TELEMETRY
 
 
 def test_heartbeats_and_telemetry_are_healthy_then_stale_telemetry_is_not():
@@ -47,19 +47,19 @@ def test_heartbeats_and_telemetry_are_healthy_then_stale_telemetry_is_not():
     assert tracker.update(_inputs(0.0, telemetry_stamp_ns=1)).healthy
     assert tracker.update(_inputs(1.5, telemetry_stamp_ns=1)).healthy
     stale = tracker.update(_inputs(2.5, telemetry_stamp_ns=1))  # same stamp: nothing new
-    assert not stale.healthy and stale.state == "no_telemetry" and "2.5 s" in stale.reason
+    assert not stale.healthy and stale.state is HealthState.NO_TELEMETRY and "2.5 s" in stale.reason
     assert tracker.update(_inputs(3.0, telemetry_stamp_ns=2)).healthy
 
 
 def test_flying_needs_frames():
     tracker = HealthTracker(frame_timeout_s=1.0)
     no_frames = tracker.update(_inputs(0.0, telemetry_stamp_ns=1, flying=True))
-    assert not no_frames.healthy and no_frames.state == "no_frames"
+    assert not no_frames.healthy and no_frames.state is HealthState.NO_FRAMES
     assert tracker.update(
         _inputs(0.5, telemetry_stamp_ns=2, frames_received=3, flying=True)
     ).healthy
     lost = tracker.update(_inputs(2.0, telemetry_stamp_ns=3, frames_received=3, flying=True))
-    assert not lost.healthy and lost.state == "no_frames"
+    assert not lost.healthy and lost.state is HealthState.NO_FRAMES
     # on the ground / not steering: frames are not required
     assert tracker.update(_inputs(2.1, telemetry_stamp_ns=4, frames_received=3)).healthy
 
@@ -68,12 +68,16 @@ def test_link_lost_after_it_was_up():
     tracker = HealthTracker()
     assert tracker.update(_inputs(0.0, telemetry_stamp_ns=1)).healthy
     lost = tracker.update(_inputs(5.0, link_up=False, autopilot_seen=False))
-    assert not lost.healthy and lost.state == "link_lost" and URL in lost.reason
+    assert not lost.healthy and lost.state is HealthState.LINK_LOST and URL in lost.reason
 
 
 def test_fatal_wins():
     report = HealthTracker().update(_inputs(0.0, telemetry_stamp_ns=1, fatal="takeoff failed"))
-    assert not report.healthy and report.state == "fatal" and report.reason == "takeoff failed"
+    assert (
+        not report.healthy
+        and report.state is HealthState.FATAL
+        and report.reason == "takeoff failed"
+    )
 
 
 def test_health_file_is_rewritten_and_checked(tmp_path):
