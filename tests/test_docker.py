@@ -5,8 +5,10 @@ README's setup does not. (scripts/docker-smoke.sh flies the stack,
 scripts/docker-smoke-autopilot.sh the companion alone against ArduCopter SITL.)
 """
 
+import os
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -258,3 +260,17 @@ def test_image_installs_only_the_package():
     # the requirements file is written from pyproject.toml only
     generator = dockerfile[: dockerfile.index("> /tmp/requirements.txt")]
     assert 'p["project"]["dependencies"] + p["build-system"]["requires"]' in generator
+
+
+@pytest.mark.parametrize(
+    "files", [[COMPOSE], [AUTOPILOT], [AUTOPILOT, SERIAL]], ids=["sil", "autopilot", "serial"]
+)
+def test_compose_v1_accepts_the_files(files, tmp_path):
+    """`docker-compose config` validates against the Compose schema without an engine."""
+    binary = shutil.which("docker-compose")
+    if binary is None:
+        pytest.skip("docker-compose (Compose v1) is not installed")
+    args = [binary, *(a for f in files for a in ("-f", str(f))), "config", "-q"]
+    env = {"PATH": os.environ.get("PATH", ""), "HOME": str(tmp_path)}
+    done = subprocess.run(args, capture_output=True, text=True, timeout=60, env=env)
+    assert done.returncode == 0, done.stderr
