@@ -29,15 +29,19 @@ from protocols.process import run_until_signalled
 __all__ = ["main", "run"]
 
 
-def run(config, ready_file: Path | None = None) -> int:
+def run(config, ready_file: Path | None = None, health_file: Path | None = None) -> int:
     """Open the service, print the readiness line, run until SIGINT/SIGTERM, print stats.
 
-    With ``ready_file`` the readiness line is also written there (container healthchecks
-    test for it); it is removed at exit.
+    With ``ready_file`` the readiness line is also written there (sockets bound); it is
+    removed at exit. With ``health_file`` the service rewrites it every second
+    (:mod:`companion.health`: can it steer now?).
     """
+    from companion.health import HealthFile
     from companion.service import CompanionService
 
     service = CompanionService(config)
+    if health_file is not None:
+        service.health = HealthFile(health_file)
     stats = run_until_signalled(service, log_name="companion", ready_file=ready_file)
     print("COMPANION STATS " + json.dumps(stats, sort_keys=True), flush=True)
     if service.fatal is not None:
@@ -50,8 +54,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point (``companion``)."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from companion.config import ConfigError, build_parser, config_from_args
+    from protocols.logfile import LogFileError, start_log_file
 
     args = build_parser().parse_args(argv)
+    try:
+        start_log_file(args.log_file)
+    except LogFileError as exc:
+        print(f"companion: {exc}", file=sys.stderr)
+        return 2
     logging.basicConfig(
         level=getattr(logging, args.log_level),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
@@ -63,7 +73,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"companion: configuration error: {exc}", file=sys.stderr)
         return 2
     try:
-        return run(config, args.ready_file)
+        return run(config, args.ready_file, args.health_file)
     except OSError as exc:
         print(f"companion: {exc}", file=sys.stderr)
         return 1

@@ -345,6 +345,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar=("N", "E", "D"),
         help="waypoint in LOCAL_NED [m], repeatable (instead of --goal)",
     )
+    p.add_argument(
+        "--waypoints",
+        metavar="N,E,D[;N,E,D...]",
+        help="waypoints in LOCAL_NED [m] as one argument, e.g. '0,0,-7' or '20,0,-7;40,0,-7' "
+        "(for environment variables; instead of --goal/--waypoint)",
+    )
     p.add_argument("--threshold-m", type=float, help="obstacle detection range [m]")
     p.add_argument("--safety-margin-m", type=float, help="boundary inflation margin [m]")
     add_signing_arguments(p)
@@ -374,7 +380,35 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="also write the readiness line to this file (removed at exit): a healthcheck",
     )
+    p.add_argument(
+        "--health-file",
+        type=Path,
+        help="rewrite this JSON file every second: healthy only while autopilot heartbeats, "
+        "telemetry (and, when steering, frames) arrive; check it with "
+        "`python -m companion.health FILE`",
+    )
+    p.add_argument(
+        "--log-file", type=Path, help="also copy stdout and stderr to this file (appended)"
+    )
     return p
+
+
+def parse_waypoints(text: str) -> list[list[float]]:
+    """``"N,E,D;N,E,D"`` → ``[[N, E, D], [N, E, D]]`` (raises :class:`ConfigError`)."""
+    out = []
+    for i, part in enumerate(text.split(";")):
+        fields = [f for f in part.replace(",", " ").split() if f]
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            values = []
+        if len(values) != 3 or not all(math.isfinite(v) for v in values):
+            raise ConfigError(
+                f"--waypoints: waypoint {i + 1} {part.strip()!r} is not three numbers N,E,D "
+                f"(in {text!r}; separate waypoints with ';')"
+            )
+        out.append(values)
+    return out
 
 
 def _merge(base: dict[str, Any], section: str, values: dict[str, Any]) -> None:
@@ -394,8 +428,20 @@ def config_from_args(
     _check_keys(d, _TOP_KEYS, "")
     if args.vehicle_id:
         d["vehicle_id"] = args.vehicle_id
-    if args.goal is not None and args.waypoint:
-        raise ConfigError("give --goal or --waypoint, not both")
+    given = [
+        n
+        for n, v in (
+            ("--goal", args.goal),
+            ("--waypoint", args.waypoint),
+            ("--waypoints", args.waypoints),
+        )
+        if v
+    ]
+    if len(given) > 1:
+        raise ConfigError(f"give one of --goal, --waypoint, --waypoints, not {' and '.join(given)}")
+    if args.waypoints:
+        d.pop("goal_ned_m", None)
+        d["waypoints_ned_m"] = parse_waypoints(args.waypoints)
     if args.goal is not None:
         d.pop("waypoints_ned_m", None)
         d["goal_ned_m"] = list(args.goal)
@@ -405,7 +451,9 @@ def config_from_args(
     try:
         key_text = signing_key_text(args, env)
     except OSError as exc:
-        raise ConfigError(f"cannot read --signing-key-file: {exc.strerror}") from None
+        raise ConfigError(
+            f"cannot read the signing key file {exc.filename}: {exc.strerror}"
+        ) from None
     _merge(
         d,
         "mavlink",

@@ -44,6 +44,7 @@ from companion.config import CompanionConfig
 from companion.failsafe import FailsafeMonitor, Health
 from companion.frames_sub import FrameSubscriber, LatestFrameSlot, PublisherProbe
 from companion.guidance import Mode, Reason
+from companion.health import HealthFile, HealthInputs
 from companion.link.connection import MavlinkConnection
 from companion.link.flavour import (
     Flavour,
@@ -187,6 +188,7 @@ class CompanionService:
         self._silence_reported_s = -math.inf
         self.fatal: str | None = None  # terminal error (a refused takeoff): run() returns
         self._text_id = 0  # id of the last chunked STATUSTEXT (1..255)
+        self.health: HealthFile | None = None  # --health-file: rewritten once a second
 
     # ---- lifecycle -----------------------------------------------------------------
     def open(self) -> None:
@@ -215,6 +217,8 @@ class CompanionService:
 
     def close(self) -> dict[str, Any]:
         stats = self.stats()
+        if self.health is not None:
+            self.health.stopped(self.fatal or "the companion stopped")
         if self._probe is not None:
             self._probe.close()
         if self._subscriber is not None:
@@ -643,6 +647,7 @@ class CompanionService:
             self._check_takeover(now_s)
             self._next_heartbeat_s = now_s + cfg.heartbeat_period_s
             self._report_refusals(now_s)
+            self._report_health(now_s)
         if self._link_up and now_s - self._last_rx_s > self.config.failsafe.link_timeout_s:
             self._link_lost(now_s)
         if not self._link_up:
@@ -1059,6 +1064,23 @@ class CompanionService:
         if self._newest_frame_ns is None:
             return CompanionState.BOOT
         return CompanionState.STANDBY
+
+    def _report_health(self, now_s: float) -> None:
+        """Rewrite the health file (companion.health) from the state we already have."""
+        if self.health is None:
+            return
+        self.health.update(
+            HealthInputs(
+                now_s=now_s,
+                link_up=self._link_up,
+                autopilot_seen=self.policy is not None,
+                link_url=self.config.link.url,
+                telemetry_stamp_ns=self.poses.newest_ns,
+                frames_received=self.slot.counters.received,
+                flying=self.modes.phase in (ControlPhase.ACTIVE, ControlPhase.HOLD),
+                fatal=self.fatal,
+            )
+        )
 
     def _notice(self, text: str, severity: int = _SEV_INFO) -> None:
         """STATUSTEXT to the ground station; longer than 50 characters: MAVLink 2 chunks."""

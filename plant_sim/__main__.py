@@ -156,6 +156,9 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="also write the readiness line to this file (removed at exit): a healthcheck",
     )
+    p.add_argument(
+        "--log-file", type=Path, help="also copy stdout and stderr to this file (appended)"
+    )
     return p
 
 
@@ -295,7 +298,14 @@ def run(config, ready_file: Path | None = None) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point (``plant-sim``)."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from protocols.logfile import LogFileError, start_log_file
+
     args = build_parser().parse_args(argv)
+    try:
+        start_log_file(args.log_file)
+    except LogFileError as exc:
+        print(f"plant-sim: {exc}", file=sys.stderr)
+        return 2
     logging.basicConfig(
         level=getattr(logging, args.log_level),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",

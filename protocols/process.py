@@ -19,6 +19,8 @@ from typing import Any, Protocol
 from protocols.readiness import announce_ready, withdraw_ready
 from protocols.signing import SIGNING_KEY_ENV
 
+SIGNING_KEY_FILE_ENV = SIGNING_KEY_ENV + "_FILE"  # a path: the key file (containers)
+
 __all__ = [
     "Service",
     "add_signing_arguments",
@@ -65,12 +67,17 @@ def add_signing_arguments(parser) -> None:
         metavar="HEX|PASSPHRASE",
         help=f"MAVLink 2 signing key (prefer --signing-key-file or ${SIGNING_KEY_ENV})",
     )
-    parser.add_argument("--signing-key-file", type=Path, help="file holding the signing key")
+    parser.add_argument(
+        "--signing-key-file",
+        type=Path,
+        help=f"file holding the signing key (or ${SIGNING_KEY_FILE_ENV})",
+    )
 
 
 def signing_key_text(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> str | None:
     """The key text from ``--signing-key-file``, else ``--signing-key``, else the
-    environment; None when signing is off.
+    environment (``$STEREO_AVOID_SIGNING_KEY_FILE``, a file, else
+    ``$STEREO_AVOID_SIGNING_KEY``); None when signing is off.
 
     Raises
     ------
@@ -82,6 +89,9 @@ def signing_key_text(args: argparse.Namespace, env: Mapping[str, str] | None = N
         return args.signing_key_file.read_text(encoding="utf-8")
     if args.signing_key:
         return args.signing_key
+    key_file = env.get(SIGNING_KEY_FILE_ENV)
+    if key_file:
+        return Path(key_file).read_text(encoding="utf-8")
     return env.get(SIGNING_KEY_ENV) or None
 
 
