@@ -182,7 +182,8 @@ def test_vehicle_position_is_free_and_start_bubble():
 
 
 def test_perception_depth_contract_nan_is_unknown():
-    """``PerceptionResult.depth_m``: Eq. (27) depth where matched, NaN in the blind band."""
+    """``PerceptionResult.depth_m``: Eq. (27) depth where matched, NaN where the right
+    camera cannot see the surface (true disparity beyond the pixel's column)."""
     from companion.perception import StereoPerception
     from plant_sim.stereo_camera import StereoCameraRenderer
     from plant_sim.world import paper_world
@@ -197,7 +198,10 @@ def test_perception_depth_contract_nan_is_unknown():
     assert depth.shape == truth.shape and depth.dtype == np.float32
     assert not depth.flags.writeable
     assert seen.blind_band_px > 0
-    assert np.all(np.isnan(depth[:, : seen.blind_band_px - 8]))
+    cols = np.arange(depth.shape[1])[None, :]
+    hidden = K.focal_baseline_m_px / truth > cols  # outside the right camera's view
+    assert hidden.sum() > 100
+    assert np.all(np.isnan(depth[hidden]))
     near = np.isfinite(depth) & (truth < 8.0)
     assert near.sum() > 1000
     rel = np.abs(depth[near] - truth[near]) / truth[near]
