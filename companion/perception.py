@@ -131,8 +131,10 @@ class PerceptionConfig:
         ``f·b / near_range_m``): it catches what is nearer than ``min_range_m`` instead of
         letting the main pass alias it to a larger depth; 0 disables it.
     max_range_m : float
-        Farthest depth reported [m]: matches beyond it (disparity below ``f·b / max_range_m``,
-        where one pixel of disparity error is metres of depth) are unknown, not free.
+        Farthest depth reported [m]: a match beyond it (disparity below ``f·b / max_range_m``,
+        where one pixel of disparity error is metres of depth) has no depth, only the fact
+        that nothing is nearer along its ray: ``depth_m`` is +inf there (NaN within
+        ``blind_band_px`` of the left edge, where it may be a false match).
     block_size_px : int or None
         Matching block size [px, odd]; ``None`` scales 9 px at 320 px width to the image.
     uniqueness_ratio : int
@@ -324,8 +326,9 @@ class PerceptionResult:
     depth_m : numpy.ndarray
         ``(H, W)`` float32 depth along the left camera's optical axis [m] (Eq. 27,
         ``f·b / d``), read-only; NaN = unknown: unmatched (textureless, occluded, failed
-        the left/right or uniqueness checks), outside the right camera's view, beyond
-        ``max_range_m``, or too near to measure.
+        the left/right or uniqueness checks), outside the right camera's view, or too near
+        to measure; +inf = matched beyond ``max_range_m``: nothing nearer along that ray
+        (never within ``blind_band_px`` of the left edge, where that is NaN).
     counts : ValidityCounts
         How many pixels are known, and why the others are not.
     blind_band_px : int
@@ -354,7 +357,8 @@ class ValidityCounts:
     n_unmatched : int
         No match: textureless, occluded, inconsistent, or outside the right camera's view.
     n_beyond_range : int
-        Matched farther than ``max_range_m`` (sky, distant ground): unknown, not free.
+        Matched farther than ``max_range_m`` (sky, distant ground): ``depth_m`` +inf, no
+        surface within range (NaN inside the blind band).
     n_too_near : int
         Of ``n_valid``: nearer than ``min_range_m``, ranged by the coarse pass only.
     n_coarse : int
@@ -525,9 +529,12 @@ def _fit_sphere(xs, ys, n_grid, disp, fx, fy, cx, cy, fb, cap_depth_m, max_half_
 
 
 @numba.njit(cache=True)
-def _merge_depth(disp, coarse, has_coarse, top, d_far, fb16, depth, too_near):
+def _merge_depth(disp, coarse, has_coarse, top, d_far, fb16, depth, too_near, far_from_col):
     """Coarse pass into the main disparity (both int16, 1/16 px, negative = unmatched), in
-    place, and the depth map ``fb16 / disp`` (NaN below ``d_far`` or unmatched).
+    place, and the depth map ``fb16 / disp``: NaN where unmatched; a match below ``d_far``
+    (farther than the range) is +inf from column ``far_from_col`` on (nothing nearer than
+    the range along that ray) and NaN left of it, where a far match cannot be told from a
+    false match into the band the right camera cannot see.
 
     Returns (n_valid, n_unmatched, n_coarse, n_too_near); ``too_near`` (uint8) marks the
     pixels the coarse pass ranged nearer than the main range (``> top``).
@@ -552,6 +559,8 @@ def _merge_depth(disp, coarse, has_coarse, top, d_far, fb16, depth, too_near):
             if d >= d_far:
                 depth[y, x] = fb16 / d
                 n_valid += 1
+            elif d >= 0 and x >= far_from_col:
+                depth[y, x] = np.inf
             else:
                 depth[y, x] = np.nan
                 if d < 0:
@@ -597,6 +606,7 @@ def _warm_up() -> None:
         16.0,
         np.empty((4, 4), np.float32),
         np.zeros((4, 4), np.uint8),
+        2,
     )
 
 
@@ -811,11 +821,10 @@ class StereoPerception:
         height, width = disp.shape
         fb = k.focal_baseline_m_px
         coarse = self.coarse_disparity_fixed(frame)
-        depth_m, counts = self._merge(disp, coarse, fb, self.num_disparities(k))
-        unknown_fraction = 1.0 - counts.n_valid / disp.size
-
         # columns the right camera cannot see at the nearest measured range
         band_px = self.num_disparities(k) + (cfg.block_size_px or _auto_block_size(width)) // 2
+        depth_m, counts = self._merge(disp, coarse, fb, self.num_disparities(k), band_px)
+        unknown_fraction = float(np.count_nonzero(np.isnan(depth_m))) / disp.size
 
         def result(obstacles: tuple[Obstacle, ...]) -> PerceptionResult:
             return PerceptionResult(
@@ -927,7 +936,12 @@ class StereoPerception:
         return result(tuple(obstacles))
 
     def _merge(
-        self, disp: np.ndarray, coarse: np.ndarray | None, fb: float, n_disp: int
+        self,
+        disp: np.ndarray,
+        coarse: np.ndarray | None,
+        fb: float,
+        n_disp: int,
+        band_px: int,
     ) -> tuple[np.ndarray, ValidityCounts]:
         """Merge the coarse pass into ``disp`` (in place) and make the depth map.
 
@@ -949,6 +963,7 @@ class StereoPerception:
             float(_DISP_SCALE * fb),
             depth,
             too_near,
+            band_px,
         )
         if n_too_near:
             halo = cv2.dilate(too_near, _NEAR_HALO).view(bool) & (too_near == 0)

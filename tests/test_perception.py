@@ -326,11 +326,13 @@ def test_depth_map_is_eq27_where_known_and_counts_add_up(renderer, perception):
     c = result.counts
     assert c.n_valid + c.n_unmatched + c.n_beyond_range == depth.size
     assert c.n_valid == np.count_nonzero(np.isfinite(depth))
-    assert result.unknown_fraction == pytest.approx(1.0 - c.n_valid / depth.size)
+    assert result.unknown_fraction == pytest.approx(np.isnan(depth).mean())
 
 
-def test_sky_and_far_ground_are_unknown_not_free(renderer, perception):
-    """Nothing is reported beyond max_range_m: the sky and distant ground are NaN."""
+def test_sky_and_far_ground_have_no_finite_depth(renderer, perception):
+    """Nothing beyond max_range_m gets a finite depth: a match there is +inf ("nothing
+    nearer along this ray", what the known-space map needs to certify the space ahead at
+    altitude), unmatched sky is NaN, and no +inf lies in the blind band."""
     world = World(ground=GroundPlane(0.0))
     pos = np.array([0.0, 0.0, -2.0])
     R = rotation_321(0.0, math.radians(-4.0), 0.0)  # nose down a little: ground to ~30 m
@@ -338,13 +340,17 @@ def test_sky_and_far_ground_are_unknown_not_free(renderer, perception):
     truth = renderer.render(world, pos, R).depth_left_m
     depth = result.depth_m
     max_range = perception.config.max_range_m
-    assert np.all(np.isnan(depth[np.isinf(truth)])), "sky must be unknown"
-    assert np.nanmax(depth) <= max_range
+    finite = np.isfinite(depth)
+    assert np.max(depth[finite]) <= max_range
+    assert not np.any(finite[np.isinf(truth)]), "sky must never get a depth"
     # Margin of two pixels of disparity around max_range: the matcher's error there.
     fb = CAMERA.intrinsics.focal_baseline_m_px
     beyond = truth > fb / (fb / max_range - 2.0)
-    assert beyond.any() and np.all(np.isnan(depth[beyond]))
+    assert beyond.any() and not np.any(finite[beyond])
+    assert np.isinf(depth[beyond]).any()  # matched far ground: known, nothing nearer
+    assert not np.any(np.isinf(depth[:, : result.blind_band_px]))
     assert result.counts.n_beyond_range + result.counts.n_unmatched > np.count_nonzero(beyond)
+    assert result.unknown_fraction == pytest.approx(np.isnan(depth).mean())
 
 
 def test_textureless_view_is_all_unknown(perception):
