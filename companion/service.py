@@ -365,7 +365,7 @@ class CompanionService:
                     self.counters["telemetry_unmapped"] += 1
                 elif self.poses.add_position(t, pos, vel):
                     self._observe(t)
-                    self._telemetry_newest_ns = self.poses.newest_ns
+                    self._telemetry_seen(t)
         elif mtype == "ATTITUDE":
             angles = (msg.roll, msg.pitch, msg.yaw)
             if not _in_range(angles, 2.0 * math.pi):
@@ -376,7 +376,7 @@ class CompanionService:
                     self.counters["telemetry_unmapped"] += 1
                 elif self.poses.add_attitude(t, *angles):
                     self._observe(t)
-                    self._telemetry_newest_ns = self.poses.newest_ns
+                    self._telemetry_seen(t)
         elif mtype == "TIMESYNC":
             self._on_timesync(msg, now_s)
         elif mtype == "COMMAND_ACK":
@@ -401,6 +401,11 @@ class CompanionService:
                 "autopilot WPNAV_SPEED %.2f m/s: stated speed limits stay below it", value / 100.0
             )
         self._wpnav_speed_mps = value / 100.0
+
+    def _telemetry_seen(self, t_ns: int) -> None:
+        """The newest autopilot telemetry stamp on the frame clock: the clock's "now"."""
+        if self._telemetry_newest_ns is None or t_ns > self._telemetry_newest_ns:
+            self._telemetry_newest_ns = t_ns
 
     def _frame_time_plausible(self, capture_ns: int) -> bool | None:
         """Capture time within the window around the clock model's now (any thread)."""
