@@ -94,6 +94,7 @@ _STREAMS = (
 _SEV_INFO = mavlink.MAV_SEVERITY_INFO
 _SEV_WARNING = mavlink.MAV_SEVERITY_WARNING
 _REBOOT_BACKSTEP_MS = 500  # time_boot_ms going back this far: the autopilot restarted
+_LISTEN_BEFORE_STEERING_S = 2.5  # > 2 heartbeat periods of another companion [s wall]
 _WPNAV_SPEED = "WPNAV_SPEED"  # ArduCopter's horizontal speed limit parameter [cm/s]
 _MAX_TIMESYNC_PENDING = 32  # our outstanding TIMESYNC requests (replies must match one)
 _IN_CONTROL_STATES = frozenset({mavlink.MAV_STATE_ACTIVE, mavlink.MAV_STATE_CRITICAL})
@@ -173,6 +174,7 @@ class CompanionService:
         link_ids = (link.system_id, link.component_id)
         self.takeover = TakeoverGuard(link_ids, self.instance_id)
         self._takeover_blocked = False
+        self._listen_until_s = math.inf  # no steering before the link was heard a while
         self._timesync_pending: list[int] = []
         self._handler_error_kinds: set[str] = set()
         self._reset_vehicle_state()
@@ -269,6 +271,7 @@ class CompanionService:
         self._last_boot_ms: int | None = None
         self._wpnav_speed_mps: float | None = None  # the autopilot's own speed limit
         self._next_param_request_s = 0.0
+        self._param_requests = 0
         self._telemetry_newest_ns: int | None = None  # read by the Zenoh thread too
         self.boot_time = BootTimeMonitor(backstep_ms=_REBOOT_BACKSTEP_MS)
         self._newest_frame_ns: int | None = None  # processed
@@ -438,6 +441,10 @@ class CompanionService:
             counter, "%s: dropped %s %s (%d so far)", counter, what, values, self.counters[counter]
         )
 
+    def _may_steer(self, now_s: float) -> bool:
+        """Alone on the link, and it was heard long enough to know (wall seconds)."""
+        return not self._takeover_blocked and now_s >= self._listen_until_s
+
     def _check_takeover(self, now_s: float) -> None:
         """Refuse to steer, loudly, while another setpoint source is around."""
         state = self.takeover.state(now_s)
@@ -461,6 +468,9 @@ class CompanionService:
         self._silent_since_s = None
         if not self._link_up:
             self._link_up = True
+            # listen before steering: another companion's heartbeat (1 Hz, forwarded by the
+            # autopilot) must have had a chance to arrive (companion.takeover)
+            self._listen_until_s = now_s + _LISTEN_BEFORE_STEERING_S
             self._event("link_up", url=self.config.link.url)
             _log.info("autopilot link up on %s", self.config.link.url)
             self._next_stream_request_s = now_s
@@ -831,7 +841,7 @@ class CompanionService:
             self.modes.steering
             and self.failsafe.status.health.ok
             and self.policy is not None
-            and not self._takeover_blocked
+            and self._may_steer(time.monotonic())
         ):
             now_s = time.monotonic()
             if self.policy.on_new_target(target, now_s):
@@ -914,7 +924,14 @@ class CompanionService:
             # DO_CHANGE_SPEED overrides WPNAV_SPEED (no clip): never state a speed before we
             # know the pilot's own limit, so that ours can only lower it (the carrot bounds
             # the speed meanwhile)
-            if now_s >= self._next_param_request_s:
+            if now_s >= self._next_param_request_s and self._param_requests < 5:
+                self._param_requests += 1
+                if self._param_requests == 5:
+                    _log.warning(
+                        "autopilot does not report %s: no speed limit stated, the carrot "
+                        "alone bounds the speed",
+                        _WPNAV_SPEED,
+                    )
                 self._next_param_request_s = now_s + 2.0
                 cfg = self.config.link
                 self.link.send(
@@ -971,7 +988,7 @@ class CompanionService:
 
     def _resend_now(self, now_s: float) -> None:
         """Keep-alive / PX4 stream / hold: (re)send the appropriate target."""
-        if self.policy is None or self._takeover_blocked:
+        if self.policy is None or not self._may_steer(now_s):
             return
         if self.modes.streaming_hold or (
             self.modes.steering and not self.failsafe.status.health.ok and self._must_stream()
@@ -1060,7 +1077,7 @@ class CompanionService:
     def _state(self) -> CompanionState:
         if not self._link_up:
             return CompanionState.LINK_LOST if self.counters["link_losses"] else CompanionState.BOOT
-        if self._takeover_blocked:
+        if not self._may_steer(time.monotonic()):
             return CompanionState.STANDBY
         if self.modes.phase is ControlPhase.HOLD:
             return CompanionState.HOLD
