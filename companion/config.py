@@ -50,7 +50,7 @@ import json
 import math
 import os
 import tomllib
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -499,9 +499,3 @@ def config_from_args(
             cfg, zenoh=dataclasses.replace(z, connect=("tcp/127.0.0.1:7447",))
         )
     return cfg
-
-
-def parse_argv(argv: Sequence[str] | None) -> tuple[argparse.Namespace, CompanionConfig]:
-    """Parse ``argv`` into (namespace, config); raises :class:`ConfigError`."""
-    args = build_parser().parse_args(argv)
-    return args, config_from_args(args)

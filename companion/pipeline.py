@@ -10,6 +10,7 @@ both run exactly this.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +31,12 @@ class PoseAtCapture:
     pos_ned_m: np.ndarray
     vel_ned_mps: np.ndarray
     R_ned_from_frd: np.ndarray
+
+    @property
+    def yaw_rad(self) -> float:
+        """Heading of body x in NED [rad] (0 north, +π/2 east), from the rotation."""
+        R = self.R_ned_from_frd
+        return math.atan2(float(R[1, 0]), float(R[0, 0]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,6 +110,7 @@ class AvoidancePipeline:
             vel_ned_mps=pose.vel_ned_mps,
             goal_ned_m=self.goal_ned_m,
             detections=seen.obstacles,
+            yaw_rad=pose.yaw_rad,
         )
         bounded = envelope_step(
             pos_ned_m=pose.pos_ned_m,

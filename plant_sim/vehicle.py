@@ -273,11 +273,6 @@ class Quadrotor:
 
     # ---- state -------------------------------------------------------------------------
     @property
-    def state_paper(self) -> np.ndarray:
-        """Copy of the paper-frame state (see :mod:`plant_sim.dynamics`)."""
-        return self._state.copy()
-
-    @property
     def pos_ned_m(self) -> np.ndarray:
         """Position, LOCAL_NED [m]."""
         return frames.ned_from_paper(self._state[0:3])

@@ -27,7 +27,6 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
-    "R_CAM_FROM_FRD",
     "R_FRD_FROM_CAM",
     "CameraModel",
     "StereoIntrinsics",
@@ -44,9 +43,6 @@ __all__ = [
 #: Camera optical frame (x right, y down, z forward) → body FRD.
 R_FRD_FROM_CAM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 R_FRD_FROM_CAM.flags.writeable = False
-#: Body FRD → camera optical frame (the transpose).
-R_CAM_FROM_FRD = R_FRD_FROM_CAM.T.copy()
-R_CAM_FROM_FRD.flags.writeable = False
 
 
 def _check_finite_positive(name: str, value: float) -> None:

@@ -35,7 +35,6 @@ __all__ = [
     "rotation_321",
     "rotation_from_quat",
     "rotation_ned_from_paper",
-    "rotation_paper_from_ned",
     "rx",
     "ry",
     "rz",
@@ -109,11 +108,6 @@ def rotation_ned_from_paper(R_paper: np.ndarray) -> np.ndarray:
     return T_PAPER_NED @ np.asarray(R_paper, dtype=float) @ T_PAPER_NED
 
 
-def rotation_paper_from_ned(R_ned: np.ndarray) -> np.ndarray:
-    """Inverse map of :func:`rotation_ned_from_paper` (``T`` is an involution)."""
-    return rotation_ned_from_paper(R_ned)
-
-
 def mavlink_euler_from_paper_euler(
     phi_rad: float, theta_rad: float, psi_rad: float
 ) -> tuple[float, float, float]:
@@ -126,7 +120,7 @@ def paper_euler_from_mavlink_euler(
     roll_rad: float, pitch_rad: float, yaw_rad: float
 ) -> tuple[float, float, float]:
     """MAVLink (roll, pitch, yaw) 3-2-1 in NED/FRD → paper 1-2-3 angles (z-up)."""
-    R_paper = rotation_paper_from_ned(rotation_321(roll_rad, pitch_rad, yaw_rad))
+    R_paper = rotation_ned_from_paper(rotation_321(roll_rad, pitch_rad, yaw_rad))  # T = T⁻¹
     return euler123_from_rotation(R_paper)
 
 

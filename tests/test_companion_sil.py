@@ -18,6 +18,7 @@ import random
 import socket
 import threading
 import time
+from pathlib import Path
 
 import pytest
 import zenoh
@@ -228,11 +229,21 @@ def _flight_verdict(rig: Rig, companion: ChildProcess, run: str):
 
 
 @pytest.mark.slow
-def test_sil_paper_scenario_with_signing_matches_lockstep(tmp_path, lockstep_verdict):
-    """End to end, both processes signing with the same key: flies like lockstep."""
+def test_sil_paper_scenario_with_signing_matches_lockstep(tmp_path, lockstep_verdict, monkeypatch):
+    """End to end, both processes signing with the same key: flies like lockstep.
+
+    Run from a directory outside the source tree with a relative output folder, as a
+    user would (``stereo-avoid sil --out x`` once failed there: the children ran in the
+    source tree and wrote their logs into it).
+    """
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
     result = run_sil(
-        SilOptions(speedup=SPEEDUP, out_dir=tmp_path, signing_key="correct horse battery")
+        SilOptions(speedup=SPEEDUP, out_dir=Path("run"), signing_key="correct horse battery")
     )
+    tmp_path = elsewhere / "run"
+    assert (tmp_path / "truth.csv").is_file()
     v = result.verdict
     _assert_close_to_lockstep(v, lockstep_verdict, "sil")
     assert result.plant_stats["link"]["bad_signature_refused"] == 0

@@ -179,11 +179,6 @@ class FlightModeMachine:
             return LandedState.LANDING
         return LandedState.IN_AIR
 
-    @property
-    def phase_name(self) -> str:
-        """Name of the current phase (logs)."""
-        return self._phase.name
-
     # ---- commands ------------------------------------------------------------------
     def arm(
         self, kin: Kinematics, *, force: bool = False, checks_enabled: bool = True
