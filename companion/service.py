@@ -1,107 +1,54 @@
-"""The companion process's main loop: MAVLink and frames in, setpoints and status out.
+"""The companion process: sockets and threads around the pure :class:`CompanionCore`.
 
 One thread (Zenoh's callback only decodes into the latest-frame slot). Each pass waits on
-the MAVLink socket and the frame slot (``select``), then:
-
-1. drains MAVLink: autopilot heartbeat (flavour, mode watch), LOCAL_POSITION_NED and
-   ATTITUDE into the pose history on the frame clock, TIMESYNC, COMMAND_ACKs;
-2. runs the timers (wall time): heartbeat, TIMESYNC, stream requests, mode requests,
-   link-loss detection, setpoint keep-alive / PX4 stream;
-3. takes the newest frame, if any: pose at its capture time → the same
-   :class:`~companion.pipeline.AvoidancePipeline` as the lockstep harness → setpoint
-   (when in control and healthy) → status on Zenoh;
-4. checks the failsafe on the frame clock and commands or ends a hold.
-
-Events worth a test's or an operator's attention are printed on stdout as
-``COMPANION EVENT <name> {json}``; the log goes to stderr.
+the MAVLink socket and the frame slot (``select``), then hands the core, as typed inputs
+(:mod:`companion.core.events`) stamped with the host's monotonic clock, every MAVLink
+message received, a clock tick and the newest frame, and carries out what it returns:
+MAVLink messages and setpoints onto the link, ``COMPANION EVENT <name> {json}`` lines on
+stdout, status documents on Zenoh. Around that, reporting only: the health file, the
+progress log, signing refusals and "no frames on our key" hints. The log goes to stderr.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import math
 import random
 import select
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any, TextIO
 
-import numpy as np
 import zenoh
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.clock_model import (
-    BootTime,
-    BootTimeMonitor,
-    ClockModel,
-    FrameClock,
-    SyncResult,
-    SyncSample,
-)
 from companion.config import CompanionConfig
-from companion.failsafe import FailsafeMonitor, Health
-from companion.frames_sub import FrameSubscriber, LatestFrameSlot, PublisherProbe
-from companion.guidance import Mode, Reason
+from companion.core import (
+    CompanionCore,
+    Event,
+    FrameReceived,
+    MavlinkReceived,
+    Output,
+    SendMavlink,
+    SendSetpoint,
+    Status,
+    Tick,
+)
+from companion.frames_sub import LatestFrameSlot
 from companion.health import HealthFile, HealthInputs
+from companion.intake import FrameIntake
 from companion.link.connection import MavlinkConnection
-from companion.link.flavour import (
-    Flavour,
-    control_mode,
-    detect_flavour,
-    is_autopilot_heartbeat,
-    mode_name,
-)
-from companion.link.messages import (
-    CompanionState,
-    command_long,
-    heartbeat_message,
-    obstacle_distance_message,
-    set_message_interval,
-    set_mode_command,
-    statustext_messages,
-    timesync_reply,
-    timesync_request,
-)
-from companion.link.mode_watch import ControlPhase, ModeWatch
-from companion.link.setpoints import PositionTarget, SetpointPolicy, position_target_message
-from companion.link.speed_limit import SpeedLimitPolicy, change_speed_command
-from companion.link.takeoff import (
-    TakeoffCommand,
-    TakeoffEvent,
-    TakeoffNotice,
-    TakeoffSequence,
-    TakeoffSettings,
-    TakeoffStep,
-)
-from companion.pipeline import AvoidancePipeline
-from companion.pose_history import PoseHistory, PoseStatus
-from companion.status import StatusPublisher, status_document
-from companion.takeover import SETPOINT_MESSAGES, TakeoverGuard
+from companion.status import StatusPublisher
 from protocols.keys import companion_status_key, stereo_key
-from protocols.stereo_frame import StereoFrame
 from protocols.zenoh_session import zenoh_config
 
 __all__ = ["CompanionService"]
 
 _log = logging.getLogger("companion")
 
-_STREAMS = (
-    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
-    mavlink.MAVLINK_MSG_ID_ATTITUDE,
-)
-_SEV_INFO = mavlink.MAV_SEVERITY_INFO
-_SEV_WARNING = mavlink.MAV_SEVERITY_WARNING
-_REBOOT_BACKSTEP_MS = 500  # time_boot_ms going back this far: the autopilot restarted
-_LISTEN_BEFORE_STEERING_S = 2.5  # > 2 heartbeat periods of another companion [s wall]
-_WPNAV_SPEED = "WPNAV_SPEED"  # ArduCopter's horizontal speed limit parameter [cm/s]
-_MAX_TIMESYNC_PENDING = 32  # our outstanding TIMESYNC requests (replies must match one)
-_IN_CONTROL_STATES = frozenset({mavlink.MAV_STATE_ACTIVE, mavlink.MAV_STATE_CRITICAL})
-
 
 class CompanionService:
-    """Owns the companion's parts; :meth:`open`, :meth:`run`, :meth:`close`.
+    """The core plus its adapters; :meth:`open`, :meth:`run`, :meth:`close`.
 
     Parameters
     ----------
@@ -120,90 +67,33 @@ class CompanionService:
             baud=link.baud,
             signing_key=link.signing_key,
         )
+        self.core = CompanionCore(config, random.SystemRandom().getrandbits(32))
         self.frame_key = stereo_key(config.vehicle_id)
         self.status_key = companion_status_key(config.vehicle_id)
         self.slot = LatestFrameSlot()
-        self.clock = ClockModel(link.frame_clock)
-        fs = config.failsafe
-        self.poses = PoseHistory(
-            horizon_ns=round(fs.pose_history_s * 1e9),
-            max_extrapolation_ns=round(fs.max_pose_extrapolation_s * 1e9),
+        self.intake = FrameIntake(
+            self.frame_key,
+            self.slot,
+            lambda capture_ns: self.core.frame_time_plausible(capture_ns, time.monotonic_ns()),
         )
-        self.failsafe = FailsafeMonitor(
-            fs.frame_timeout_s, fs.telemetry_timeout_s, fs.resume_after_s
-        )
-        self.modes = ModeWatch(request_mode=link.request_mode, prestream_s=link.px4_prestream_s)
-        self.policy: SetpointPolicy | None = None
-        self.speed_policy = SpeedLimitPolicy()
-        self._overspeed_notice_s = -math.inf
-        self._guidance_state: tuple[Mode, Reason] | None = None
         self._session: zenoh.Session | None = None
-        self._subscriber: FrameSubscriber | None = None
-        self._probe: PublisherProbe | None = None
-        self._frames_seen = 0
-        self._frames_silent_since_s = 0.0
-        self._frames_silence_reported_s = -math.inf
         self._status: StatusPublisher | None = None
-        self.counters: dict[str, int] = {
-            "frames_processed": 0,
-            "frames_stale": 0,
-            "pose_empty": 0,
-            "pose_too_old": 0,
-            "pose_too_new": 0,
-            "pose_extrapolated": 0,
-            "telemetry_unmapped": 0,
-            "setpoints_sent": 0,
-            "hold_commands": 0,
-            "link_losses": 0,
-            "autopilot_restarts": 0,
-            "mode_releases": 0,
-            "pipeline_errors": 0,
-            "speed_limits_sent": 0,
-            "speed_limits_accepted": 0,
-            "speed_limits_refused": 0,
-            "overspeed_frames": 0,
-            "frames_during_takeoff": 0,
-            "frames_implausible_time": 0,
-            "telemetry_implausible_time": 0,
-            "telemetry_out_of_range": 0,
-            "timesync_unmatched": 0,
-            "handler_errors": 0,
-            "takeover_refusals": 0,
-        }
-        self.instance_id = random.SystemRandom().getrandbits(32)
-        link_ids = (link.system_id, link.component_id)
-        self.takeover = TakeoverGuard(link_ids, self.instance_id)
-        self._takeover_blocked = False
-        self._listen_until_s = math.inf  # no steering before the link was heard a while
-        self._timesync_pending: list[int] = []
-        self._handler_error_kinds: set[str] = set()
-        self._reset_vehicle_state()
-        self._link_up = False
-        self._last_rx_s = -math.inf
-        self._next_heartbeat_s = 0.0
-        self._next_timesync_s = 0.0
-        self._next_progress_s = 0.0
-        self._last_refusal_report = (0, -math.inf)
-        self._drop_log_s: dict[str, float] = {}
-        self._last_mode_request = None
-        self._silent_since_s: float | None = None
-        self._silence_reported_s = -math.inf
-        self.fatal: str | None = None  # terminal error (a refused takeoff): run() returns
-        self._text_id = 0  # id of the last chunked STATUSTEXT (1..255)
         self.health: HealthFile | None = None  # --health-file: rewritten once a second
+        self._next_report_s = 0.0
+        self._next_progress_s = 0.0
+        self._refusals_reported = 0
+
+    @property
+    def fatal(self) -> str | None:
+        """Why the service stopped by itself (a refused takeoff), else None."""
+        return self.core.fatal
 
     # ---- lifecycle -----------------------------------------------------------------
     def open(self) -> None:
-        """Open MAVLink and Zenoh, warm up OpenCV so the first frame is on time."""
+        """Open MAVLink and Zenoh."""
         self.link.open()
         self._session = zenoh.open(zenoh_config(self.config.zenoh))
-        self._subscriber = FrameSubscriber(
-            self._session, self.frame_key, self.slot, accept_capture_ns=self._frame_time_plausible
-        )
-        self._subscriber.open()
-        self._probe = PublisherProbe(self._session)
-        self._probe.open()  # until our own frames arrive: who publishes, if not us?
-        self._frames_silent_since_s = time.monotonic()
+        self.intake.open(self._session, time.monotonic())
         self._status = StatusPublisher(self._session, self.status_key)
         self._status.open()
 
@@ -221,10 +111,7 @@ class CompanionService:
         stats = self.stats()
         if self.health is not None:
             self.health.stopped(self.fatal or "the companion stopped")
-        if self._probe is not None:
-            self._probe.close()
-        if self._subscriber is not None:
-            self._subscriber.close()
+        self.intake.close()
         if self._status is not None:
             self._status.close()
         if self._session is not None:
@@ -237,7 +124,7 @@ class CompanionService:
     def stats(self) -> dict[str, Any]:
         f = self.slot.counters
         return {
-            **self.counters,
+            **self.core.stats(),
             "frames_received": f.received,
             "frames_decoded": f.decoded,
             "frames_malformed": f.malformed,
@@ -245,46 +132,7 @@ class CompanionService:
             "frames_implausible_at_intake": f.implausible_time,
             "frames_before_clock": f.no_clock,
             "mavlink": self.link.counters.as_dict(),
-            "phase": self.modes.phase.value,
-            "flavour": None if self.policy is None else self.policy.flavour.value,
-            "clock_rate": round(self.clock.autopilot.rate, 3),
-            "waypoint": self._waypoint,
-            "takeoff": None if self.takeoff is None else self.takeoff.step.value,
         }
-
-    # ---- per-connection state ------------------------------------------------------
-    def _reset_vehicle_state(self) -> None:
-        cfg = self.config
-        self._waypoint = 0
-        self.pipeline = AvoidancePipeline(
-            cfg.waypoints_ned_m[0], cfg.perception, cfg.guidance, cfg.known_space, cfg.envelope
-        )
-        self.clock.autopilot.reset()
-        self.poses.clear()
-        self.modes.reset()
-        self.policy = None
-        self.failsafe = FailsafeMonitor(
-            cfg.failsafe.frame_timeout_s,
-            cfg.failsafe.telemetry_timeout_s,
-            cfg.failsafe.resume_after_s,
-        )
-        self._last_boot_ms: int | None = None
-        self._wpnav_speed_mps: float | None = None  # the autopilot's own speed limit
-        self._next_param_request_s = 0.0
-        self._param_requests = 0
-        self._telemetry_newest_ns: int | None = None  # read by the Zenoh thread too
-        self.boot_time = BootTimeMonitor(backstep_ms=_REBOOT_BACKSTEP_MS)
-        self._newest_frame_ns: int | None = None  # processed
-        self._newest_seen_ns: int | None = None  # newest frame-clock stamp observed
-        self._last_capture_ns: int | None = None
-        self._streams_acked = 0  # accepted SET_MESSAGE_INTERVAL since the last request
-        self._next_stream_request_s = 0.0
-        self._avoiding = False
-        self._hold_pending = False
-        self._engaged = False  # a guidance setpoint was sent since the last reset
-        self._goal_reported = False
-        self.takeoff: TakeoffSequence | None = None  # --takeoff-alt, until finished
-        self._held_heartbeat: tuple[Flavour, int] | None = None  # for ModeWatch after takeoff
 
     # ---- main loop -----------------------------------------------------------------
     def run(self, should_stop: Callable[[], bool]) -> None:
@@ -298,874 +146,100 @@ class CompanionService:
                 select.select(fds, [], [], timeout)
             except InterruptedError:
                 continue
-            now_s = time.monotonic()
-            self._receive(now_s)
-            self._timers(now_s)
+            for msg in self.link.poll():
+                self._carry_out(self.core.step(MavlinkReceived(msg, time.monotonic_ns())))
+            self._carry_out(self.core.step(Tick(time.monotonic_ns())))
             frame = self.slot.take()
             if frame is not None:
-                self._on_frame(frame, time.monotonic_ns())
-            self._check_failsafe(time.monotonic())
+                now_ns = time.monotonic_ns()
+                self._carry_out(self.core.step(FrameReceived(frame, now_ns, now_ns)))
+            self._report(time.monotonic())
 
-    # ---- MAVLink input -------------------------------------------------------------
-    def _receive(self, now_s: float) -> None:
-        target_sys = self.config.link.target_system
-        target_comp = self.config.link.target_component
-        for msg in self.link.poll():
-            try:
-                self._on_message(msg, now_s, target_sys, target_comp)
-            except Exception as exc:  # one handler's bug must not stop the companion
-                self._handler_error(msg, exc)
+    def _carry_out(self, outputs: Iterable[Output]) -> None:
+        """Do what the core asked, in order; stamp when setpoints went on the wire."""
+        returned_ns = time.monotonic_ns()
+        sent_ns: int | None = None
+        for out in outputs:
+            if isinstance(out, SendSetpoint):
+                self.link.send(out.message)
+                sent_ns = time.monotonic_ns()
+            elif isinstance(out, SendMavlink):
+                self.link.send(out.message)
+            elif isinstance(out, Event):
+                self._event(out)
+            elif isinstance(out, Status) and self._status is not None:
+                self._status.publish(_with_latency(out, returned_ns, sent_ns))
 
-    def _handler_error(self, msg, exc: Exception) -> None:
-        self.counters["handler_errors"] += 1
-        kind = f"{msg.get_type()}:{type(exc).__name__}"
-        if kind not in self._handler_error_kinds:
-            self._handler_error_kinds.add(kind)
-            _log.error(
-                "handling %s failed (%s: %s); message dropped", kind, type(exc).__name__, exc
-            )
-
-    def _on_message(self, msg, now_s: float, target_sys: int, target_comp: int) -> None:
-        mtype = msg.get_type()
-        src = (msg.get_srcSystem(), msg.get_srcComponent())
-        cfg = self.config.link
-        if src == (cfg.system_id, cfg.component_id):
-            if mtype == "HEARTBEAT":
-                self.takeover.on_twin_heartbeat(
-                    now_s,
-                    msg.custom_mode,
-                    msg.system_status in _IN_CONTROL_STATES,
-                    self._state() is CompanionState.ACTIVE,
-                )
-                self._check_takeover(now_s)
-            return
-        if mtype in SETPOINT_MESSAGES and getattr(msg, "target_system", 0) == target_sys:
-            self.takeover.on_foreign_setpoint(now_s, src)
-            self._check_takeover(now_s)
-            return
-        if msg.get_srcSystem() != target_sys:
-            return
-        from_autopilot = msg.get_srcComponent() == target_comp
-        if mtype == "HEARTBEAT":
-            if from_autopilot and is_autopilot_heartbeat(msg.autopilot, msg.type):
-                self._on_link_alive(now_s)
-                self._on_heartbeat(msg, now_s)
-            return
-        if not from_autopilot:
-            return
-        self._on_link_alive(now_s)
-        if self._takeoff_busy() and not (
-            mtype == "LOCAL_POSITION_NED" and not _in_range((msg.z,), _MAX_POS_M)
-        ):
-            self._takeoff_input(msg, mtype, now_s)
-        if mtype == "LOCAL_POSITION_NED":
-            pos, vel = (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz)
-            if not _in_range(pos, _MAX_POS_M) or not _in_range(vel, _MAX_SPEED_MPS):
-                self._count_drop("telemetry_out_of_range", "LOCAL_POSITION_NED", pos + vel)
-            elif self._check_boot_time(msg.time_boot_ms, now_s):
-                t = self.clock.frame_ns_from_boot_ms(msg.time_boot_ms)
-                if t is None:
-                    self.counters["telemetry_unmapped"] += 1
-                elif self.poses.add_position(t, pos, vel):
-                    self._observe(t)
-                    self._telemetry_seen(t)
-        elif mtype == "ATTITUDE":
-            angles = (msg.roll, msg.pitch, msg.yaw)
-            if not _in_range(angles, 2.0 * math.pi):
-                self._count_drop("telemetry_out_of_range", "ATTITUDE", angles)
-            elif self._check_boot_time(msg.time_boot_ms, now_s):
-                t = self.clock.frame_ns_from_boot_ms(msg.time_boot_ms)
-                if t is None:
-                    self.counters["telemetry_unmapped"] += 1
-                elif self.poses.add_attitude(t, *angles):
-                    self._observe(t)
-                    self._telemetry_seen(t)
-        elif mtype == "TIMESYNC":
-            self._on_timesync(msg, now_s)
-        elif mtype == "COMMAND_ACK":
-            self._on_ack(msg, now_s)
-        elif mtype == "STATUSTEXT":
-            _log.info("autopilot: %s", _statustext(msg))
-        elif mtype == "PARAM_VALUE":
-            self._on_param_value(msg)
-
-    def _on_param_value(self, msg) -> None:
-        """WPNAV_SPEED [cm/s]: the ceiling of every speed limit we state (ArduPilot)."""
-        name = (
-            msg.param_id
-            if isinstance(msg.param_id, str)
-            else msg.param_id.decode("ascii", "replace")
-        )
-        value = float(msg.param_value)
-        if name.split("\x00", 1)[0] != _WPNAV_SPEED or not (math.isfinite(value) and value > 0):
-            return
-        if self._wpnav_speed_mps is None:
-            _log.info(
-                "autopilot WPNAV_SPEED %.2f m/s: stated speed limits stay below it", value / 100.0
-            )
-        self._wpnav_speed_mps = value / 100.0
-
-    def _telemetry_seen(self, t_ns: int) -> None:
-        """The newest autopilot telemetry stamp on the frame clock: the clock's "now"."""
-        if self._telemetry_newest_ns is None or t_ns > self._telemetry_newest_ns:
-            self._telemetry_newest_ns = t_ns
-
-    def _frame_time_plausible(self, capture_ns: int) -> bool | None:
-        """Capture time within the window around the clock model's now (any thread)."""
-        window_ns = round(self.config.failsafe.frame_time_window_s * 1e9)
-        return self.clock.frame_time_plausible(
-            capture_ns, time.monotonic_ns(), self._telemetry_newest_ns, window_ns
-        )
-
-    def _observe(self, t_ns: int) -> None:
-        if self._newest_seen_ns is None or t_ns > self._newest_seen_ns:
-            self._newest_seen_ns = t_ns
-
-    def _check_boot_time(self, time_boot_ms: int, now_s: float) -> bool:
-        """Plausible autopilot time (True), an implausible stamp (dropped, False), or a
-        confirmed reboot (state reset, then True: the stamp starts the new time base)."""
-        last = self.boot_time.last_ms
-        verdict = self.boot_time.check(time_boot_ms, now_s, self.clock.autopilot.rate)
-        if verdict is BootTime.DROP:
-            self._count_drop("telemetry_implausible_time", "time_boot_ms", (last, time_boot_ms))
-            return False
-        if verdict is BootTime.REBOOT:
-            self._autopilot_restarted(now_s, f"time_boot_ms {last} → {time_boot_ms}")
-            self.boot_time.check(time_boot_ms, now_s, self.clock.autopilot.rate)
-        self._last_boot_ms = self.boot_time.last_ms
-        return True
-
-    def _count_drop(self, counter: str, what: str, values) -> None:
-        self.counters[counter] += 1
-        self._drop_log(
-            counter, "%s: dropped %s %s (%d so far)", counter, what, values, self.counters[counter]
-        )
-
-    def _may_steer(self, now_s: float) -> bool:
-        """Alone on the link, and it was heard long enough to know (wall seconds)."""
-        return not self._takeover_blocked and now_s >= self._listen_until_s
-
-    def _check_takeover(self, now_s: float) -> None:
-        """Refuse to steer, loudly, while another setpoint source is around."""
-        state = self.takeover.state(now_s)
-        if state.blocked == self._takeover_blocked:
-            return
-        self._takeover_blocked = state.blocked
-        if state.blocked:
-            self.counters["takeover_refusals"] += 1
-            _log.error("not steering: %s; waiting until we are alone", state.reason)
-            self._notice("Avoidance refused: another setpoint source", _SEV_WARNING)
-            self._event("takeover", blocked=True, reason=state.reason)
-        else:
-            _log.warning(
-                "no other setpoint source for %.0f s: steering allowed again", self.takeover.quiet_s
-            )
-            self._notice("Avoidance: alone again, steering allowed")
-            self._event("takeover", blocked=False, reason="")
-
-    def _on_link_alive(self, now_s: float) -> None:
-        self._last_rx_s = now_s
-        self._silent_since_s = None
-        if not self._link_up:
-            self._link_up = True
-            # listen before steering: another companion's heartbeat (1 Hz, forwarded by the
-            # autopilot) must have had a chance to arrive (companion.takeover)
-            self._listen_until_s = now_s + _LISTEN_BEFORE_STEERING_S
-            self._event("link_up", url=self.config.link.url)
-            _log.info("autopilot link up on %s", self.config.link.url)
-            self._next_stream_request_s = now_s
-            self._next_timesync_s = now_s
-
-    def _autopilot_restarted(self, now_s: float, why: str) -> None:
-        self.counters["autopilot_restarts"] += 1
-        _log.warning("autopilot restarted (%s): starting over", why)
-        self._event("autopilot_restart", reason=why)
-        self._reset_vehicle_state()
-        self._next_stream_request_s = now_s
-
-    def _on_heartbeat(self, msg, now_s: float) -> None:
-        flavour = detect_flavour(msg.autopilot)
-        if self.policy is None:  # first heartbeat since the (re)start
-            cfg = self.config.link
-            self.policy = SetpointPolicy(
-                flavour,
-                ardupilot_period_s=cfg.ardupilot_setpoint_period_s,
-                px4_rate_hz=cfg.px4_setpoint_rate_hz,
-            )
-            self._event("autopilot", flavour=flavour.value, mode=msg.custom_mode)
-            _log.info(
-                "autopilot found: %s (system %d), control mode %s",
-                flavour.value,
-                msg.get_srcSystem(),
-                control_mode(flavour).name,
-            )
-            if cfg.takeoff_alt_m > 0:
-                self.takeoff = TakeoffSequence(
-                    flavour,
-                    TakeoffSettings(
-                        cfg.takeoff_alt_m,
-                        tolerance_m=cfg.takeoff_tolerance_m,
-                        climb_timeout_s=cfg.takeoff_timeout_s,
-                        ready_timeout_s=cfg.takeoff_ready_timeout_s,
-                    ),
-                    now_s,
-                )
-        if self._takeoff_busy():
-            assert self.takeoff is not None
-            self._held_heartbeat = (flavour, msg.custom_mode)
-            armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-            self.takeoff.on_heartbeat(now_s, msg.custom_mode, armed)
-            self._drive_takeoff(now_s)
-            return
-        self._mode_heartbeat(flavour, msg.custom_mode, now_s)
-
-    def _mode_heartbeat(self, flavour: Flavour, custom_mode: int, now_s: float) -> None:
-        before = self.modes.phase
-        for notice in self.modes.on_heartbeat(now_s, flavour, custom_mode):
-            self._notice(notice)
-        self._after_phase_change(before, now_s)
-
-    # ---- takeoff (--takeoff-alt) ---------------------------------------------------
-    def _takeoff_busy(self) -> bool:
-        return self.takeoff is not None and self.takeoff.busy
-
-    def _takeoff_input(self, msg, mtype: str, now_s: float) -> None:
-        """Feed the takeoff sequence what it watches (heartbeats go via _on_heartbeat)."""
-        seq = self.takeoff
-        assert seq is not None
-        if mtype == "EXTENDED_SYS_STATE":
-            seq.on_landed_state(now_s, msg.landed_state)
-        elif mtype == "LOCAL_POSITION_NED":
-            seq.on_position(now_s, msg.time_boot_ms * 1e-3, msg.z)
-        elif mtype == "HOME_POSITION":
-            seq.on_home_amsl(msg.altitude * 1e-3)
-        elif mtype == "GLOBAL_POSITION_INT" and seq.home_amsl_m is None:
-            seq.on_home_amsl((msg.alt - msg.relative_alt) * 1e-3)
-        elif mtype == "STATUSTEXT":
-            seq.on_statustext(_statustext(msg))
-        elif mtype == "SYS_STATUS":
-            seq.on_sys_status(
-                now_s,
-                msg.onboard_control_sensors_present,
-                msg.onboard_control_sensors_health,
-            )
-        elif mtype == "COMMAND_ACK" and self._ack_is_ours(msg):
-            seq.on_ack(now_s, msg.command, msg.result)
-        else:
-            return
-        self._drive_takeoff(now_s)
-
-    def _ack_is_ours(self, msg) -> bool:
-        """COMMAND_ACK addressed to us (0 = not filled in by a MAVLink 1 sender)."""
-        cfg = self.config.link
-        return getattr(msg, "target_system", 0) in (0, cfg.system_id) and getattr(
-            msg, "target_component", 0
-        ) in (0, cfg.component_id)
-
-    def _drive_takeoff(self, now_s: float) -> None:
-        """Carry out the sequence's actions; start steering when it is over."""
-        seq = self.takeoff
-        if seq is None:
-            return
-        cfg = self.config.link
-        for action in seq.pop_actions():
-            if isinstance(action, TakeoffCommand):
-                if action.name != "REQUEST_MESSAGE":
-                    _log.info(
-                        "takeoff: sending %s (attempt %d)", action.name, action.confirmation + 1
-                    )
-                self.link.send(
-                    command_long(
-                        cfg.target_system,
-                        cfg.target_component,
-                        action.command,
-                        *action.params,
-                        confirmation=action.confirmation,
-                    )
-                )
-            elif isinstance(action, TakeoffNotice):
-                self._notice(action.text, action.severity)
-            elif isinstance(action, TakeoffEvent):
-                self._event("takeoff", **action.fields)
-        if seq.step is TakeoffStep.FAILED and self.fatal is None:
-            self.fatal = f"takeoff failed: {seq.reason}"
-            _log.error("%s; not steering, stopping", self.fatal)
-        elif seq.step in (TakeoffStep.DONE, TakeoffStep.SKIPPED) and self._held_heartbeat:
-            flavour, custom_mode = self._held_heartbeat
-            self._held_heartbeat = None
-            self._mode_heartbeat(flavour, custom_mode, now_s)  # engage at once
-
-    def _after_phase_change(self, before: ControlPhase, now_s: float) -> None:
-        after = self.modes.phase
-        if after is before:
-            return
-        self._event(
-            "phase",
-            phase=after.value,
-            mode=self.modes.mode_text(),
-            setpoints_sent=self.counters["setpoints_sent"],
-        )
-        if after is ControlPhase.RELEASED:
-            self.counters["mode_releases"] += 1
-        if after in (ControlPhase.ACTIVE, ControlPhase.PRESTREAM) and self.policy is not None:
-            self.policy.reset()  # first setpoint goes out at once
-            self.speed_policy.reset()  # ArduCopter resets its speed on entering GUIDED
-            self._resend_now(now_s)
-
-    def _on_timesync(self, msg, now_s: float) -> None:
-        now_ns = time.monotonic_ns()
-        if msg.tc1 == 0:  # the autopilot asks for our time
-            self.link.send(timesync_reply(now_ns, msg.ts1))
-            return
-        if msg.ts1 not in self._timesync_pending:
-            self.counters["timesync_unmatched"] += 1  # not an answer to a request of ours
-            return
-        self._timesync_pending.remove(msg.ts1)
-        result = self.clock.autopilot.add_sample(SyncSample(msg.ts1, msg.tc1, now_ns))
-        if result is SyncResult.REBOOT:
-            self._autopilot_restarted(now_s, "TIMESYNC went backwards")
-
-    def _on_ack(self, msg, now_s: float) -> None:
-        accepted = msg.result == mavlink.MAV_RESULT_ACCEPTED
-        if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
-            if accepted:
-                self._streams_acked += 1
-            return
-        if msg.command == mavlink.MAV_CMD_DO_CHANGE_SPEED:
-            key = "speed_limits_accepted" if accepted else "speed_limits_refused"
-            self.counters[key] += 1
-            if not accepted and self.counters[key] == 1:
-                _log.info("autopilot refuses DO_CHANGE_SPEED (result %d): the carrot alone "
-                          "bounds the speed", msg.result)  # fmt: skip
-            return
-        if msg.command == mavlink.MAV_CMD_DO_SET_MODE:
-            before = self.modes.phase
-            if accepted:
-                mode = self._last_mode_request
-                if mode is not None:
-                    for notice in self.modes.on_mode_accepted(now_s, mode.custom_mode):
-                        self._notice(notice)
-            else:
-                result = mavlink.enums["MAV_RESULT"].get(msg.result)
-                for notice in self.modes.on_mode_refused(
-                    now_s, result.name if result else str(msg.result)
-                ):
-                    self._notice(notice, _SEV_WARNING)
-            self._after_phase_change(before, now_s)
-
-    # ---- timers --------------------------------------------------------------------
-    def _timers(self, now_s: float) -> None:
-        cfg = self.config.link
-        self._watch_frames(now_s)
-        if now_s >= self._next_heartbeat_s:
-            self.link.send(heartbeat_message(self._state(), self.instance_id))
-            self._check_takeover(now_s)
-            self._next_heartbeat_s = now_s + cfg.heartbeat_period_s
-            self._report_refusals(now_s)
-            self._report_health(now_s)
-        if self._link_up and now_s - self._last_rx_s > self.config.failsafe.link_timeout_s:
-            self._link_lost(now_s)
-        if not self._link_up:
-            self._report_silence(now_s)
-            return
-        if now_s >= self._next_timesync_s:
-            stamp = time.monotonic_ns()
-            self._timesync_pending.append(stamp)
-            del self._timesync_pending[:-_MAX_TIMESYNC_PENDING]
-            self.link.send(timesync_request(stamp))
-            self._next_timesync_s = now_s + cfg.timesync_period_s
-        if now_s >= self._next_stream_request_s and self._streams_acked < len(_STREAMS):
-            self._streams_acked = 0
-            for msg_id in _STREAMS:
-                self.link.send(
-                    set_message_interval(
-                        cfg.target_system, cfg.target_component, msg_id, cfg.telemetry_rate_hz
-                    )
-                )
-            self._next_stream_request_s = now_s + 1.0
-        if self._takeoff_busy():
-            assert self.takeoff is not None
-            self.takeoff.tick(now_s)
-            self._drive_takeoff(now_s)
-        before = self.modes.phase
-        request = self.modes.tick(now_s)
-        if request is not None:
-            self._request_mode(request)
-        self._after_phase_change(before, now_s)
-        policy = self.policy
-        if policy is not None and (
-            policy.due(now_s) or (policy.last is None and self._must_stream())
-        ):
-            self._resend_now(now_s)
-        if now_s >= self._next_progress_s:
-            self._next_progress_s = now_s + self.config.status_log_period_s
-            self._progress()
-
-    def _must_stream(self) -> bool:
-        return self.modes.flavour is Flavour.PX4 and (
-            self.modes.steering or self.modes.streaming_hold
-        )
-
-    def _link_lost(self, now_s: float) -> None:
-        self._link_up = False
-        self.counters["link_losses"] += 1
-        _log.warning(
-            "autopilot link lost: nothing for %.1f s (wall); stopped commanding, waiting",
-            now_s - self._last_rx_s,
-        )
-        self._event("link_lost", silent_s=round(now_s - self._last_rx_s, 3))
-        self._reset_vehicle_state()
-
-    def _request_mode(self, request) -> None:
-        cfg = self.config.link
-        self._last_mode_request = request
-        _log.info("requesting %s", request.name)
-        self.link.send(set_mode_command(cfg.target_system, cfg.target_component, request))
-
-    def _report_silence(self, now_s: float) -> None:
-        """No autopilot: say so every few seconds, with the likely causes."""
-        if self._silent_since_s is None:
-            self._silent_since_s = now_s
-            return
-        silent = now_s - self._silent_since_s
-        if silent < 3.0 or now_s - self._silence_reported_s < 5.0:
-            return
-        self._silence_reported_s = now_s
-        hint = (
-            "MAVLink signing is on: an autopilot with another key (or none) ignores every "
-            "message we send"
-            if self.link.signing
-            else "check the URL and that the autopilot sends to us"
-        )
-        _log.error(
-            "no message from autopilot %d/%d on %s for %.0f s (%d sent): %s",
-            self.config.link.target_system,
-            self.config.link.target_component,
-            self.config.link.url,
-            silent,
-            self.link.counters.sent,
-            hint,
-        )
-        self._event("no_autopilot", silent_s=round(silent, 1), signing=self.link.signing)
-
-    def _watch_frames(self, now_s: float) -> None:
-        """No frames on our key for a while: say so, and which vehicle ids do publish."""
-        received = self.slot.counters.received
-        if received != self._frames_seen:
-            self._frames_seen = received
-            self._frames_silent_since_s = now_s
-            if self._probe is not None and self._probe.active:
-                self._probe.close()
-            return
-        silent = now_s - self._frames_silent_since_s
-        if silent < 5.0 or now_s - self._frames_silence_reported_s < 10.0:
-            return
-        self._frames_silence_reported_s = now_s
-        if self._probe is not None and not self._probe.active:
-            self._probe.open()
-            return  # give it a moment to see what is published
-        others = self._probe.vehicles() if self._probe is not None else []
-        hint = (
-            f"frames are published for vehicle id(s) {', '.join(others)}: check --vehicle-id"
-            if others
-            else "nothing publishes stereo frames that this session can see: check the camera "
-            "(stereo-camera / plant-sim), the Zenoh endpoints and credentials"
-        )
-        _log.warning("no stereo frames on %s for %.0f s; %s", self.frame_key, silent, hint)
-        self._event("no_frames", key=self.frame_key, silent_s=round(silent, 1), publishers=others)
-
-    def _report_refusals(self, now_s: float) -> None:
-        refused = self.link.counters.signing_refused
-        last_count, _last_s = self._last_refusal_report
-        if refused > last_count:
-            _log.error(
-                "MAVLink signing: %d message(s) from the link refused (unsigned or bad "
-                "signature, %d in total): check that both ends use the same key",
-                refused - last_count,
-                refused,
-            )
-            self._event("signing_refused", total=refused)
-            self._last_refusal_report = (refused, now_s)
-
-    # ---- frames --------------------------------------------------------------------
-    def _on_frame(self, frame: StereoFrame, recv_ns: int) -> None:
-        t_start = time.monotonic_ns()
-        if self._frame_time_plausible(frame.capture_ns) is False:
-            # frames never move the clock nor reset the mission: only telemetry may
-            self._count_drop("frames_implausible_time", "frame", (frame.sequence, frame.capture_ns))
-            return
-        if self._takeoff_busy():
-            self._observe(frame.capture_ns)
-            self.counters["frames_during_takeoff"] += 1  # not steering before the climb
-            assert self.takeoff is not None
-            self.takeoff.on_frame(time.monotonic())
-            if self._newest_frame_ns is None or frame.capture_ns > self._newest_frame_ns:
-                self._newest_frame_ns = frame.capture_ns  # the camera works: health
-            self._drive_takeoff(time.monotonic())
-            return
-        if self._last_capture_ns is not None and frame.capture_ns <= self._last_capture_ns:
-            self.counters["frames_stale"] += 1
-            return
-        lookup = self.poses.at(frame.capture_ns)
-        if not lookup.status.usable:
-            self.counters[f"pose_{lookup.status.value}"] += 1
-            self._drop_log(
-                lookup.status.value,
-                "frame %d dropped: no pose at its capture time (%s; %d so far)",
-                frame.sequence,
-                lookup.status.value,
-                self.counters[f"pose_{lookup.status.value}"],
-            )
-            return
-        if lookup.status is PoseStatus.EXTRAPOLATED:
-            self.counters["pose_extrapolated"] += 1
-        self._last_capture_ns = frame.capture_ns
-        self._observe(frame.capture_ns)
-        pose = lookup.pose
-        assert pose is not None
-        self._advance_waypoint(pose.pos_ned_m)
-        try:
-            out = self.pipeline.process(frame, pose)
-        except Exception as exc:  # a bad frame must never stop the companion (cv2.error too)
-            self.counters["pipeline_errors"] += 1
-            self._drop_log("pipeline", "frame %d: pipeline error %s", frame.sequence, exc)
-            return
-        self.counters["frames_processed"] += 1
-        self._newest_frame_ns = frame.capture_ns
-        self._check_failsafe(time.monotonic())
-        g = out.guidance
-        t_computed = time.monotonic_ns()
-        sent_ns = None
-        target = PositionTarget(tuple(float(x) for x in out.setpoint_ned_m), float(out.yaw_rad))
-        if (
-            self.modes.steering
-            and self.failsafe.status.health.ok
-            and self.policy is not None
-            and self._may_steer(time.monotonic())
-        ):
-            now_s = time.monotonic()
-            if self.policy.on_new_target(target, now_s):
-                sent_ns = self._send_target(target, now_s, frame.capture_ns)
-            self._state_speed_limit(out.envelope.speed_limit_mps, now_s)
-        self._check_overspeed(out)
-        self._check_goal(pose.pos_ned_m, frame.capture_ns)
-        if (g.mode, g.reason) != self._guidance_state:
-            self._guidance_state = (g.mode, g.reason)
-            if g.mode is Mode.HOLD:
-                sp = out.setpoint_ned_m
-                self._notice(
-                    f"Holding ({g.reason.value}) at N{sp[0]:.1f} E{sp[1]:.1f} D{sp[2]:.1f}",
-                    _SEV_WARNING,
-                )
-                self._event("hold", reason=g.reason.value, setpoint_ned_m=[float(x) for x in sp])
-        if g.avoidance_flag != self._avoiding:
-            self._avoiding = bool(g.avoidance_flag)
-            self._event("avoidance", active=self._avoiding, capture_s=frame.capture_ns * 1e-9)
-            if self._avoiding:
-                near = min((o.nearest_range_m for o in out.perception.obstacles), default=math.nan)
-                where = f" at {near:.1f} m" if math.isfinite(near) else " (remembered)"
-                self._notice(f"Avoiding obstacle{where}", _SEV_WARNING)
-            else:
-                self._notice("Avoidance ended, heading to goal")
-        if self.config.link.obstacle_distance:
-            self._send_obstacle_distance(out, pose, frame.intrinsics.hfov_deg)
-        if self._status is not None:
-            host_capture = frame.capture_ns if self.clock.frame_clock is FrameClock.HOST else None
-            latency = {
-                "receive_to_compute_start": round((t_start - recv_ns) * 1e-6, 3),
-                "compute": round((t_computed - t_start) * 1e-6, 3),
-                "receive_to_send": None
-                if sent_ns is None
-                else round((sent_ns - recv_ns) * 1e-6, 3),
-                "capture_to_send": None
-                if sent_ns is None or host_capture is None
-                else round((sent_ns - host_capture) * 1e-6, 3),
-            }
-            self._status.publish(
-                status_document(
-                    out,
-                    state=self._state().value,
-                    phase=self.modes.phase.value,
-                    autopilot_mode=self.modes.mode_text(),
-                    health=self.failsafe.status.health.value,
-                    pose=lookup.status.value,
-                    pos_ned_m=[round(float(x), 4) for x in pose.pos_ned_m],
-                    waypoint=self._waypoint,
-                    setpoint_sent=sent_ns is not None,
-                    latency_ms=latency,
-                )
-            )
-
-    def _check_goal(self, pos_ned_m: np.ndarray, capture_ns: int) -> None:
-        if self._goal_reported or self._waypoint + 1 < len(self.config.waypoints_ned_m):
-            return
-        distance_m = float(np.linalg.norm(pos_ned_m - self.pipeline.goal_ned_m))
-        if distance_m < self.config.goal_tolerance_m:
-            self._goal_reported = True
-            self._notice("Goal reached")
-            self._event("goal_reached", capture_s=capture_ns * 1e-9, distance_m=distance_m)
-
-    def _advance_waypoint(self, pos_ned_m: np.ndarray) -> None:
-        wps = self.config.waypoints_ned_m
-        if self._waypoint + 1 >= len(wps):
-            return
-        distance_m = float(np.linalg.norm(pos_ned_m - self.pipeline.goal_ned_m))
-        if distance_m < self.config.goal_tolerance_m:
-            self._waypoint += 1
-            self.pipeline.goal_ned_m = np.array(wps[self._waypoint], dtype=float)
-            self._notice(f"Waypoint {self._waypoint} of {len(wps) - 1}")
-
-    def _state_speed_limit(self, limit_mps: float, now_s: float) -> None:
-        """ArduPilot: the envelope's speed limit as MAV_CMD_DO_CHANGE_SPEED (see
-        :mod:`companion.link.speed_limit`); other autopilots: the carrot alone."""
-        if self.modes.flavour is not Flavour.ARDUPILOT:
-            return
-        if self._wpnav_speed_mps is None:
-            # DO_CHANGE_SPEED overrides WPNAV_SPEED (no clip): never state a speed before we
-            # know the pilot's own limit, so that ours can only lower it (the carrot bounds
-            # the speed meanwhile)
-            if now_s >= self._next_param_request_s and self._param_requests < 5:
-                self._param_requests += 1
-                if self._param_requests == 5:
-                    _log.warning(
-                        "autopilot does not report %s: no speed limit stated, the carrot "
-                        "alone bounds the speed",
-                        _WPNAV_SPEED,
-                    )
-                self._next_param_request_s = now_s + 2.0
-                cfg = self.config.link
-                self.link.send(
-                    mavlink.MAVLink_param_request_read_message(
-                        cfg.target_system, cfg.target_component, _WPNAV_SPEED.encode(), -1
-                    )
-                )
-            return
-        speed = self.speed_policy.due(min(limit_mps, self._wpnav_speed_mps), now_s)
-        if speed is None:
-            return
-        cfg = self.config.link
-        self.link.send(change_speed_command(speed, cfg.target_system, cfg.target_component))
-        self.speed_policy.sent(speed, now_s)
-        self.counters["speed_limits_sent"] += 1
-
-    def _check_overspeed(self, out) -> None:
-        """Warn (log + STATUSTEXT, at most every 5 s) when telemetry exceeds the limit."""
-        env = out.envelope
-        if not env.overspeed:
-            return
-        self.counters["overspeed_frames"] += 1
-        now_s = time.monotonic()
-        if now_s - self._overspeed_notice_s >= 5.0:
-            self._overspeed_notice_s = now_s
-            self._notice(
-                f"Speed {env.speed_mps:.1f} m/s above limit {env.speed_limit_mps:.1f} m/s",
-                _SEV_WARNING,
-            )
-
-    def _send_target(self, target: PositionTarget, now_s: float, frame_ns: int | None) -> int:
-        cfg = self.config.link
-        ap_ns = None
-        if frame_ns is not None:
-            ap_ns = self.clock.frame_to_autopilot_ns(frame_ns)
-        if ap_ns is None:
-            ap_ns = (self._last_boot_ms or 0) * 1_000_000
-        msg = position_target_message(
-            target, ap_ns // 1_000_000, cfg.target_system, cfg.target_component
-        )
-        self.link.send(msg)
-        sent_ns = time.monotonic_ns()
-        assert self.policy is not None
-        self.policy.sent(target, now_s)
-        self.counters["setpoints_sent"] += 1
-        if not self._engaged:
-            self._engaged = True
-            self._event(
-                "steering",
-                setpoint_ned_m=list(target.pos_ned_m),
-                autopilot_time_s=None if self._last_boot_ms is None else self._last_boot_ms / 1e3,
-            )
-        return sent_ns
-
-    def _resend_now(self, now_s: float) -> None:
-        """Keep-alive / PX4 stream / hold: (re)send the appropriate target."""
-        if self.policy is None or not self._may_steer(now_s):
-            return
-        if self.modes.streaming_hold or (
-            self.modes.steering and not self.failsafe.status.health.ok and self._must_stream()
-        ):
-            target = self._hold_target()
-        elif self.modes.steering and (self.failsafe.status.health.ok or self.policy.last is None):
-            target = self.policy.last
-            if target is None and self._must_stream():
-                target = self._hold_target()
-        else:
-            return
-        if target is not None:
-            self._send_target(target, now_s, None)
-
-    def _hold_target(self) -> PositionTarget | None:
-        newest = self.poses.newest_ns
-        if newest is None:
-            return None
-        lookup = self.poses.at(newest)
-        if lookup.pose is None:
-            return None
-        p = lookup.pose.pos_ned_m
-        yaw = math.atan2(lookup.pose.R_ned_from_frd[1, 0], lookup.pose.R_ned_from_frd[0, 0])
-        return PositionTarget((float(p[0]), float(p[1]), float(p[2])), yaw)
-
-    def _send_obstacle_distance(self, out, pose, hfov_deg: float) -> None:
-        """OBSTACLE_DISTANCE over the camera's own field of view (from the frame's model)."""
-        pairs = []
-        for o in out.perception.obstacles:
-            rel_frd = pose.R_ned_from_frd.T @ (np.asarray(o.center_ned_m) - pose.pos_ned_m)
-            pairs.append((math.atan2(rel_frd[1], rel_frd[0]), float(o.nearest_range_m)))
-        self.link.send(
-            obstacle_distance_message(
-                out.perception.capture_ns // 1000,
-                pairs,
-                hfov_deg,
-                self.config.perception.min_range_m,
-                self.config.perception.threshold_m,
-            )
-        )
-
-    # ---- failsafe ------------------------------------------------------------------
-    def _check_failsafe(self, now_s: float) -> None:
-        now_frame = self.clock.now_frame_ns(time.monotonic_ns(), self._newest_seen_ns)
-        changed = self.failsafe.update(now_frame, self._newest_frame_ns, self.poses.newest_ns)
-        if changed is None or self.modes.flavour is None:
-            return  # (during a takeoff the health is tracked for the status line only)
-        status = self.failsafe.status
-        if changed.ok:
-            before = self.modes.phase
-            request = self.modes.set_hold(now_s, False)
-            if before is ControlPhase.HOLD:
-                self._notice("Frames and telemetry healthy: avoidance resumes")
-                self._event("resume")
-            if request is not None:
-                self._request_mode(request)
-            self._after_phase_change(before, now_s)
-            return
-        if not self._engaged or changed in (Health.NO_FRAMES, Health.NO_CLOCK):
-            _log.info("not steering yet: %s", changed.value)
-            return
-        before = self.modes.phase
-        request = self.modes.set_hold(now_s, True)
-        if self.modes.phase is ControlPhase.HOLD and before is not ControlPhase.HOLD:
-            self.counters["hold_commands"] += 1
-            ages = f"frames {_age(status.frame_age_s)}, telemetry {_age(status.telemetry_age_s)}"
-            what = request.name if request is not None else "hold position"
-            self._notice(f"Failsafe {changed.value}: {what}", _SEV_WARNING)
-            _log.warning("failsafe %s (%s): commanding %s", changed.value, ages, what)
-            self._event(
-                "hold",
-                reason=changed.value,
-                command=what,
-                frame_age_s=status.frame_age_s,
-                telemetry_age_s=status.telemetry_age_s,
-                newest_frame_ns=self._newest_frame_ns,
-                now_frame_ns=now_frame,
-            )
-            if request is not None:
-                self._request_mode(request)
-            else:
-                self._resend_now(now_s)
-        self._after_phase_change(before, now_s)
+    def _event(self, event: Event) -> None:
+        line = f"COMPANION EVENT {event.name} {json.dumps(event.fields, default=str)}"
+        print(line, file=self._events, flush=True)
 
     # ---- reporting -----------------------------------------------------------------
-    def _state(self) -> CompanionState:
-        if not self._link_up:
-            return CompanionState.LINK_LOST if self.counters["link_losses"] else CompanionState.BOOT
-        if not self._may_steer(time.monotonic()):
-            return CompanionState.STANDBY
-        if self.modes.phase is ControlPhase.HOLD:
-            return CompanionState.HOLD
-        if self.modes.steering and self.failsafe.status.health.ok:
-            return CompanionState.ACTIVE
-        if self._newest_frame_ns is None:
-            return CompanionState.BOOT
-        return CompanionState.STANDBY
+    def _report(self, now_s: float) -> None:
+        no_frames = self.intake.watch(now_s)
+        if no_frames is not None:
+            self._event(no_frames)
+        if now_s >= self._next_report_s:
+            self._next_report_s = now_s + self.config.link.heartbeat_period_s
+            self._report_refusals()
+            self._report_health(now_s)
+        if now_s >= self._next_progress_s:
+            self._next_progress_s = now_s + self.config.status_log_period_s
+            f = self.slot.counters
+            _log.info(
+                "%s; frames received %d (malformed %d, superseded %d)",
+                self.core.progress_text(),
+                f.received,
+                f.malformed,
+                f.superseded,
+            )
 
     def _report_health(self, now_s: float) -> None:
         """Rewrite the health file (companion.health) from the state we already have."""
         if self.health is None:
             return
+        core = self.core
         self.health.update(
             HealthInputs(
                 now_s=now_s,
-                link_up=self._link_up,
-                autopilot_seen=self.policy is not None,
+                link_up=core.link_up,
+                autopilot_seen=core.autopilot_seen,
                 link_url=self.config.link.url,
-                telemetry_stamp_ns=self.poses.newest_ns,
+                telemetry_stamp_ns=core.poses.newest_ns,
                 frames_received=self.slot.counters.received,
-                flying=self.modes.phase in (ControlPhase.ACTIVE, ControlPhase.HOLD),
-                fatal=self.fatal,
+                flying=core.flying,
+                fatal=core.fatal,
             )
         )
 
-    def _notice(self, text: str, severity: int = _SEV_INFO) -> None:
-        """STATUSTEXT to the ground station; longer than 50 characters: MAVLink 2 chunks."""
-        _log.info("STATUSTEXT: %s", text)
-        if len(text) > 50:
-            self._text_id = self._text_id % 255 + 1
-        for msg in statustext_messages(text, severity, self._text_id or 1):
-            self.link.send(msg)
-
-    def _event(self, name: str, **fields: Any) -> None:
-        print(f"COMPANION EVENT {name} {json.dumps(fields, default=str)}", file=self._events)
-        self._events.flush()
-
-    def _drop_log(self, key: str, fmt: str, *args: Any) -> None:
-        now = time.monotonic()
-        if now - self._drop_log_s.get(key, -math.inf) >= 2.0:
-            self._drop_log_s[key] = now
-            _log.warning(fmt, *args)
-
-    def _progress(self) -> None:
-        newest = self.poses.newest_ns
-        pos = "-"
-        if newest is not None:
-            lookup = self.poses.at(newest)
-            if lookup.pose is not None:
-                p = lookup.pose.pos_ned_m
-                pos = f"({p[0]:.1f}, {p[1]:.1f}, {p[2]:.1f})"
-        f = self.slot.counters
-        mode = self.modes.mode_text()
-        if self.takeoff is not None and self.takeoff.busy and self.takeoff.custom_mode is not None:
-            mode = mode_name(self.takeoff.flavour, self.takeoff.custom_mode)
-        _log.info(
-            "t=%s pos=%s phase=%s mode=%s health=%s frames %d/%d (malformed %d, superseded %d)"
-            " setpoints %d",
-            "-" if newest is None else f"{newest * 1e-9:.1f}s",
-            pos,
-            f"takeoff:{self.takeoff.step.value}"
-            if self.takeoff is not None and self.takeoff.busy
-            else self.modes.phase.value,
-            mode,
-            self.failsafe.status.health.value,
-            self.counters["frames_processed"],
-            f.received,
-            f.malformed,
-            f.superseded,
-            self.counters["setpoints_sent"],
-        )
+    def _report_refusals(self) -> None:
+        refused = self.link.counters.signing_refused
+        if refused > self._refusals_reported:
+            _log.error(
+                "MAVLink signing: %d message(s) from the link refused (unsigned or bad "
+                "signature, %d in total): check that both ends use the same key",
+                refused - self._refusals_reported,
+                refused,
+            )
+            self._event(Event("signing_refused", {"total": refused}))
+            self._refusals_reported = refused
 
 
-_MAX_POS_M = 1e5  # |LOCAL_NED| beyond this is not a position of a multirotor
-_MAX_SPEED_MPS = 300.0
+def _with_latency(status: Status, returned_ns: int, sent_ns: int | None) -> dict[str, Any]:
+    """The status document with the frame's latencies [ms, host monotonic clock]."""
 
+    def ms(delta_ns: float) -> float:
+        return round(delta_ns * 1e-6, 3)
 
-def _in_range(values, bound: float) -> bool:
-    return all(math.isfinite(v) and abs(v) <= bound for v in values)
-
-
-def _statustext(msg) -> str:
-    """The STATUSTEXT's text, printable ASCII only (raw bytes never reach the log)."""
-    text = msg.text if isinstance(msg.text, str) else msg.text.decode("ascii", "replace")
-    text = text.split("\x00", 1)[0]
-    return "".join(c if " " <= c <= "~" else "?" for c in text)
-
-
-def _age(value: float | None) -> str:
-    return "-" if value is None else f"{value:.2f} s"
+    capture = status.host_capture_ns
+    return {
+        **status.document,
+        "latency_ms": {
+            "receive_to_compute_start": ms(status.started_ns - status.received_ns),
+            "compute": ms(returned_ns - status.started_ns),
+            "receive_to_send": None if sent_ns is None else ms(sent_ns - status.received_ns),
+            "capture_to_send": None
+            if sent_ns is None or capture is None
+            else ms(sent_ns - capture),
+        },
+    }

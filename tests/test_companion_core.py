@@ -2,10 +2,26 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.clock_model import FrameClock
+from companion.config import CompanionConfig
+from companion.core import (
+    STREAMS,
+    CompanionCore,
+    Event,
+    FrameReceived,
+    MavlinkReceived,
+    SendMavlink,
+    SendSetpoint,
+    Status,
+    Tick,
+)
 from companion.pipeline import AvoidancePipeline, PoseAtCapture
 from protocols.camera import CameraModel
 from protocols.frames import rotation_321
@@ -33,3 +49,287 @@ def test_pipeline_first_yaw_is_the_vehicles_own_when_no_direction_is_defined():
     out = pipeline.process(_blank_frame(0, 1_000_000), pose)
     assert math.isclose(out.yaw_rad, yaw_east_rad, abs_tol=1e-12), out.yaw_rad
 
+
+# ---- the core, in process: a scripted ArduCopter on the other side of typed events ---
+
+GUIDED, BRAKE, LOITER = 4, 17, 5  # ArduCopter custom modes (DESIGN.md)
+SMALL = CameraModel(width_px=160, height_px=120)  # fast matcher; same field of view
+
+
+class Rig:
+    """A :class:`CompanionCore` and a scripted autopilot (system 1, component 1).
+
+    Host time and autopilot time run at the same rate, ``boot_offset_ns`` apart; frames
+    are stamped on the autopilot clock (the SIL's frame clock). Every 10 ms of host time
+    the core gets a tick, every 20 ms telemetry, every 1/30 s a blank frame and every
+    second a heartbeat; what it sends is kept in ``outputs`` and DO_SET_MODE is obeyed
+    (ACK, then the new mode in the heartbeat).
+    """
+
+    def __init__(self, config: CompanionConfig | None = None, instance_id: int = 7) -> None:
+        self.core = CompanionCore(config or CompanionConfig(), instance_id)
+        self.mav = {}
+        self.now_ns = 1_000_000_000
+        self.boot_offset_ns = 400_000_000
+        self.custom_mode = GUIDED
+        self.pos_ned_m = (0.0, 0.0, -7.0)
+        self.yaw_rad = 0.0
+        self.camera = SMALL
+        self.outputs: list = []
+        self._seq = 0
+        self._tick = 0
+        self.twin = None  # a second companion's heartbeat, sent every second if set
+
+    def message(self, msg, src=(1, 1)):
+        """``msg`` as received from ``src``: packed and parsed like off the wire."""
+        mav = self.mav.setdefault(src, mavlink.MAVLink(None, srcSystem=src[0], srcComponent=src[1]))
+        return mav.decode(bytearray(msg.pack(mav)))
+
+    def feed(self, event) -> list:
+        out = self.core.step(event)
+        self.outputs.extend(out)
+        for o in out:
+            if not isinstance(o, SendMavlink):
+                continue
+            if o.message.get_type() == "COMMAND_LONG":
+                self._obey(o.message)
+            elif o.message.get_type() == "TIMESYNC" and o.message.tc1 == 0:
+                autopilot_ns = self.now_ns - self.boot_offset_ns
+                reply = mavlink.MAVLink_timesync_message(autopilot_ns, o.message.ts1)
+                self.feed(MavlinkReceived(self.message(reply), self.now_ns))
+        return out
+
+    def _obey(self, cmd) -> None:
+        if cmd.command == mavlink.MAV_CMD_DO_SET_MODE:
+            self.custom_mode = int(cmd.param2)
+        ack = mavlink.MAVLink_command_ack_message(cmd.command, mavlink.MAV_RESULT_ACCEPTED)
+        self.feed(MavlinkReceived(self.message(ack), self.now_ns))
+
+    @property
+    def boot_ms(self) -> int:
+        return (self.now_ns - self.boot_offset_ns) // 1_000_000
+
+    def receive(self, msg, src=(1, 1)) -> None:
+        self.feed(MavlinkReceived(self.message(msg, src), self.now_ns))
+
+    def heartbeat(self) -> None:
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        self.receive(
+            mavlink.MAVLink_heartbeat_message(
+                mavlink.MAV_TYPE_QUADROTOR,
+                mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                base,
+                self.custom_mode,
+                mavlink.MAV_STATE_ACTIVE,
+                3,
+            )
+        )
+
+    def telemetry(self) -> None:
+        p = self.pos_ned_m
+        self.receive(mavlink.MAVLink_local_position_ned_message(self.boot_ms, *p, 0.0, 0.0, 0.0))
+        self.receive(
+            mavlink.MAVLink_attitude_message(self.boot_ms, 0.0, 0.0, self.yaw_rad, 0, 0, 0)
+        )
+
+    def frame(self) -> None:
+        flat = np.full((self.camera.height_px, self.camera.width_px), 128, dtype=np.uint8)
+        host_clock = self.core.config.link.frame_clock is FrameClock.HOST
+        capture_ns = self.now_ns if host_clock else self.boot_ms * 1_000_000
+        f = StereoFrame(self._seq, capture_ns, self.camera.intrinsics, flat, flat.copy())
+        self._seq += 1
+        self.feed(FrameReceived(f, self.now_ns, self.now_ns))
+
+    def run(self, seconds: float, *, frames: bool = True, telemetry: bool = True) -> None:
+        for _ in range(round(seconds / 0.01)):
+            self.now_ns += 10_000_000
+            self._tick += 1
+            if self._tick % 100 == 1:
+                self.heartbeat()
+                if self.twin is not None:
+                    self.receive(self.twin, src=(1, 196))
+            if telemetry and self._tick % 2 == 0:
+                self.telemetry()
+            if frames and self._tick % 3 == 0:
+                self.frame()
+            self.feed(Tick(self.now_ns))
+
+    def events(self, name: str) -> list[dict]:
+        return [o.fields for o in self.outputs if isinstance(o, Event) and o.name == name]
+
+    def sent(self, mtype: str) -> list:
+        return [
+            o.message
+            for o in self.outputs
+            if isinstance(o, SendMavlink | SendSetpoint) and o.message.get_type() == mtype
+        ]
+
+    def setpoints(self) -> list[SendSetpoint]:
+        return [o for o in self.outputs if isinstance(o, SendSetpoint)]
+
+    def statuses(self) -> list[dict]:
+        return [o.document for o in self.outputs if isinstance(o, Status)]
+
+    def texts(self) -> list[str]:
+        return [m.text for m in self.sent("STATUSTEXT")]
+
+
+def _steering_rig(config: CompanionConfig | None = None) -> Rig:
+    rig = Rig(config)
+    rig.run(3.0)  # listen 2.5 s before steering
+    assert rig.events("steering"), rig.outputs[-5:]
+    return rig
+
+
+def test_core_engages_guided_and_steers_after_listening():
+    """Heard for 2.5 s (another companion's heartbeat could arrive), then it steers."""
+    rig = Rig()
+    rig.run(2.3)
+    assert rig.events("link_up") and rig.events("autopilot")
+    assert not rig.setpoints()  # still listening
+    rig.run(0.7)
+    first = rig.setpoints()[0]
+    # a blank camera sees nothing free: the carrot stays on the vehicle (safety envelope)
+    np.testing.assert_allclose(first.target.pos_ned_m, rig.pos_ned_m, atol=1e-9)
+    heartbeats = rig.sent("HEARTBEAT")
+    assert len(heartbeats) == 3  # 1 Hz of the injected clock over 3 s
+    assert all(h.type == mavlink.MAV_TYPE_ONBOARD_CONTROLLER for h in heartbeats)
+    intervals = [m for m in rig.sent("COMMAND_LONG") if m.command == 511]
+    assert {int(m.param1) for m in intervals} == {int(x) for x in STREAMS}
+    assert all(m.param2 == pytest.approx(1e6 / 50.0) for m in intervals)  # 50 Hz [µs]
+
+
+def test_core_failsafe_holds_on_stale_frames_and_resumes():
+    """No frames for frame_timeout_s (frame clock) → BRAKE and a hold event; frames back
+    for resume_after_s → GUIDED again and a resume event."""
+    rig = _steering_rig()
+    rig.run(1.0, frames=False)
+    holds = rig.events("hold")
+    assert [h["reason"] for h in holds] == ["stale_frames"]
+    assert holds[0]["command"] == "BRAKE"
+    assert rig.custom_mode == BRAKE
+    assert rig.core.counters["hold_commands"] == 1
+    n_setpoints = len(rig.setpoints())
+    rig.run(0.5)
+    assert not rig.events("resume")  # healthy for less than resume_after_s (1 s)
+    rig.run(1.0)
+    assert len(rig.events("resume")) == 1
+    assert rig.custom_mode == GUIDED
+    assert len(rig.setpoints()) > n_setpoints
+
+
+def test_core_failsafe_on_stale_telemetry_with_host_stamped_frames():
+    """A real camera stamps frames on the host clock; telemetry maps onto it by TIMESYNC.
+    Telemetry stops while frames go on → hold for stale telemetry."""
+    cfg = CompanionConfig()
+    cfg = dataclasses.replace(cfg, link=dataclasses.replace(cfg.link, frame_clock=FrameClock.HOST))
+    rig = _steering_rig(cfg)
+    assert rig.core.clock.autopilot.synced
+    rig.run(0.5, telemetry=False)
+    assert [h["reason"] for h in rig.events("hold")] == ["stale_telemetry"]
+
+
+def test_core_flies_waypoints_in_order_and_reports_the_goal():
+    """The mission advances within goal_tolerance_m of each waypoint; the last is the goal."""
+    wps = ((5.0, 0.0, -7.0), (5.0, 5.0, -7.0), (0.0, 5.0, -7.0))
+    rig = _steering_rig(dataclasses.replace(CompanionConfig(), waypoints_ned_m=wps))
+    assert rig.statuses()[-1]["waypoint"] == 0
+    for k, wp in enumerate(wps):
+        rig.pos_ned_m = (wp[0] + 0.2, wp[1], wp[2])  # within the 0.5 m tolerance
+        rig.run(0.3)
+        assert rig.statuses()[-1]["waypoint"] == min(k + 1, len(wps) - 1)
+    assert rig.texts().count("Waypoint 1 of 2") == 1
+    assert rig.texts().count("Waypoint 2 of 2") == 1
+    goal = rig.events("goal_reached")
+    assert len(goal) == 1 and goal[0]["distance_m"] == pytest.approx(0.2)
+    assert rig.core.stats()["waypoint"] == 2
+
+
+def test_core_refuses_to_steer_while_another_source_sends_setpoints():
+    rig = _steering_rig()
+    before = len(rig.setpoints())
+    foreign = mavlink.MAVLink_set_position_target_local_ned_message(
+        0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 3576, 1, 2, -7, 0, 0, 0, 0, 0, 0, 0, 0
+    )
+    rig.receive(foreign, src=(255, 190))
+    assert rig.events("takeover") == [
+        {"blocked": True, "reason": rig.events("takeover")[0]["reason"]}
+    ]
+    rig.run(1.0)
+    assert len(rig.setpoints()) == before
+    assert rig.core.counters["takeover_refusals"] == 1
+    rig.run(rig.core.takeover.quiet_s + 1.0)  # quiet again: steering allowed
+    assert rig.events("takeover")[-1]["blocked"] is False
+    assert len(rig.setpoints()) > before
+
+
+def test_core_yields_to_a_twin_with_a_higher_instance_id():
+    """Two companions with the same ids, neither steering yet: the higher id yields."""
+    rig = Rig(instance_id=5)
+    rig.twin = mavlink.MAVLink_heartbeat_message(
+        mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+        mavlink.MAV_AUTOPILOT_INVALID,
+        0,
+        3,  # the twin's instance id
+        mavlink.MAV_STATE_STANDBY,
+        3,
+    )
+    rig.run(4.0)
+    assert [e["blocked"] for e in rig.events("takeover")] == [True]
+    assert not rig.setpoints()
+    lower = Rig(instance_id=2)  # now the twin (3) is the higher one: it yields, we steer
+    lower.twin = rig.twin
+    lower.run(4.0)
+    assert not lower.events("takeover") and lower.setpoints()
+
+
+def test_core_clock_timesync_maps_and_implausible_frames_are_dropped():
+    """TIMESYNC requests carry the injected clock; frames far from now are dropped."""
+    rig = _steering_rig()
+    requests = [m for m in rig.sent("TIMESYNC") if m.tc1 == 0]
+    assert len(requests) >= 10  # every 0.2 s of injected wall time once the link is up
+    assert all(m.ts1 <= rig.now_ns for m in requests)
+    stale = StereoFrame(
+        999, (rig.boot_ms - 10_000) * 1_000_000, SMALL.intrinsics, *_blank_pair(SMALL)
+    )
+    rig.feed(FrameReceived(stale, rig.now_ns, rig.now_ns))
+    assert rig.core.counters["frames_implausible_time"] == 1
+
+
+def test_core_obstacle_distance_spans_the_frames_own_field_of_view():
+    """OBSTACLE_DISTANCE sectors follow the camera's HFOV, not the paper's 48°."""
+    wide = CameraModel(width_px=160, height_px=120, hfov_deg=90.0, vfov_deg=73.7)
+    cfg = CompanionConfig()
+    cfg = dataclasses.replace(cfg, link=dataclasses.replace(cfg.link, obstacle_distance=True))
+    rig = Rig(cfg)
+    rig.camera = wide
+    rig.run(1.0)
+    msgs = rig.sent("OBSTACLE_DISTANCE")
+    assert msgs
+    assert msgs[-1].increment_f == pytest.approx(90.0 / 72, rel=1e-6)
+    assert msgs[-1].angle_offset == pytest.approx(-45.0, rel=1e-6)
+
+
+def test_core_replay_of_the_same_inputs_gives_the_same_outputs():
+    """Deterministic: a recorder's inputs fed to a fresh core reproduce its outputs."""
+
+    def record() -> list:
+        rig = Rig()
+        rig.run(3.5)
+        rig.run(0.5, frames=False)
+        return [_comparable(o) for o in rig.outputs]
+
+    assert record() == record()
+
+
+def _comparable(o):
+    if isinstance(o, SendMavlink | SendSetpoint):
+        return (type(o).__name__, o.message.get_type(), repr(o.message.to_dict()))
+    if isinstance(o, Status):
+        return ("Status", repr(o.document))
+    return (type(o).__name__, o.name, repr(o.fields))
+
+
+def _blank_pair(camera: CameraModel):
+    flat = np.full((camera.height_px, camera.width_px), 128, dtype=np.uint8)
+    return flat, flat.copy()

@@ -1,11 +1,13 @@
-"""Lockstep run: plant + synthetic stereo camera + the companion's pipeline, one process.
+"""Lockstep run: plant + synthetic stereo camera + the companion's mission, one process.
 
 Deterministic in simulation time and free of sockets: each camera period the plant is
 advanced, the stereo pair rendered at the true pose, the companion's
-:class:`~companion.pipeline.AvoidancePipeline` (the same code the networked companion
-runs) turns it into a setpoint, and the plant tracks that setpoint until the next frame.
-The pose handed to the pipeline is the plant's at the frame's capture time, as the
-networked companion interpolates it from telemetry.
+:class:`~companion.core.Mission` (the same waypoint sequencing and avoidance pipeline the
+networked companion's core runs per frame) turns it into a setpoint, and the plant
+tracks that setpoint until the next frame. The pose handed to the mission is the plant's
+at the frame's capture time, as the networked companion interpolates it from telemetry.
+What lockstep leaves out is the link: mode changes, failsafes, takeover (tested in
+process on :class:`~companion.core.CompanionCore`).
 """
 
 from __future__ import annotations
@@ -18,11 +20,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from companion.core.mission import Mission
 from companion.guidance import GuidanceConfig, Mode
 from companion.guidance.envelope import EnvelopeConfig
 from companion.known_space import KnownSpaceConfig
 from companion.perception import PerceptionConfig
-from companion.pipeline import AvoidancePipeline, PoseAtCapture
+from companion.pipeline import PoseAtCapture
 from plant_sim.lockstep.history import History
 from plant_sim.lockstep.scenes import Scene
 from plant_sim.params import ControlParams, QuadrotorParams
@@ -159,8 +162,13 @@ def run_scene(
     )
     renderer = StereoCameraRenderer(cfg.camera, cfg.render)
     intrinsics = cfg.camera.intrinsics
-    pipeline = AvoidancePipeline(
-        scene.goal_ned_m, cfg.perception, cfg.guidance, cfg.known_space, cfg.envelope
+    mission = Mission(
+        scene.waypoints_ned_m,
+        cfg.goal_tolerance_m,
+        cfg.perception,
+        cfg.guidance,
+        cfg.known_space,
+        cfg.envelope,
     )
     goal = np.asarray(scene.goal_ned_m, dtype=float)
     history = History()
@@ -181,7 +189,7 @@ def run_scene(
         state = quad.snapshot()
         frame = _render_frame(renderer, scene.world, state, seq, intrinsics)
         pose = PoseAtCapture(state.pos_ned_m, state.vel_ned_mps, state.R_ned_from_frd)
-        out = pipeline.process(frame, pose)
+        out = mission.step(frame, pose).output
         decision = out.guidance
         quad.set_setpoint(Setpoint(pos_ned_m=tuple(out.setpoint_ned_m), yaw_rad=out.yaw_rad))
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
@@ -198,7 +206,7 @@ def run_scene(
         if surface < cfg.collision_distance_m:
             collided, failure = True, "collision"
             break
-        if goal_dist < cfg.goal_tolerance_m:
+        if mission.goal_reached:  # the last waypoint, within goal_tolerance_m
             reached = True
             break
         # a reported stop (HOLD) that has come to rest ends the run: the world is static

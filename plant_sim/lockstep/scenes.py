@@ -33,14 +33,20 @@ class Scene:
     goal_ned_m: tuple[float, float, float]
     world: World
     seed: int = 0
-    yaw_rad: float | None = None  # start heading [rad]; None: facing the goal
+    yaw_rad: float | None = None  # start heading [rad]; None: facing the first waypoint
+    via_ned_m: tuple[tuple[float, float, float], ...] = ()  # waypoints before the goal
+
+    @property
+    def waypoints_ned_m(self) -> tuple[tuple[float, float, float], ...]:
+        """The mission: the ``via_ned_m`` waypoints in order, then the goal."""
+        return (*self.via_ned_m, self.goal_ned_m)
 
     @property
     def start_yaw_rad(self) -> float:
-        """Start heading: ``yaw_rad``, or from start to goal (the camera looks ahead)."""
+        """Start heading: ``yaw_rad``, or toward the first waypoint (the camera looks ahead)."""
         if self.yaw_rad is not None:
             return self.yaw_rad
-        d = np.subtract(self.goal_ned_m, self.start_ned_m)
+        d = np.subtract(self.waypoints_ned_m[0], self.start_ned_m)
         return math.atan2(d[1], d[0])
 
 

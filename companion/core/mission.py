@@ -1,0 +1,153 @@
+"""Waypoint mission around the avoidance pipeline: frame + pose in, command and reports out.
+
+The part of the companion that both the networked core and the lockstep harness run per
+frame: advance to the next waypoint once the current one is within ``goal_tolerance_m``,
+run :class:`~companion.pipeline.AvoidancePipeline` toward the current waypoint, and report
+what changed (goal reached, hold entered, avoidance started or ended). Pure: no clocks,
+no I/O; times are the frames' capture times.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.core.events import Event
+from companion.guidance import GuidanceConfig, Mode, Reason
+from companion.guidance.envelope import EnvelopeConfig
+from companion.known_space import KnownSpaceConfig
+from companion.perception import PerceptionConfig
+from companion.pipeline import AvoidancePipeline, PipelineOutput, PoseAtCapture
+from protocols.stereo_frame import StereoFrame
+
+__all__ = ["Mission", "MissionStep", "Notice"]
+
+
+@dataclass(frozen=True)
+class Notice:
+    """A line for the operator (STATUSTEXT on the networked path)."""
+
+    text: str
+    warning: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class MissionStep:
+    """One frame's result: the pipeline output toward waypoint ``waypoint`` and reports."""
+
+    output: PipelineOutput
+    waypoint: int
+    notices: tuple[Notice, ...]
+    events: tuple[Event, ...]
+
+
+class Mission:
+    """Fly ``waypoints_ned_m`` in order with the avoidance pipeline (one call per frame).
+
+    Parameters
+    ----------
+    waypoints_ned_m : sequence of 3-sequences
+        LOCAL_NED [m]; the last one is the goal.
+    goal_tolerance_m : float
+        A waypoint counts as reached within this distance [m].
+    perception, guidance, known_space, envelope : configs of the pipeline.
+    """
+
+    def __init__(
+        self,
+        waypoints_ned_m: Sequence[Sequence[float]],
+        goal_tolerance_m: float,
+        perception: PerceptionConfig | None = None,
+        guidance: GuidanceConfig | None = None,
+        known_space: KnownSpaceConfig | None = None,
+        envelope: EnvelopeConfig | None = None,
+    ) -> None:
+        if not waypoints_ned_m:
+            raise ValueError("a mission needs at least one waypoint")
+        if not (math.isfinite(goal_tolerance_m) and goal_tolerance_m > 0):
+            raise ValueError(f"goal_tolerance_m must be > 0, got {goal_tolerance_m!r}")
+        self.waypoints_ned_m = tuple(tuple(float(x) for x in wp) for wp in waypoints_ned_m)
+        self.goal_tolerance_m = float(goal_tolerance_m)
+        self.pipeline = AvoidancePipeline(
+            self.waypoints_ned_m[0], perception, guidance, known_space, envelope
+        )
+        self.waypoint = 0
+        self.goal_reached = False
+        self._guidance_state: tuple[Mode, Reason] | None = None
+        self._avoiding = False
+
+    @property
+    def target_ned_m(self) -> np.ndarray:
+        """The waypoint being flown to [m, NED]."""
+        return self.pipeline.goal_ned_m
+
+    @property
+    def on_last_waypoint(self) -> bool:
+        return self.waypoint + 1 >= len(self.waypoints_ned_m)
+
+    def step(self, frame: StereoFrame, pose: PoseAtCapture) -> MissionStep:
+        """Run one frame; ``pose`` is the vehicle's at ``frame.capture_ns``.
+
+        Raises whatever the pipeline raises on a bad frame (the caller counts and drops
+        it); the mission's state is unchanged by a frame that raised, except for a
+        waypoint reached before it.
+        """
+        notices: list[Notice] = []
+        events: list[Event] = []
+        self._advance_waypoint(pose.pos_ned_m, notices)
+        out = self.pipeline.process(frame, pose)
+        self._check_goal(pose.pos_ned_m, frame.capture_ns, notices, events)
+        self._report_changes(out, frame.capture_ns, notices, events)
+        return MissionStep(out, self.waypoint, tuple(notices), tuple(events))
+
+    def _advance_waypoint(self, pos_ned_m: np.ndarray, notices: list[Notice]) -> None:
+        if self.on_last_waypoint:
+            return
+        if float(np.linalg.norm(pos_ned_m - self.target_ned_m)) < self.goal_tolerance_m:
+            self.waypoint += 1
+            self.pipeline.goal_ned_m = np.array(self.waypoints_ned_m[self.waypoint])
+            notices.append(Notice(f"Waypoint {self.waypoint} of {len(self.waypoints_ned_m) - 1}"))
+
+    def _check_goal(self, pos_ned_m, capture_ns: int, notices: list, events: list) -> None:
+        if self.goal_reached or not self.on_last_waypoint:
+            return
+        distance_m = float(np.linalg.norm(pos_ned_m - self.target_ned_m))
+        if distance_m < self.goal_tolerance_m:
+            self.goal_reached = True
+            notices.append(Notice("Goal reached"))
+            events.append(
+                Event("goal_reached", {"capture_s": capture_ns * 1e-9, "distance_m": distance_m})
+            )
+
+    def _report_changes(self, out: PipelineOutput, capture_ns: int, notices, events) -> None:
+        g = out.guidance
+        if (g.mode, g.reason) != self._guidance_state:
+            self._guidance_state = (g.mode, g.reason)
+            if g.mode is Mode.HOLD:
+                sp = out.setpoint_ned_m
+                notices.append(
+                    Notice(
+                        f"Holding ({g.reason.value}) at N{sp[0]:.1f} E{sp[1]:.1f} D{sp[2]:.1f}",
+                        warning=True,
+                    )
+                )
+                events.append(
+                    Event(
+                        "hold",
+                        {"reason": g.reason.value, "setpoint_ned_m": [float(x) for x in sp]},
+                    )
+                )
+        if g.avoidance_flag != self._avoiding:
+            self._avoiding = bool(g.avoidance_flag)
+            events.append(
+                Event("avoidance", {"active": self._avoiding, "capture_s": capture_ns * 1e-9})
+            )
+            if self._avoiding:
+                near = min((o.nearest_range_m for o in out.perception.obstacles), default=math.nan)
+                where = f" at {near:.1f} m" if math.isfinite(near) else " (remembered)"
+                notices.append(Notice(f"Avoiding obstacle{where}", warning=True))
+            else:
+                notices.append(Notice("Avoidance ended, heading to goal"))
