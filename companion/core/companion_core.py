@@ -57,6 +57,7 @@ from companion.link.flavour import (
     detect_flavour,
     is_autopilot_heartbeat,
     mode_name,
+    profile_for,
 )
 from companion.link.messages import (
     CompanionState,
@@ -674,8 +675,11 @@ class CompanionCore:
             self._resend_now(now_s)
 
     def _must_stream(self) -> bool:
-        return self.modes.flavour is Flavour.PX4 and (
-            self.modes.steering or self.modes.streaming_hold
+        flavour = self.modes.flavour
+        return (
+            flavour is not None
+            and profile_for(flavour).streams_setpoints
+            and (self.modes.steering or self.modes.streaming_hold)
         )
 
     def _link_lost(self, now_s: float) -> None:
@@ -800,7 +804,8 @@ class CompanionCore:
     def _state_speed_limit(self, limit_mps: float, now_s: float) -> None:
         """ArduPilot: the envelope's speed limit as MAV_CMD_DO_CHANGE_SPEED (see
         :mod:`companion.link.speed_limit`); other autopilots: the carrot alone."""
-        if self.modes.flavour is not Flavour.ARDUPILOT:
+        flavour = self.modes.flavour
+        if flavour is None or not profile_for(flavour).states_speed_limit:
             return
         if self._wpnav_speed_mps is None:
             # DO_CHANGE_SPEED overrides WPNAV_SPEED (no clip): never state a speed before we

@@ -1,8 +1,14 @@
-"""Autopilot flavour from its HEARTBEAT, and the modes the companion uses on each.
+"""Autopilot profiles: everything the companion does differently per autopilot family.
 
-Pure. ArduPilot (``MAV_AUTOPILOT_ARDUPILOTMEGA``): ArduCopter custom modes, GUIDED = 4 to
-steer, BRAKE = 17 to hold. PX4 (``MAV_AUTOPILOT_PX4``): ``custom_mode`` packs the main mode
-in bits 16–23 and the sub mode in bits 24–31; OFFBOARD is main mode 6 (``6 << 16``) and a
+Pure. One :class:`AutopilotProfile` per :class:`Flavour` (:data:`PROFILES`,
+:func:`profile_for`) owns the mode numbers (control and hold mode, names, how a HEARTBEAT
+mode is compared), guided/offboard entry, the setpoint streaming rule, the takeoff's mode
+and altitude reference and whether a speed limit is stated. No other module branches on
+the flavour; they read the profile.
+
+ArduPilot (``MAV_AUTOPILOT_ARDUPILOTMEGA``): ArduCopter custom modes, GUIDED = 4 to
+steer, BRAKE = 17 to hold. PX4 (``MAV_AUTOPILOT_PX4``): ``custom_mode`` packs the main
+mode in bits 16–23 and the sub mode in bits 24–31; OFFBOARD is main mode 6 (``6 << 16``) and a
 hold is a hold-position setpoint streamed in OFFBOARD (PX4 leaves OFFBOARD if the stream
 stops for more than its COM_OF_LOSS_T). Anything else is treated like ArduPilot (the most
 common MAVLink "GUIDED" semantics) and reported as GENERIC.
@@ -18,7 +24,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 __all__ = [
     "ARDUCOPTER_BRAKE",
     "ARDUCOPTER_GUIDED",
+    "PROFILES",
     "PX4_MAIN_MODE_OFFBOARD",
+    "AutopilotProfile",
     "Flavour",
     "ModeRequest",
     "control_mode",
@@ -26,6 +34,7 @@ __all__ = [
     "hold_mode",
     "is_autopilot_heartbeat",
     "mode_name",
+    "profile_for",
     "px4_custom_mode",
     "same_mode",
 ]
@@ -119,33 +128,120 @@ def detect_flavour(autopilot: int) -> Flavour:
 _CUSTOM = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
 
 
+@dataclass(frozen=True)
+class AutopilotProfile:
+    """How the companion drives one autopilot family.
+
+    Attributes
+    ----------
+    flavour : Flavour
+    control_mode : ModeRequest
+        The mode in which the companion steers (GUIDED, OFFBOARD).
+    hold_mode : ModeRequest or None
+        What a failsafe hold asks for (BRAKE); None: stay in the control mode and stream
+        a hold-position setpoint.
+    streams_setpoints : bool
+        Setpoints must flow continuously (> 2 Hz; PX4 leaves OFFBOARD when they stop):
+        every frame's target is sent, they stream for a while *before* the control mode
+        is requested (pre-stream), and a hold is a streamed setpoint. Otherwise targets
+        persist in the autopilot: sent when they change, re-sent as a keep-alive.
+    takeoff_mode : ModeRequest or None
+        Mode to select before arming for ``--takeoff-alt`` (GUIDED); None: take off from
+        the current mode (PX4 runs NAV_TAKEOFF in its own takeoff mode).
+    takeoff_alt_amsl : bool
+        NAV_TAKEOFF's altitude is above mean sea level (PX4: home altitude needed) rather
+        than relative to home.
+    states_speed_limit : bool
+        The envelope's speed limit is stated with MAV_CMD_DO_CHANGE_SPEED below the
+        autopilot's WPNAV_SPEED (ArduPilot); otherwise the carrot alone bounds the speed.
+    packed_modes : bool
+        HEARTBEAT.custom_mode packs a main mode (bits 16–23) and sub mode (24–31) (PX4).
+    """
+
+    flavour: Flavour
+    control_mode: ModeRequest
+    hold_mode: ModeRequest | None
+    streams_setpoints: bool
+    takeoff_mode: ModeRequest | None
+    takeoff_alt_amsl: bool
+    states_speed_limit: bool
+    packed_modes: bool = False
+
+    def mode_name(self, custom_mode: int) -> str:
+        """Human name of a HEARTBEAT custom mode."""
+        if self.packed_modes:
+            main = (custom_mode >> 16) & 0xFF
+            return _PX4_MAIN_NAMES.get(main, f"PX4_MODE_{custom_mode:#x}")
+        return _ARDUCOPTER_NAMES.get(custom_mode, f"MODE_{custom_mode}")
+
+    def same_mode(self, custom_mode: int, wanted: ModeRequest) -> bool:
+        """Whether a HEARTBEAT custom_mode is ``wanted`` (packed: main and sub mode)."""
+        if self.packed_modes:
+            return (custom_mode >> 16) & 0xFF == (wanted.custom_mode >> 16) & 0xFF and (
+                (custom_mode >> 24) & 0xFF == (wanted.custom_mode >> 24) & 0xFF
+            )
+        return custom_mode == wanted.custom_mode
+
+
+_GUIDED = ModeRequest(_CUSTOM, ARDUCOPTER_GUIDED, "GUIDED")
+_BRAKE = ModeRequest(_CUSTOM, ARDUCOPTER_BRAKE, "BRAKE")
+
+#: the profile of each flavour; GENERIC gets ArduPilot's GUIDED semantics (the most
+#: common among other MAVLink autopilots) without the ArduPilot-only speed command
+PROFILES: dict[Flavour, AutopilotProfile] = {
+    Flavour.ARDUPILOT: AutopilotProfile(
+        Flavour.ARDUPILOT,
+        control_mode=_GUIDED,
+        hold_mode=_BRAKE,
+        streams_setpoints=False,
+        takeoff_mode=_GUIDED,
+        takeoff_alt_amsl=False,
+        states_speed_limit=True,
+    ),
+    Flavour.PX4: AutopilotProfile(
+        Flavour.PX4,
+        control_mode=ModeRequest(
+            _CUSTOM, px4_custom_mode(PX4_MAIN_MODE_OFFBOARD), "OFFBOARD", px4=True
+        ),
+        hold_mode=None,
+        streams_setpoints=True,
+        takeoff_mode=None,
+        takeoff_alt_amsl=True,
+        states_speed_limit=False,
+        packed_modes=True,
+    ),
+    Flavour.GENERIC: AutopilotProfile(
+        Flavour.GENERIC,
+        control_mode=_GUIDED,
+        hold_mode=_BRAKE,
+        streams_setpoints=False,
+        takeoff_mode=_GUIDED,
+        takeoff_alt_amsl=False,
+        states_speed_limit=False,
+    ),
+}
+
+
+def profile_for(flavour: Flavour) -> AutopilotProfile:
+    """The :class:`AutopilotProfile` of ``flavour``."""
+    return PROFILES[flavour]
+
+
 def control_mode(flavour: Flavour) -> ModeRequest:
     """The mode in which the companion steers: GUIDED (ArduPilot) or OFFBOARD (PX4)."""
-    if flavour is Flavour.PX4:
-        return ModeRequest(_CUSTOM, px4_custom_mode(PX4_MAIN_MODE_OFFBOARD), "OFFBOARD", px4=True)
-    return ModeRequest(_CUSTOM, ARDUCOPTER_GUIDED, "GUIDED")
+    return PROFILES[flavour].control_mode
 
 
 def hold_mode(flavour: Flavour) -> ModeRequest | None:
     """The mode a failsafe asks for: BRAKE (ArduPilot); None = stream a hold setpoint."""
-    if flavour is Flavour.PX4:
-        return None
-    return ModeRequest(_CUSTOM, ARDUCOPTER_BRAKE, "BRAKE")
+    return PROFILES[flavour].hold_mode
 
 
 def mode_name(flavour: Flavour, custom_mode: int) -> str:
     """Human name of a HEARTBEAT custom mode."""
-    if flavour is Flavour.PX4:
-        main = (custom_mode >> 16) & 0xFF
-        return _PX4_MAIN_NAMES.get(main, f"PX4_MODE_{custom_mode:#x}")
-    return _ARDUCOPTER_NAMES.get(custom_mode, f"MODE_{custom_mode}")
+    return PROFILES[flavour].mode_name(custom_mode)
 
 
 def same_mode(flavour: Flavour, custom_mode: int, wanted: ModeRequest) -> bool:
-    """Whether a HEARTBEAT custom_mode is ``wanted`` (PX4: compare the main mode only
-    for OFFBOARD, which has no sub modes)."""
-    if flavour is Flavour.PX4:
-        return (custom_mode >> 16) & 0xFF == (wanted.custom_mode >> 16) & 0xFF and (
-            (custom_mode >> 24) & 0xFF == (wanted.custom_mode >> 24) & 0xFF
-        )
-    return custom_mode == wanted.custom_mode
+    """Whether a HEARTBEAT custom_mode is ``wanted``."""
+    return PROFILES[flavour].same_mode(custom_mode, wanted)

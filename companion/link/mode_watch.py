@@ -28,6 +28,7 @@ from companion.link.flavour import (
     control_mode,
     hold_mode,
     mode_name,
+    profile_for,
     same_mode,
 )
 
@@ -82,7 +83,7 @@ class ModeWatch:
     @property
     def steering(self) -> bool:
         """The companion may send guidance setpoints."""
-        if self.flavour is Flavour.PX4:
+        if self._streams():
             return self.phase in (
                 ControlPhase.PRESTREAM,
                 ControlPhase.REQUESTED,
@@ -93,7 +94,10 @@ class ModeWatch:
     @property
     def streaming_hold(self) -> bool:
         """PX4 failsafe: stream a hold-position setpoint (OFFBOARD needs the stream)."""
-        return self.flavour is Flavour.PX4 and self.phase is ControlPhase.HOLD
+        return self._streams() and self.phase is ControlPhase.HOLD
+
+    def _streams(self) -> bool:
+        return self.flavour is not None and profile_for(self.flavour).streams_setpoints
 
     def mode_text(self) -> str:
         if self.mode is None or self.flavour is None:
@@ -113,7 +117,9 @@ class ModeWatch:
                 notices.append(f"Avoidance active in {ctrl.name}")
             elif self.request_mode and not self.released_by_pilot:
                 self._enter(
-                    ControlPhase.PRESTREAM if flavour is Flavour.PX4 else ControlPhase.REQUESTED,
+                    ControlPhase.PRESTREAM
+                    if profile_for(flavour).streams_setpoints
+                    else ControlPhase.REQUESTED,
                     now_s,
                 )
                 self._tolerated = custom_mode

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.link.flavour import Flavour
+from companion.link.flavour import Flavour, profile_for
 
 __all__ = [
     "TYPE_MASK_POSITION",
@@ -106,7 +106,8 @@ class SetpointPolicy:
         if not px4_rate_hz > 2.0:
             raise ValueError("PX4 needs setpoints faster than 2 Hz")
         self.flavour = flavour
-        self.period_s = 1.0 / px4_rate_hz if flavour is Flavour.PX4 else ardupilot_period_s
+        self._stream = profile_for(flavour).streams_setpoints
+        self.period_s = 1.0 / px4_rate_hz if self._stream else ardupilot_period_s
         self._change_pos_m = change_pos_m
         self._change_yaw_rad = change_yaw_rad
         self._last: PositionTarget | None = None
@@ -119,7 +120,7 @@ class SetpointPolicy:
 
     def on_new_target(self, target: PositionTarget, now_s: float) -> bool:
         """A frame produced ``target``: send it now?"""
-        if self.flavour is Flavour.PX4:
+        if self._stream:
             return True
         return target.differs(self._last, self._change_pos_m, self._change_yaw_rad) or (
             now_s - self._last_sent_s >= self.period_s

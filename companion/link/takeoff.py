@@ -48,7 +48,13 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.link.flavour import Flavour, ModeRequest, control_mode, mode_name, same_mode
+from companion.link.flavour import (
+    Flavour,
+    ModeRequest,
+    mode_name,
+    profile_for,
+    same_mode,
+)
 
 __all__ = [
     "TakeoffCommand",
@@ -176,7 +182,8 @@ class TakeoffSequence:
         self.reason: str | None = None  # why FAILED / SKIPPED
         self._actions: list[TakeoffAction] = []
         self._start_s = now_s
-        self._guided: ModeRequest | None = None if flavour is Flavour.PX4 else control_mode(flavour)
+        self.profile = profile_for(flavour)
+        self._guided: ModeRequest | None = self.profile.takeoff_mode
         # telemetry
         self.armed: bool | None = None
         self.custom_mode: int | None = None
@@ -203,7 +210,7 @@ class TakeoffSequence:
         self.climb_autopilot_s: float | None = None  # autopilot seconds, same span
         self._event(step=self.step.value, alt_m=settings.alt_m, flavour=flavour.value)
         kinds = [_M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE]
-        if flavour is Flavour.PX4:
+        if self.profile.takeoff_alt_amsl:
             kinds.append(_M.MAVLINK_MSG_ID_HOME_POSITION)
         for msg_id in kinds:  # fire and forget: the stream usually has them anyway
             self._actions.append(
@@ -368,7 +375,7 @@ class TakeoffSequence:
         out = []
         if self.down_m is None:
             out.append("position (EKF origin/GPS)")
-        if self.flavour is Flavour.PX4 and self.home_amsl_m is None:
+        if self.profile.takeoff_alt_amsl and self.home_amsl_m is None:
             out.append("home altitude")
         if self.prearm_ok is False and not self.armed:
             out.append("pre-arm checks")
@@ -392,9 +399,9 @@ class TakeoffSequence:
             )
         if step is TakeoffStep.TAKEOFF:
             alt = self.settings.alt_m
-            if self.flavour is Flavour.PX4:
+            if self.profile.takeoff_alt_amsl:
                 assert self.home_amsl_m is not None
-                alt = self.home_amsl_m + alt  # PX4: AMSL
+                alt = self.home_amsl_m + alt
             p = _params(0.0, 0.0, 0.0, math.nan, math.nan, math.nan, alt)
             return TakeoffCommand(_M.MAV_CMD_NAV_TAKEOFF, p, self._attempts - 1, "TAKEOFF")
         return None
