@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from protocols.mavlink_modes import ArduCopterMode, Px4Main, px4_custom_mode, px4_split
+
 __all__ = [
     "ARDUCOPTER_BRAKE",
     "ARDUCOPTER_GUIDED",
@@ -39,34 +41,9 @@ __all__ = [
     "same_mode",
 ]
 
-ARDUCOPTER_GUIDED = 4
-ARDUCOPTER_BRAKE = 17
-PX4_MAIN_MODE_OFFBOARD = 6
-_ARDUCOPTER_NAMES = {
-    0: "STABILIZE",
-    1: "ACRO",
-    2: "ALT_HOLD",
-    3: "AUTO",
-    4: "GUIDED",
-    5: "LOITER",
-    6: "RTL",
-    7: "CIRCLE",
-    9: "LAND",
-    16: "POSHOLD",
-    17: "BRAKE",
-    20: "GUIDED_NOGPS",
-    21: "SMART_RTL",
-}
-_PX4_MAIN_NAMES = {
-    1: "MANUAL",
-    2: "ALTCTL",
-    3: "POSCTL",
-    4: "AUTO",
-    5: "ACRO",
-    6: "OFFBOARD",
-    7: "STABILIZED",
-    8: "RATTITUDE",
-}
+ARDUCOPTER_GUIDED = int(ArduCopterMode.GUIDED)
+ARDUCOPTER_BRAKE = int(ArduCopterMode.BRAKE)
+PX4_MAIN_MODE_OFFBOARD = int(Px4Main.OFFBOARD)
 
 
 class Flavour(enum.Enum):
@@ -95,15 +72,9 @@ class ModeRequest:
         if self.px4:
             return (
                 float(self.base_mode),
-                float((self.custom_mode >> 16) & 0xFF),
-                float((self.custom_mode >> 24) & 0xFF),
+                *(float(x) for x in px4_split(self.custom_mode)),
             )
         return float(self.base_mode), float(self.custom_mode)
-
-
-def px4_custom_mode(main_mode: int, sub_mode: int = 0) -> int:
-    """PX4's ``custom_mode``: main mode in bits 16–23, sub mode in bits 24–31."""
-    return (main_mode & 0xFF) << 16 | (sub_mode & 0xFF) << 24
 
 
 def is_autopilot_heartbeat(autopilot: int, mav_type: int) -> bool:
@@ -169,17 +140,16 @@ class AutopilotProfile:
 
     def mode_name(self, custom_mode: int) -> str:
         """Human name of a HEARTBEAT custom mode."""
-        if self.packed_modes:
-            main = (custom_mode >> 16) & 0xFF
-            return _PX4_MAIN_NAMES.get(main, f"PX4_MODE_{custom_mode:#x}")
-        return _ARDUCOPTER_NAMES.get(custom_mode, f"MODE_{custom_mode}")
+        table = Px4Main if self.packed_modes else ArduCopterMode
+        number = px4_split(custom_mode)[0] if self.packed_modes else custom_mode
+        if number in table.__members__.values():
+            return table(number).name
+        return f"PX4_MODE_{custom_mode:#x}" if self.packed_modes else f"MODE_{custom_mode}"
 
     def same_mode(self, custom_mode: int, wanted: ModeRequest) -> bool:
         """Whether a HEARTBEAT custom_mode is ``wanted`` (packed: main and sub mode)."""
         if self.packed_modes:
-            return (custom_mode >> 16) & 0xFF == (wanted.custom_mode >> 16) & 0xFF and (
-                (custom_mode >> 24) & 0xFF == (wanted.custom_mode >> 24) & 0xFF
-            )
+            return px4_split(custom_mode) == px4_split(wanted.custom_mode)
         return custom_mode == wanted.custom_mode
 
 

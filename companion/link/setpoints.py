@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.link.flavour import Flavour, profile_for
+from protocols.mavlink_modes import TYPE_MASK_POSITION, TYPE_MASK_POSITION_YAW
 
 __all__ = [
     "TYPE_MASK_POSITION",
@@ -31,18 +32,6 @@ __all__ = [
 ]
 
 _M = mavlink
-#: Ignore velocity, acceleration and yaw rate: position + yaw (2552).
-TYPE_MASK_POSITION_YAW = (
-    _M.POSITION_TARGET_TYPEMASK_VX_IGNORE
-    | _M.POSITION_TARGET_TYPEMASK_VY_IGNORE
-    | _M.POSITION_TARGET_TYPEMASK_VZ_IGNORE
-    | _M.POSITION_TARGET_TYPEMASK_AX_IGNORE
-    | _M.POSITION_TARGET_TYPEMASK_AY_IGNORE
-    | _M.POSITION_TARGET_TYPEMASK_AZ_IGNORE
-    | _M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
-)
-#: Position only (3576).
-TYPE_MASK_POSITION = TYPE_MASK_POSITION_YAW | _M.POSITION_TARGET_TYPEMASK_YAW_IGNORE
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ import math
 from dataclasses import dataclass
 
 from plant_sim.vehicle import Setpoint
+from protocols.mavlink_modes import ArduCopterMode
 
 __all__ = [
     "ARMABLE_MODES",
@@ -42,15 +43,15 @@ FORCE_ARM_MAGIC = 21196
 
 
 class FlightMode(enum.IntEnum):
-    """ArduCopter custom modes (HEARTBEAT.custom_mode)."""
+    """The ArduCopter custom modes plant-sim flies (numbers: protocols.mavlink_modes)."""
 
-    STABILIZE = 0
-    AUTO = 3
-    GUIDED = 4
-    LOITER = 5
-    RTL = 6
-    LAND = 9
-    BRAKE = 17
+    STABILIZE = ArduCopterMode.STABILIZE
+    AUTO = ArduCopterMode.AUTO
+    GUIDED = ArduCopterMode.GUIDED
+    LOITER = ArduCopterMode.LOITER
+    RTL = ArduCopterMode.RTL
+    LAND = ArduCopterMode.LAND
+    BRAKE = ArduCopterMode.BRAKE
 
 
 #: Modes from which the motors may be armed (ArduCopter refuses AUTO, RTL, LAND, BRAKE).

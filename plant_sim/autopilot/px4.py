@@ -35,7 +35,6 @@ Times are simulation time [s].
 
 from __future__ import annotations
 
-import enum
 import itertools
 import math
 from collections import deque
@@ -43,6 +42,7 @@ from dataclasses import dataclass
 
 from plant_sim.autopilot.modes import FlightMode, FlightModeMachine, GuidedTarget, Kinematics
 from plant_sim.autopilot.params import ParamSpec, ParamTable, ParamType
+from protocols.mavlink_modes import Px4Main, Px4Sub, px4_custom_mode, px4_split
 
 __all__ = [
     "PX4_OFFBOARD_LOST_TEXT",
@@ -56,39 +56,6 @@ __all__ = [
 ]
 
 PX4_OFFBOARD_LOST_TEXT = "Failsafe: offboard lost, holding"
-
-
-class Px4Main(enum.IntEnum):
-    """PX4_CUSTOM_MAIN_MODE."""
-
-    MANUAL = 1
-    ALTCTL = 2
-    POSCTL = 3
-    AUTO = 4
-    ACRO = 5
-    OFFBOARD = 6
-    STABILIZED = 7
-
-
-class Px4Sub(enum.IntEnum):
-    """PX4_CUSTOM_SUB_MODE_AUTO."""
-
-    NONE = 0
-    READY = 1
-    TAKEOFF = 2
-    LOITER = 3
-    MISSION = 4
-    RTL = 5
-    LAND = 6
-
-
-def px4_custom_mode(main: int, sub: int = 0) -> int:
-    """HEARTBEAT ``custom_mode`` of a PX4 main/sub mode."""
-    return (int(main) & 0xFF) << 16 | (int(sub) & 0xFF) << 24
-
-
-def _split(custom_mode: int) -> tuple[int, int]:
-    return (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
 
 
 @dataclass(frozen=True)
@@ -166,7 +133,7 @@ class Px4Modes:
     # ---- inputs --------------------------------------------------------------------
     def set_mode(self, custom_mode: int, kin: Kinematics) -> tuple[bool, str | None, bool]:
         """A mode request: (accepted, STATUSTEXT or None, temporary refusal)."""
-        main, sub = _split(int(custom_mode))
+        main, sub = px4_split(int(custom_mode))
         try:
             main_mode = Px4Main(main)
         except ValueError:

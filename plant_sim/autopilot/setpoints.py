@@ -23,6 +23,13 @@ from dataclasses import dataclass
 
 from plant_sim.autopilot.geodesy import FlatEarth, valid_lat_lon_e7
 from plant_sim.autopilot.modes import GuidedTarget
+from protocols.mavlink_modes import (
+    MASK_ACCEL,
+    MASK_POS,
+    MASK_VEL,
+    MASK_YAW,
+    MASK_YAW_RATE,
+)
 
 __all__ = [
     "MASK_ACCEL",
@@ -40,12 +47,6 @@ __all__ = [
     "type_mask_for",
 ]
 
-MASK_POS = 0b0000_0000_0111
-MASK_VEL = 0b0000_0011_1000
-MASK_ACCEL = 0b0001_1100_0000
-MASK_FORCE = 0b0010_0000_0000
-MASK_YAW = 0b0100_0000_0000
-MASK_YAW_RATE = 0b1000_0000_0000
 
 MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_LOCAL_OFFSET_NED = 7
