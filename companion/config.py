@@ -61,7 +61,12 @@ from companion.guidance.envelope import EnvelopeConfig
 from companion.known_space import KnownSpaceConfig
 from companion.perception import PerceptionConfig
 from protocols.keys import validate_vehicle_id
-from protocols.process import add_signing_arguments, add_zenoh_arguments, signing_key_text
+from protocols.process import (
+    DEFAULT_ENDPOINT,
+    add_signing_arguments,
+    add_zenoh_arguments,
+    signing_key_text,
+)
 from protocols.signing import SigningKey
 from protocols.zenoh_session import ZenohSettings as ZenohConfig
 
@@ -327,7 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_zenoh_arguments(
         p,
         listen_default="e.g. for a stereo camera to connect to",
-        connect_help="router or plant-sim/stereo-camera; default tcp/127.0.0.1:7447",
+        connect_help=f"router or plant-sim/stereo-camera; default {DEFAULT_ENDPOINT}",
     )
     p.add_argument("--vehicle-id", help="vehicle id of the Zenoh keys")
     p.add_argument(
@@ -495,7 +500,5 @@ def config_from_args(
     z = cfg.zenoh
     if not z.listen and not z.connect and z.config_file is None:
         # plant-sim's default listen endpoint
-        cfg = dataclasses.replace(
-            cfg, zenoh=dataclasses.replace(z, connect=("tcp/127.0.0.1:7447",))
-        )
+        cfg = dataclasses.replace(cfg, zenoh=dataclasses.replace(z, connect=(DEFAULT_ENDPOINT,)))
     return cfg

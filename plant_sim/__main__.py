@@ -27,8 +27,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from protocols.process import (
+    DEFAULT_ENDPOINT,
     add_signing_arguments,
     add_zenoh_arguments,
+    default_listen,
     run_until_signalled,
     signing_key_text,
 )
@@ -67,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_zenoh_arguments(
         p,
-        listen_default="default tcp/127.0.0.1:7447",
+        listen_default=f"default {DEFAULT_ENDPOINT}",
         connect_help="router or companion",
     )
     p.add_argument("--no-camera", action="store_true", help="do not render or publish frames")
@@ -187,9 +189,7 @@ def _camera_only_config(args: argparse.Namespace, scenario):
             f"--pose-from follows an external autopilot: {', '.join(clashes)} do not apply "
             "(set them on the autopilot)"
         )
-    listen = tuple(args.zenoh_listen)
-    if not listen and not args.zenoh_connect and args.zenoh_config is None:
-        listen = ("tcp/127.0.0.1:7447",)
+    listen = default_listen(args.zenoh_listen, args.zenoh_connect, args.zenoh_config)
     log_dir = None
     if not args.no_logs:
         log_dir = args.log_dir or Path("runs") / time.strftime("plant_sim-%Y%m%d-%H%M%S")
@@ -236,9 +236,7 @@ def config_from_args(args: argparse.Namespace):
             scenario, start=dataclasses.replace(scenario.start, airborne=False)
         )
     endpoints = tuple(parse_endpoint(u) for u in (args.mavlink or ["udpin:127.0.0.1:14550"]))
-    listen = tuple(args.zenoh_listen)
-    if not listen and not args.zenoh_connect and args.zenoh_config is None:
-        listen = ("tcp/127.0.0.1:7447",)
+    listen = default_listen(args.zenoh_listen, args.zenoh_connect, args.zenoh_config)
     key_text = signing_key_text(args)
     signing_key = SigningKey.from_text(key_text) if key_text is not None else None
     signing_state = args.signing_state

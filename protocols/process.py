@@ -22,9 +22,11 @@ from protocols.signing import SIGNING_KEY_ENV
 SIGNING_KEY_FILE_ENV = SIGNING_KEY_ENV + "_FILE"  # a path: the key file (containers)
 
 __all__ = [
+    "DEFAULT_ENDPOINT",
     "Service",
     "add_signing_arguments",
     "add_zenoh_arguments",
+    "default_listen",
     "run_until_signalled",
     "signing_key_text",
 ]
@@ -37,6 +39,18 @@ class Service(Protocol):
     def readiness_line(self) -> str: ...
     def run(self, should_stop: Callable[[], bool]) -> None: ...
     def close(self) -> dict[str, Any]: ...
+
+
+#: where a publisher (plant-sim, stereo-camera) listens and the companion connects when
+#: no endpoint and no config file is given
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def default_listen(listen, connect, config_file) -> tuple[str, ...]:
+    """``listen`` as given, or :data:`DEFAULT_ENDPOINT` when nothing at all is given."""
+    if not listen and not connect and config_file is None:
+        return (DEFAULT_ENDPOINT,)
+    return tuple(listen)
 
 
 def add_zenoh_arguments(parser, *, listen_default: str, connect_help: str) -> None:

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
-from protocols.process import add_zenoh_arguments
+from protocols.process import DEFAULT_ENDPOINT, add_zenoh_arguments, default_listen
 from protocols.zenoh_session import ZenohSettings, zenoh_config
 
 if TYPE_CHECKING:  # numpy & co. load inside main(), after OPENBLAS_NUM_THREADS is set
@@ -60,7 +60,6 @@ __all__ = [
 
 _log = logging.getLogger("companion.camera")
 _PROG = "stereo-camera"
-_DEFAULT_LISTEN = "tcp/127.0.0.1:7447"  # where plant-sim listens; the companion connects here
 _FLUSH_S = 0.2  # after the last frame of a finite source, before closing the session
 _RUST_LOCATION = re.compile(r" at /\S+\.rs:\d+\.?")  # zenoh appends its source location
 
@@ -210,7 +209,7 @@ def _common_options() -> argparse.ArgumentParser:
     z = p.add_argument_group("zenoh")
     add_zenoh_arguments(
         z,
-        listen_default=f"default {_DEFAULT_LISTEN} when none is given",
+        listen_default=f"default {DEFAULT_ENDPOINT} when none is given",
         connect_help="router or companion",
     )
     z.add_argument("--vehicle-id", default="sim1", help="key chunk (default sim1)")
@@ -288,9 +287,7 @@ def config_from_args(args: argparse.Namespace) -> CameraConfig:
     if args.max_frames is not None and args.max_frames < 1:
         raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
     intrinsics = _parse_intrinsics(args.intrinsics) if args.intrinsics else None
-    listen = tuple(args.zenoh_listen)
-    if not listen and not args.zenoh_connect and args.zenoh_config is None:
-        listen = (_DEFAULT_LISTEN,)
+    listen = default_listen(args.zenoh_listen, args.zenoh_connect, args.zenoh_config)
     if args.zenoh_config is not None and not args.zenoh_config.is_file():
         raise ValueError(f"--zenoh-config {args.zenoh_config} does not exist")
     wait = args.wait_subscriber
