@@ -9,20 +9,16 @@ added to the file's).
 
 from __future__ import annotations
 
-import logging
-
 import numpy as np
 import zenoh
 
 from plant_sim.scenario import CameraConfig
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import World
-from protocols import stereo_frame
+from protocols.frame_publisher import FramePublisher
 from protocols.zenoh_session import ZenohSettings, zenoh_config
 
 __all__ = ["StereoPublisher"]
-
-_log = logging.getLogger("plant_sim.camera")
 
 
 class StereoPublisher:
@@ -42,18 +38,17 @@ class StereoPublisher:
         self._renderer = StereoCameraRenderer(camera.model, camera.render)
         self._intrinsics = camera.model.intrinsics
         self._session: zenoh.Session | None = None
-        self._publisher = None
+        self._publisher: FramePublisher | None = None
         self.sequence = 0
-        self.publish_errors = 0
+
+    @property
+    def publish_errors(self) -> int:
+        return 0 if self._publisher is None else self._publisher.publish_errors
 
     def open(self) -> None:
         """Open the Zenoh session and declare the publisher."""
         self._session = zenoh.open(zenoh_config(self.settings))
-        self._publisher = self._session.declare_publisher(
-            self.key,
-            congestion_control=zenoh.CongestionControl.DROP,
-            priority=zenoh.Priority.DATA_HIGH,
-        )
+        self._publisher = FramePublisher(self._session, self.key, drop=True)
 
     def warm_up(self) -> None:
         """Render one frame so the JIT compiles before the first deadline."""
@@ -64,26 +59,19 @@ class StereoPublisher:
         render = self._renderer.render(
             self.world, pos_ned_m, R_ned_from_frd, noise_seed=self.sequence
         )
-        frame = stereo_frame.StereoFrame(
-            sequence=self.sequence,
-            capture_ns=round(capture_time_s * 1e9),
-            intrinsics=self._intrinsics,
-            left=render.left,
-            right=render.right,
-        )
-        payload = stereo_frame.encode(frame)
-        self.sequence += 1
-        if self._publisher is None:
-            return
-        try:
-            self._publisher.put(payload)
-        except zenoh.ZError as exc:
-            self.publish_errors += 1
-            _log.warning("frame %d not published: %s", frame.sequence, exc)
+        sequence, self.sequence = self.sequence, self.sequence + 1
+        if self._publisher is not None:
+            self._publisher.publish(
+                sequence,
+                round(capture_time_s * 1e9),
+                self._intrinsics,
+                render.left,
+                render.right,
+            )
 
     def close(self) -> None:
         if self._publisher is not None:
-            self._publisher.undeclare()
+            self._publisher.close()
             self._publisher = None
         if self._session is not None:
             self._session.close()

@@ -2,7 +2,7 @@
 
 All quantities here are in the paper's frames: inertial z up, body z up (thrust along
 +z_body), 1-2-3 Euler angles ``R = Rx(φ) Ry(θ) Rz(ψ)`` (Eq. 4). Nothing outside
-``plant_sim`` sees these frames; :mod:`protocols.frames` converts to NED/FRD.
+``plant_sim`` sees these frames; :mod:`plant_sim.paper_frames` converts to NED/FRD.
 
 State vector (12,), paper frame, SI units::
 

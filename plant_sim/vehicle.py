@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 from plant_sim import flight_control as fc
+from plant_sim import paper_frames
 from plant_sim.dynamics import STATE_SIZE, PhysicsConstants, physics_constants, rk4_step
 from plant_sim.lq import design_tracker
 from plant_sim.params import ControlParams, QuadrotorParams
@@ -175,8 +176,8 @@ class Quadrotor:
         self._ground_z_m = math.nan if ground_down_m is None else -float(ground_down_m)
 
         self._state = np.zeros(STATE_SIZE)
-        self._state[0:3] = frames.paper_from_ned(np.asarray(pos_ned_m, dtype=float))
-        self._state[6:9] = frames.paper_euler_from_mavlink_euler(0.0, 0.0, float(yaw_rad))
+        self._state[0:3] = paper_frames.paper_from_ned(np.asarray(pos_ned_m, dtype=float))
+        self._state[6:9] = paper_frames.paper_euler_from_mavlink_euler(0.0, 0.0, float(yaw_rad))
         self._ctrl_out = np.zeros(fc.OUT_SIZE)
         self._phase = 0
         self._steps = 0
@@ -203,12 +204,12 @@ class Quadrotor:
         self._pos_sp = (
             np.full(3, np.nan)
             if sp.pos_ned_m is None
-            else frames.paper_from_ned(np.asarray(sp.pos_ned_m))
+            else paper_frames.paper_from_ned(np.asarray(sp.pos_ned_m))
         )
         self._vel_sp = (
             np.full(3, np.nan)
             if sp.vel_ned_mps is None
-            else frames.paper_from_ned(np.asarray(sp.vel_ned_mps))
+            else paper_frames.paper_from_ned(np.asarray(sp.vel_ned_mps))
         )
         if sp.yaw_rad is not None:
             self._yaw_sp_rad = float(sp.yaw_rad)
@@ -217,8 +218,8 @@ class Quadrotor:
     @property
     def setpoint(self) -> Setpoint:
         """What the controller tracks now (yaw target included, turned by any yaw rate)."""
-        pos = None if np.isnan(self._pos_sp).all() else frames.ned_from_paper(self._pos_sp)
-        vel = None if np.isnan(self._vel_sp).all() else frames.ned_from_paper(self._vel_sp)
+        pos = None if np.isnan(self._pos_sp).all() else paper_frames.ned_from_paper(self._pos_sp)
+        vel = None if np.isnan(self._vel_sp).all() else paper_frames.ned_from_paper(self._vel_sp)
         return Setpoint(
             pos_ned_m=None if pos is None else tuple(np.nan_to_num(pos)),
             vel_ned_mps=None if vel is None else tuple(np.nan_to_num(vel)),
@@ -275,12 +276,12 @@ class Quadrotor:
     @property
     def pos_ned_m(self) -> np.ndarray:
         """Position, LOCAL_NED [m]."""
-        return frames.ned_from_paper(self._state[0:3])
+        return paper_frames.ned_from_paper(self._state[0:3])
 
     @property
     def vel_ned_mps(self) -> np.ndarray:
         """Velocity, LOCAL_NED [m/s]."""
-        return frames.ned_from_paper(self._state[3:6])
+        return paper_frames.ned_from_paper(self._state[3:6])
 
     @property
     def rotor_thrusts_n(self) -> np.ndarray:
@@ -305,8 +306,10 @@ class Quadrotor:
     def snapshot(self) -> VehicleState:
         """The vehicle and its controller now, in NED/FRD with MAVLink angles."""
         s = self._state
-        R_paper = frames.rotation_123(s[6], s[7], s[8])
-        roll, pitch, yaw = frames.euler321_from_rotation(frames.rotation_ned_from_paper(R_paper))
+        R_paper = paper_frames.rotation_123(s[6], s[7], s[8])
+        roll, pitch, yaw = frames.euler321_from_rotation(
+            paper_frames.rotation_ned_from_paper(R_paper)
+        )
         # body rates: Ω = R_r φ̇ (Eq. 5) in paper body axes (FLU), then FRD
         st, ct = math.sin(s[7]), math.cos(s[7])
         sp, cp = math.sin(s[8]), math.cos(s[8])
@@ -318,7 +321,7 @@ class Quadrotor:
             ]
         )
         out = self._ctrl_out
-        roll_c, pitch_c, yaw_c = frames.mavlink_euler_from_paper_euler(
+        roll_c, pitch_c, yaw_c = paper_frames.mavlink_euler_from_paper_euler(
             out[fc.OUT_PHI_D], out[fc.OUT_THETA_D], out[fc.OUT_PSI_D]
         )
         return VehicleState(
@@ -328,7 +331,7 @@ class Quadrotor:
             roll_rad=roll,
             pitch_rad=pitch,
             yaw_rad=yaw,
-            body_rates_frd_radps=frames.ned_from_paper(omega_flu),
+            body_rates_frd_radps=paper_frames.ned_from_paper(omega_flu),
             rotor_thrusts_n=self.rotor_thrusts_n,
             roll_cmd_rad=roll_c,
             pitch_cmd_rad=pitch_c,

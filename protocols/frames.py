@@ -1,14 +1,10 @@
-"""Frame conventions: the paper's z-up inertial frame and 1-2-3 Euler angles ↔ MAVLink NED/FRD.
+"""MAVLink's frame conventions: LOCAL_NED, FRD body axes, 3-2-1 Euler angles, quaternions.
 
-The paper (Park & Kim, §2, Eq. 4) uses an inertial frame with z up, a body frame with
-z up (thrust along +z_body) and 1-2-3 Euler angles, ``R = Rx(φ) Ry(θ) Rz(ψ)`` (body →
-inertial). Every interface outside the plant's dynamics uses MAVLink LOCAL_NED (x north,
-y east, z down) and FRD body axes with 3-2-1 Euler angles, ``R = Rz(yaw) Ry(pitch)
-Rx(roll)`` (body FRD → NED).
-
-The two are related by ``T = diag(1, -1, -1)``: ``p_ned = T p_paper`` and
-``R_ned = T R_paper T``. Conversions between Euler conventions always go through the
-rotation matrix; nothing here flips angle signs by hand.
+Every interface outside the plant's dynamics uses MAVLink LOCAL_NED (x north, y east,
+z down) and FRD body axes with 3-2-1 Euler angles, ``R = Rz(yaw) Ry(pitch) Rx(roll)``
+(body FRD → NED), as ATTITUDE carries them. Conversions go through the rotation matrix;
+nothing here flips angle signs by hand. The paper's z-up frame, which only plant-sim's
+dynamics uses, is :mod:`plant_sim.paper_frames`.
 """
 
 from __future__ import annotations
@@ -21,27 +17,18 @@ import numpy as np
 Quat = tuple[float, float, float, float]
 
 __all__ = [
-    "T_PAPER_NED",
     "Quat",
-    "euler123_from_rotation",
     "euler321_from_rotation",
-    "mavlink_euler_from_paper_euler",
-    "ned_from_paper",
-    "paper_euler_from_mavlink_euler",
-    "paper_from_ned",
     "quat_from_euler321",
     "quat_slerp",
-    "rotation_123",
     "rotation_321",
     "rotation_from_quat",
-    "rotation_ned_from_paper",
     "rx",
     "ry",
     "rz",
 ]
 
 #: Change of basis between the paper's z-up frame and NED (its own inverse).
-T_PAPER_NED = np.diag([1.0, -1.0, -1.0])
 
 
 def rx(angle_rad: float) -> np.ndarray:
@@ -62,23 +49,6 @@ def rz(angle_rad: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def rotation_123(phi_rad: float, theta_rad: float, psi_rad: float) -> np.ndarray:
-    """Paper Eq. (4): body → inertial rotation ``Rx(φ) Ry(θ) Rz(ψ)`` (z-up frames)."""
-    return rx(phi_rad) @ ry(theta_rad) @ rz(psi_rad)
-
-
-def euler123_from_rotation(R: np.ndarray) -> tuple[float, float, float]:
-    """Inverse of :func:`rotation_123`: (φ, θ, ψ) in rad, θ in [-π/2, π/2].
-
-    From Eq. (4): ``R[0,2] = sθ``, ``R[1,2] = -sφ cθ``, ``R[2,2] = cφ cθ``,
-    ``R[0,0] = cθ cψ``, ``R[0,1] = -cθ sψ``.
-    """
-    theta = math.asin(max(-1.0, min(1.0, float(R[0, 2]))))
-    phi = math.atan2(-float(R[1, 2]), float(R[2, 2]))
-    psi = math.atan2(-float(R[0, 1]), float(R[0, 0]))
-    return phi, theta, psi
-
-
 def rotation_321(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
     """MAVLink attitude: body FRD → NED rotation ``Rz(yaw) Ry(pitch) Rx(roll)``."""
     return rz(yaw_rad) @ ry(pitch_rad) @ rx(roll_rad)
@@ -90,38 +60,6 @@ def euler321_from_rotation(R: np.ndarray) -> tuple[float, float, float]:
     roll = math.atan2(float(R[2, 1]), float(R[2, 2]))
     yaw = math.atan2(float(R[1, 0]), float(R[0, 0]))
     return roll, pitch, yaw
-
-
-def ned_from_paper(vec_paper: np.ndarray) -> np.ndarray:
-    """Map a vector (position, velocity, ...) from the paper's z-up frame to NED."""
-    v = np.asarray(vec_paper, dtype=float)
-    return v * np.array([1.0, -1.0, -1.0])
-
-
-def paper_from_ned(vec_ned: np.ndarray) -> np.ndarray:
-    """Map a vector from NED to the paper's z-up frame (the same involution)."""
-    return ned_from_paper(vec_ned)
-
-
-def rotation_ned_from_paper(R_paper: np.ndarray) -> np.ndarray:
-    """Body FLU(z-up) → inertial z-up rotation to body FRD → NED: ``T R T``."""
-    return T_PAPER_NED @ np.asarray(R_paper, dtype=float) @ T_PAPER_NED
-
-
-def mavlink_euler_from_paper_euler(
-    phi_rad: float, theta_rad: float, psi_rad: float
-) -> tuple[float, float, float]:
-    """Paper 1-2-3 angles (z-up) → MAVLink (roll, pitch, yaw) 3-2-1 in NED/FRD."""
-    R_ned = rotation_ned_from_paper(rotation_123(phi_rad, theta_rad, psi_rad))
-    return euler321_from_rotation(R_ned)
-
-
-def paper_euler_from_mavlink_euler(
-    roll_rad: float, pitch_rad: float, yaw_rad: float
-) -> tuple[float, float, float]:
-    """MAVLink (roll, pitch, yaw) 3-2-1 in NED/FRD → paper 1-2-3 angles (z-up)."""
-    R_paper = rotation_ned_from_paper(rotation_321(roll_rad, pitch_rad, yaw_rad))  # T = T⁻¹
-    return euler123_from_rotation(R_paper)
 
 
 def quat_from_euler321(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Quat:

@@ -531,8 +531,8 @@ def test_prearm_refusal_over_udp_is_a_clear_terminal_error(rig):
     import zenoh
     from pymavlink import mavutil
 
-    from protocols import stereo_frame
     from protocols.camera import CameraModel
+    from protocols.frame_publisher import FramePublisher
     from protocols.keys import stereo_key
 
     companion = rig.companion("--takeoff-alt", "7")
@@ -547,7 +547,7 @@ def test_prearm_refusal_over_udp_is_a_clear_terminal_error(rig):
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("connect/endpoints", f'["{rig.companion_zenoh}"]')
     session = zenoh.open(conf)
-    camera = session.declare_publisher(stereo_key("sim1"))
+    camera = FramePublisher(session, stereo_key("sim1"))
     intr = CameraModel().intrinsics
     blank = np.zeros((intr.height_px, intr.width_px), dtype=np.uint8)
     frames = 0
@@ -565,11 +565,7 @@ def test_prearm_refusal_over_udp_is_a_clear_terminal_error(rig):
             ap.mav.heartbeat_send(M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_ARDUPILOTMEGA, 1, 4, 3)
             ap.mav.extended_sys_state_send(0, M.MAV_LANDED_STATE_ON_GROUND)
             ap.mav.local_position_ned_send(ms, 20.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-            camera.put(
-                stereo_frame.encode(
-                    stereo_frame.StereoFrame(frames, ms * 1_000_000, intr, blank, blank)
-                )
-            )
+            assert camera.publish(frames, ms * 1_000_000, intr, blank, blank)
             frames += 1
         if msg is None:
             continue

@@ -8,8 +8,8 @@ import pytest
 
 from plant_sim.dynamics import derivative, physics_constants, rk4_step, rotor_wrench
 from plant_sim.flight_control import mix
+from plant_sim.paper_frames import rotation_123
 from plant_sim.params import QuadrotorParams
-from protocols.frames import rotation_123
 
 
 def _rr(theta, psi):

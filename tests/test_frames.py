@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from plant_sim import paper_frames
 from protocols import frames
 
 RNG_SEED = 20261122
@@ -23,9 +24,11 @@ def _random_angles(rng, n, max_pitch=1.48):
 def test_position_round_trip_and_axes():
     rng = np.random.default_rng(RNG_SEED)
     for p in rng.uniform(-1e3, 1e3, (200, 3)):
-        np.testing.assert_allclose(frames.paper_from_ned(frames.ned_from_paper(p)), p, atol=1e-12)
+        np.testing.assert_allclose(
+            paper_frames.paper_from_ned(paper_frames.ned_from_paper(p)), p, atol=1e-12
+        )
     # the paper's §6 start (20, 0, 7) z-up is NED (20, 0, -7)
-    np.testing.assert_array_equal(frames.ned_from_paper([20.0, 0.0, 7.0]), [20.0, 0.0, -7.0])
+    np.testing.assert_array_equal(paper_frames.ned_from_paper([20.0, 0.0, 7.0]), [20.0, 0.0, -7.0])
 
 
 def test_rotation_123_matches_eq4_closed_form():
@@ -45,16 +48,16 @@ def test_rotation_123_matches_eq4_closed_form():
             [-cf * st * cp + sf * sp, cf * st * sp + sf * cp, cf * ct],
         ]
     )
-    np.testing.assert_allclose(frames.rotation_123(phi, theta, psi), eq4, atol=1e-15)
+    np.testing.assert_allclose(paper_frames.rotation_123(phi, theta, psi), eq4, atol=1e-15)
 
 
 def test_euler_round_trips_to_1e12():
     rng = np.random.default_rng(RNG_SEED)
     for phi, theta, psi in _random_angles(rng, 500):
-        got = frames.euler123_from_rotation(frames.rotation_123(phi, theta, psi))
+        got = paper_frames.euler123_from_rotation(paper_frames.rotation_123(phi, theta, psi))
         np.testing.assert_allclose(got, (phi, theta, psi), atol=1e-12)
-        roll, pitch, yaw = frames.mavlink_euler_from_paper_euler(phi, theta, psi)
-        back = frames.paper_euler_from_mavlink_euler(roll, pitch, yaw)
+        roll, pitch, yaw = paper_frames.mavlink_euler_from_paper_euler(phi, theta, psi)
+        back = paper_frames.paper_euler_from_mavlink_euler(roll, pitch, yaw)
         np.testing.assert_allclose(back, (phi, theta, psi), atol=1e-12)
     for roll, pitch, yaw in _random_angles(rng, 500):
         got = frames.euler321_from_rotation(frames.rotation_321(roll, pitch, yaw))
@@ -65,12 +68,12 @@ def test_rotation_conjugation_maps_vectors_consistently():
     """R_ned·v_frd must equal T·(R_paper·(T·v_frd)): the same physical rotation."""
     rng = np.random.default_rng(RNG_SEED + 1)
     for phi, theta, psi in _random_angles(rng, 100):
-        R_paper = frames.rotation_123(phi, theta, psi)
-        R_ned = frames.rotation_ned_from_paper(R_paper)
+        R_paper = paper_frames.rotation_123(phi, theta, psi)
+        R_ned = paper_frames.rotation_ned_from_paper(R_paper)
         v_frd = rng.normal(size=3)
         np.testing.assert_allclose(
             R_ned @ v_frd,
-            frames.ned_from_paper(R_paper @ frames.paper_from_ned(v_frd)),
+            paper_frames.ned_from_paper(R_paper @ paper_frames.paper_from_ned(v_frd)),
             atol=1e-12,
         )
         np.testing.assert_allclose(R_ned @ R_ned.T, np.eye(3), atol=1e-12)
@@ -89,7 +92,9 @@ def test_rotation_conjugation_maps_vectors_consistently():
     ],
 )
 def test_known_attitudes(paper, mavlink):
-    np.testing.assert_allclose(frames.mavlink_euler_from_paper_euler(*paper), mavlink, atol=1e-15)
+    np.testing.assert_allclose(
+        paper_frames.mavlink_euler_from_paper_euler(*paper), mavlink, atol=1e-15
+    )
 
 
 def test_thrust_direction_of_known_attitudes():

@@ -392,7 +392,7 @@ def _wait_for_subscriber(publisher, timeout_s: float, stop: threading.Event, key
         return
     deadline = time.monotonic() + timeout_s
     logged = False
-    while not stop.is_set() and not publisher.matching_status.matching:
+    while not stop.is_set() and not publisher.has_subscribers:
         if not logged:
             _log.info("waiting for a subscriber on %s", key)
             logged = True
@@ -422,7 +422,7 @@ def run(
     import zenoh
 
     from companion.camera.calibration import load_calibration
-    from protocols import stereo_frame
+    from protocols.frame_publisher import FramePublisher
     from protocols.keys import stereo_key
 
     stop = stop if stop is not None else threading.Event()
@@ -442,14 +442,8 @@ def run(
     try:
         intrinsics, rectify, origin = _geometry(config, source, calibration)
         with zenoh.open(zenoh_conf) as session:
-            publisher = session.declare_publisher(
-                key,
-                # live: the newest frame matters; replay: deliver every recorded pair
-                congestion_control=(
-                    zenoh.CongestionControl.DROP if live else zenoh.CongestionControl.BLOCK
-                ),
-                priority=zenoh.Priority.DATA_HIGH,
-            )
+            # live: the newest frame matters; replay: deliver every recorded pair
+            publisher = FramePublisher(session, key, drop=live)
             z = config.zenoh
             eps = [f"listen:{e}" for e in z.listen] + [f"connect:{e}" for e in z.connect]
             print(
@@ -473,20 +467,8 @@ def run(
                 left, right = (
                     (pair.left, pair.right) if rectify is None else rectify(pair.left, pair.right)
                 )
-                payload = stereo_frame.encode(
-                    stereo_frame.StereoFrame(
-                        sequence=stats.frames,
-                        capture_ns=pair.capture_ns,
-                        intrinsics=intrinsics,
-                        left=left,
-                        right=right,
-                    )
-                )
-                try:
-                    publisher.put(payload)
-                except zenoh.ZError as exc:
+                if not publisher.publish(stats.frames, pair.capture_ns, intrinsics, left, right):
                     stats.publish_errors += 1
-                    _log.warning("frame %d not published: %s", stats.frames, exc)
                 now = clock()
                 lag_ms = (now - pair.capture_ns) / 1e6
                 stats.lag_sum_ms += lag_ms
@@ -498,7 +480,7 @@ def run(
                     stats.stopped_by = "max_frames"
                     stop.wait(_FLUSH_S)
                     break
-            publisher.undeclare()
+            publisher.close()
     finally:
         source.close()
     return stats.as_dict()
