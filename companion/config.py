@@ -60,6 +60,7 @@ from companion.guidance import GuidanceConfig
 from companion.guidance.envelope import EnvelopeConfig
 from companion.known_space import KnownSpaceConfig
 from companion.perception import PerceptionConfig
+from protocols.config import ConfigError, check_keys, dataclass_from_mapping, vec3
 from protocols.keys import validate_vehicle_id
 from protocols.process import (
     DEFAULT_ENDPOINT,
@@ -83,10 +84,6 @@ __all__ = [
     "config_from_dict",
     "load_file",
 ]
-
-
-class ConfigError(ValueError):
-    """The configuration is invalid; the message names the key or flag."""
 
 
 @dataclass(frozen=True)
@@ -213,39 +210,6 @@ _TOP_KEYS = {
 }
 
 
-def _check_keys(d: Any, allowed: set[str], where: str) -> Mapping[str, Any]:
-    if not isinstance(d, Mapping):
-        raise ConfigError(f"{where or 'config'} must be a table/object")
-    for key in d:
-        if key not in allowed:
-            name = f"{where}.{key}" if where else key
-            raise ConfigError(f"unknown key '{name}' (valid: {sorted(allowed)})")
-    return d
-
-
-def _vec3(value: Any, where: str) -> tuple[float, float, float]:
-    try:
-        out = tuple(float(x) for x in value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{where} must be 3 numbers, got {value!r}") from None
-    if len(out) != 3 or not all(math.isfinite(x) for x in out):
-        raise ConfigError(f"{where} must be 3 finite numbers, got {value!r}")
-    return out  # type: ignore[return-value]
-
-
-def _section(cls, d: Any, where: str, convert: dict[str, Any] | None = None):
-    names = {f.name for f in dataclasses.fields(cls)}
-    d = _check_keys(d, names, where)
-    kw = dict(d)
-    for key, fn in (convert or {}).items():
-        if key in kw and kw[key] is not None:
-            kw[key] = fn(kw[key])
-    try:
-        return cls(**kw)
-    except TypeError as exc:
-        raise ConfigError(f"{where}: {exc}") from None
-
-
 def _frame_clock(value: Any) -> FrameClock:
     try:
         return FrameClock(str(value).lower())
@@ -257,7 +221,7 @@ def _frame_clock(value: Any) -> FrameClock:
 
 def config_from_dict(d: Mapping[str, Any]) -> CompanionConfig:
     """Build a :class:`CompanionConfig` from a parsed file (unknown keys are an error)."""
-    d = _check_keys(d, _TOP_KEYS, "")
+    d = check_keys(d, _TOP_KEYS, "")
     kw: dict[str, Any] = {}
     for key in ("vehicle_id", "goal_tolerance_m", "status_log_period_s"):
         if key in d:
@@ -265,27 +229,27 @@ def config_from_dict(d: Mapping[str, Any]) -> CompanionConfig:
     if "goal_ned_m" in d and "waypoints_ned_m" in d:
         raise ConfigError("give goal_ned_m or waypoints_ned_m, not both")
     if "goal_ned_m" in d:
-        kw["waypoints_ned_m"] = (_vec3(d["goal_ned_m"], "goal_ned_m"),)
+        kw["waypoints_ned_m"] = (vec3(d["goal_ned_m"], "goal_ned_m"),)
     if "waypoints_ned_m" in d:
         kw["waypoints_ned_m"] = tuple(
-            _vec3(w, f"waypoints_ned_m[{i}]") for i, w in enumerate(d["waypoints_ned_m"])
+            vec3(w, f"waypoints_ned_m[{i}]") for i, w in enumerate(d["waypoints_ned_m"])
         )
     if "mavlink" in d:
-        kw["link"] = _section(
+        kw["link"] = dataclass_from_mapping(
             LinkConfig,
             d["mavlink"],
             "mavlink",
             {"signing_key": SigningKey.from_text, "frame_clock": _frame_clock},
         )
     if "zenoh" in d:
-        kw["zenoh"] = _section(
+        kw["zenoh"] = dataclass_from_mapping(
             ZenohConfig,
             d["zenoh"],
             "zenoh",
             {"listen": tuple, "connect": tuple, "config_file": Path},
         )
     if "failsafe" in d:
-        kw["failsafe"] = _section(FailsafeConfig, d["failsafe"], "failsafe")
+        kw["failsafe"] = dataclass_from_mapping(FailsafeConfig, d["failsafe"], "failsafe")
     try:
         if "perception" in d:
             kw["perception"] = PerceptionConfig.from_dict(dict(d["perception"]))
@@ -430,7 +394,7 @@ def config_from_args(
     """The one place CLI flags (over an optional file) become a :class:`CompanionConfig`."""
     env = os.environ if environ is None else environ
     d: dict[str, Any] = load_file(args.config) if args.config is not None else {}
-    _check_keys(d, _TOP_KEYS, "")
+    check_keys(d, _TOP_KEYS, "")
     if args.vehicle_id:
         d["vehicle_id"] = args.vehicle_id
     given = [

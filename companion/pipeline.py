@@ -19,6 +19,7 @@ from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
 from companion.known_space import KnownSpace, KnownSpaceConfig
 from companion.perception import PerceptionConfig, PerceptionResult, StereoPerception
+from protocols.config import vec3
 from protocols.stereo_frame import StereoFrame
 
 __all__ = ["AvoidancePipeline", "PipelineOutput", "PoseAtCapture"]
@@ -82,10 +83,7 @@ class AvoidancePipeline:
         known_space: KnownSpaceConfig | None = None,
         envelope: EnvelopeConfig | None = None,
     ) -> None:
-        goal = np.array(goal_ned_m, dtype=float)
-        if goal.shape != (3,) or not np.all(np.isfinite(goal)):
-            raise ValueError(f"goal_ned_m must be 3 finite numbers, got {goal_ned_m!r}")
-        self.goal_ned_m = goal
+        self.goal_ned_m = np.array(vec3(goal_ned_m, "goal_ned_m"))
         self.perception = StereoPerception(perception)
         self.guidance = Guidance(guidance)
         self.known_space = KnownSpace(known_space)

@@ -7,11 +7,12 @@ them from a mapping with :func:`from_dict`, which rejects unknown names.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
+
+from protocols.config import UnknownKeyError, dataclass_from_mapping
 
 __all__ = [
     "ControlParams",
@@ -23,8 +24,8 @@ __all__ = [
 _G_MPS2 = 9.81
 
 
-class UnknownParameterError(TypeError):
-    """A configuration mapping named a parameter that does not exist."""
+#: a configuration mapping named a parameter that does not exist (also a TypeError)
+UnknownParameterError = UnknownKeyError
 
 
 @dataclass(frozen=True)
@@ -150,13 +151,7 @@ def from_dict(cls: type[_P], values: Mapping[str, Any]) -> _P:
         If ``values`` names a field ``cls`` does not have; the message lists the
         unknown names and the valid ones.
     """
-    known = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(values) - known)
-    if unknown:
-        raise UnknownParameterError(
-            f"unknown {cls.__name__} parameter(s) {unknown}; valid names are {sorted(known)}"
-        )
-    return cls(**dict(values))
+    return dataclass_from_mapping(cls, values, cls.__name__)
 
 
 def _require_positive(name: str, value: float, *, allow_zero: bool = False) -> None:

@@ -80,6 +80,7 @@ from plant_sim.profiles import profile
 from plant_sim.stereo_camera import RenderParams
 from plant_sim.world import Box, Cylinder, GroundPlane, Material, Sphere, World, paper_world
 from protocols.camera import CameraModel
+from protocols.config import ConfigError, check_keys, vec3
 from protocols.keys import validate_vehicle_id
 
 __all__ = [
@@ -110,8 +111,8 @@ DEFAULT_STREAM_RATES_HZ: dict[str, float] = {
 }
 
 
-class ScenarioError(ValueError):
-    """A scenario file or mapping is invalid; the message names the key."""
+#: a scenario file or mapping is invalid (the message names the file and the key)
+ScenarioError = ConfigError
 
 
 @dataclass(frozen=True)
@@ -182,24 +183,6 @@ def paper_scenario() -> Scenario:
 
 
 # ---- parsing -------------------------------------------------------------------------
-def _check_keys(mapping: Any, allowed: set[str], where: str) -> Mapping[str, Any]:
-    if not isinstance(mapping, Mapping):
-        raise ScenarioError(f"{where or 'scenario'} must be a table/object, got {mapping!r}")
-    for key in mapping:
-        if key not in allowed:
-            name = f"{where}.{key}" if where else key
-            raise ScenarioError(f"unknown key {name!r}; valid keys here: {sorted(allowed)}")
-    return mapping
-
-
-def _vec3(value: Any, where: str) -> tuple[float, float, float]:
-    try:
-        vec = tuple(float(v) for v in value)
-    except (TypeError, ValueError):
-        raise ScenarioError(f"{where} must be 3 numbers, got {value!r}") from None
-    if len(vec) != 3 or not all(math.isfinite(v) for v in vec):
-        raise ScenarioError(f"{where} must be 3 finite numbers, got {value!r}")
-    return vec  # type: ignore[return-value]
 
 
 def _number(value: Any, where: str, *, positive: bool = False, minimum: float | None = None):
@@ -223,10 +206,10 @@ def _dataclass_fields(cls) -> set[str]:
 
 
 def _start(d: Any) -> StartConfig:
-    d = _check_keys(d, _dataclass_fields(StartConfig), "start")
+    d = check_keys(d, _dataclass_fields(StartConfig), "start")
     kw: dict[str, Any] = {}
     if "pos_ned_m" in d:
-        kw["pos_ned_m"] = _vec3(d["pos_ned_m"], "start.pos_ned_m")
+        kw["pos_ned_m"] = vec3(d["pos_ned_m"], "start.pos_ned_m")
     if "yaw_deg" in d:
         kw["yaw_deg"] = _number(d["yaw_deg"], "start.yaw_deg")
     if "airborne" in d:
@@ -242,7 +225,7 @@ def _start(d: Any) -> StartConfig:
 
 
 def _origin(d: Any) -> GeoOrigin:
-    d = _check_keys(d, _dataclass_fields(GeoOrigin), "origin")
+    d = check_keys(d, _dataclass_fields(GeoOrigin), "origin")
     kw = {k: _number(v, f"origin.{k}") for k, v in d.items()}
     if not -90.0 < kw.get("lat_deg", 0.0) < 90.0:
         raise ScenarioError(f"origin.lat_deg must be in (-90, 90), got {kw['lat_deg']}")
@@ -271,7 +254,7 @@ def _obstacles(items: Any) -> tuple[tuple[Sphere, ...], tuple[Box, ...], tuple[C
         if shape not in _SHAPE_KEYS:
             raise ScenarioError(f"{where}.shape {shape!r} is not one of {sorted(_SHAPE_KEYS)}")
         required = _SHAPE_KEYS[shape]
-        item = _check_keys(item, required | {"shape", "texture_seed", "material"}, where)
+        item = check_keys(item, required | {"shape", "texture_seed", "material"}, where)
         for name in sorted(required):
             if name not in item:
                 raise ScenarioError(f"{where}.{name} is required for a {shape}")
@@ -282,7 +265,7 @@ def _obstacles(items: Any) -> tuple[tuple[Sphere, ...], tuple[Box, ...], tuple[C
                 f"{where}.material {item['material']!r} is not one of {[m.value for m in Material]}"
             ) from None
         kw: dict[str, Any] = {
-            "center_ned_m": _vec3(item["center_ned_m"], f"{where}.center_ned_m"),
+            "center_ned_m": vec3(item["center_ned_m"], f"{where}.center_ned_m"),
             "texture_seed": int(item.get("texture_seed", i)),
             "material": material,
         }
@@ -290,7 +273,7 @@ def _obstacles(items: Any) -> tuple[tuple[Sphere, ...], tuple[Box, ...], tuple[C
             if name in required:
                 kw[name] = _number(item[name], f"{where}.{name}", positive=True)
         if shape == "box":
-            size = _vec3(item["size_m"], f"{where}.size_m")
+            size = vec3(item["size_m"], f"{where}.size_m")
             if min(size) <= 0.0:
                 raise ScenarioError(f"{where}.size_m must be positive, got {list(size)}")
             kw["size_m"] = size
@@ -303,7 +286,7 @@ def _ground(value: Any) -> GroundPlane | None:
         return None
     if value is True:
         return GroundPlane()
-    d = _check_keys(value, {"down_m", "texture_seed"}, "ground")
+    d = check_keys(value, {"down_m", "texture_seed"}, "ground")
     return GroundPlane(
         down_m=_number(d.get("down_m", 0.0), "ground.down_m"),
         texture_seed=int(d.get("texture_seed", 1)),
@@ -315,7 +298,7 @@ _RENDER_KEYS = _dataclass_fields(RenderParams)
 
 
 def _camera(d: Any) -> CameraConfig:
-    d = _check_keys(d, {"enabled", "rate_hz"} | _CAMERA_MODEL_KEYS | _RENDER_KEYS, "camera")
+    d = check_keys(d, {"enabled", "rate_hz"} | _CAMERA_MODEL_KEYS | _RENDER_KEYS, "camera")
     model_kw = {k: d[k] for k in _CAMERA_MODEL_KEYS if k in d}
     render_kw = {k: d[k] for k in _RENDER_KEYS if k in d}
     try:
@@ -332,7 +315,7 @@ def _camera(d: Any) -> CameraConfig:
 
 
 def _streams(d: Any) -> tuple[tuple[str, float], ...]:
-    d = _check_keys(d, set(DEFAULT_STREAM_RATES_HZ), "streams")
+    d = check_keys(d, set(DEFAULT_STREAM_RATES_HZ), "streams")
     rates = dict(DEFAULT_STREAM_RATES_HZ)
     for name, value in d.items():
         rates[name] = _number(value, f"streams.{name}", minimum=0.0)
@@ -340,7 +323,7 @@ def _streams(d: Any) -> tuple[tuple[str, float], ...]:
 
 
 def _failsafe(d: Any) -> FailsafeConfig:
-    d = _check_keys(d, _dataclass_fields(FailsafeConfig), "failsafe")
+    d = check_keys(d, _dataclass_fields(FailsafeConfig), "failsafe")
     return FailsafeConfig(**{k: _number(v, f"failsafe.{k}", positive=True) for k, v in d.items()})
 
 
@@ -368,7 +351,7 @@ def scenario_from_dict(d: Mapping[str, Any]) -> Scenario:
     ScenarioError
         On an unknown key (named with its section) or an invalid value.
     """
-    d = _check_keys(d, _TOP_KEYS, "")
+    d = check_keys(d, _TOP_KEYS, "")
     kw: dict[str, Any] = {}
     if "vehicle_id" in d:
         try:
@@ -379,7 +362,7 @@ def scenario_from_dict(d: Mapping[str, Any]) -> Scenario:
         kw["start"] = _start(d["start"])
     if "goal_ned_m" in d:
         goal = d["goal_ned_m"]
-        kw["goal_ned_m"] = None if goal is False else _vec3(goal, "goal_ned_m")
+        kw["goal_ned_m"] = None if goal is False else vec3(goal, "goal_ned_m")
     if "origin" in d:
         kw["origin"] = _origin(d["origin"])
     default_world = paper_world()
@@ -403,7 +386,7 @@ def scenario_from_dict(d: Mapping[str, Any]) -> Scenario:
     for section, cls in (("vehicle", QuadrotorParams), ("control", ControlParams)):
         if section in d:
             try:
-                overrides = _check_keys(d[section], set(d[section]), section)
+                overrides = check_keys(d[section], set(d[section]), section)
                 kw[section] = from_dict(cls, {**dataclasses.asdict(kw[section]), **dict(overrides)})
             except (TypeError, ValueError) as exc:
                 raise ScenarioError(f"{section}: {exc}") from None

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from protocols.config import vec3
+
 __all__ = ["Box", "Cylinder", "GroundPlane", "Material", "Sphere", "World", "paper_world"]
 
 
@@ -33,13 +35,6 @@ class Material(enum.Enum):
 
 
 _CONTRAST = {Material.TEXTURED: 1.0, Material.LOW_TEXTURE: 0.12, Material.TEXTURELESS: 0.0}
-
-
-def _finite_vec3(name: str, value) -> tuple[float, float, float]:
-    vec = tuple(float(x) for x in value)
-    if len(vec) != 3 or not all(math.isfinite(x) for x in vec):
-        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
-    return vec  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)
@@ -64,7 +59,7 @@ class Sphere:
     material: Material = Material.TEXTURED
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "center_ned_m", _finite_vec3("center_ned_m", self.center_ned_m))
+        object.__setattr__(self, "center_ned_m", vec3(self.center_ned_m, "center_ned_m"))
         object.__setattr__(self, "material", Material(self.material))
         if not (math.isfinite(self.radius_m) and self.radius_m > 0.0):
             raise ValueError(f"radius_m must be finite and positive, got {self.radius_m!r}")
@@ -97,8 +92,8 @@ class Box:
     material: Material = Material.TEXTURED
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "center_ned_m", _finite_vec3("center_ned_m", self.center_ned_m))
-        object.__setattr__(self, "size_m", _finite_vec3("size_m", self.size_m))
+        object.__setattr__(self, "center_ned_m", vec3(self.center_ned_m, "center_ned_m"))
+        object.__setattr__(self, "size_m", vec3(self.size_m, "size_m"))
         object.__setattr__(self, "material", Material(self.material))
         if min(self.size_m) <= 0.0:
             raise ValueError(f"size_m must be positive, got {self.size_m!r}")
@@ -136,7 +131,7 @@ class Cylinder:
     material: Material = Material.TEXTURED
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "center_ned_m", _finite_vec3("center_ned_m", self.center_ned_m))
+        object.__setattr__(self, "center_ned_m", vec3(self.center_ned_m, "center_ned_m"))
         object.__setattr__(self, "material", Material(self.material))
         for name in ("radius_m", "height_m"):
             value = getattr(self, name)

@@ -95,6 +95,7 @@ from companion.guidance.cone import (
 from companion.guidance.config import GuidanceConfig
 from companion.guidance.memory import ObstacleMemory, TrackedObstacle, update_memory
 from companion.guidance.planner import choose_aiming_point, overlapping_cluster
+from protocols.config import vec3
 
 __all__ = [
     "Guidance",
@@ -226,13 +227,6 @@ class GuidanceOutput:
     tracks: tuple[TrackedObstacle, ...]
 
 
-def _vec3(name: str, value) -> np.ndarray:
-    vec = np.array(value, dtype=float)
-    if vec.shape != (3,) or not np.all(np.isfinite(vec)):
-        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
-    return vec
-
-
 def _inside_ball(point: np.ndarray, ball) -> bool:
     return norm3(point - np.asarray(ball.center_ned_m)) < float(ball.radius_m)
 
@@ -281,9 +275,9 @@ def guidance_step(
         raise ValueError(f"time_s must be finite, got {time_s!r}")
     if state.time_s is not None and time_s < state.time_s:
         raise ValueError(f"simulation time went backwards: {time_s} s after {state.time_s} s")
-    pos = _vec3("pos_ned_m", pos_ned_m)
-    vel = _vec3("vel_ned_mps", vel_ned_mps)
-    goal = _vec3("goal_ned_m", goal_ned_m)
+    pos = np.array(vec3(pos_ned_m, "pos_ned_m"))
+    vel = np.array(vec3(vel_ned_mps, "vel_ned_mps"))
+    goal = np.array(vec3(goal_ned_m, "goal_ned_m"))
 
     memory = update_memory(
         state.memory,

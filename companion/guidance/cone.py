@@ -54,6 +54,7 @@ from typing import Protocol
 import numpy as np
 
 from companion.guidance._vec import cross3, norm3
+from protocols.config import vec3
 
 __all__ = [
     "BoundarySphere",
@@ -132,13 +133,6 @@ def _frozen(vec: np.ndarray) -> np.ndarray:
     return vec
 
 
-def _vec3(name: str, value) -> np.ndarray:
-    vec = np.asarray(value, dtype=float)
-    if vec.shape != (3,) or not np.all(np.isfinite(vec)):
-        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
-    return vec
-
-
 @dataclass(frozen=True, eq=False)
 class CollisionCone:
     """The collision cone from the vehicle to one boundary sphere (read-only arrays).
@@ -210,7 +204,7 @@ def collision_cone(apex_ned_m, sphere: SphereLike) -> CollisionCone:
         Half-angle ``asin(R / D)``; when ``D ≤ R`` the cone is flagged ``apex_inside``
         with half-angle ``π``.
     """
-    apex = _vec3("apex_ned_m", apex_ned_m)
+    apex = np.array(vec3(apex_ned_m, "apex_ned_m"))
     center = np.asarray(sphere.center_ned_m, dtype=float)
     radius = float(sphere.radius_m)
     offset = center - apex
@@ -236,7 +230,7 @@ def contains_direction(cone: CollisionCone, direction_ned, *, margin_rad: float 
     (a generator itself is not inside). A zero direction is never inside; any non-zero
     direction is inside when the apex is inside the sphere.
     """
-    d = _vec3("direction_ned", direction_ned)
+    d = np.array(vec3(direction_ned, "direction_ned"))
     norm = norm3(d)
     if norm <= 0.0:
         return False
@@ -274,7 +268,7 @@ def is_critical(
     """
     if cone.apex_inside:
         return True
-    v = _vec3("vel_ned_mps", vel_ned_mps)
+    v = np.array(vec3(vel_ned_mps, "vel_ned_mps"))
     if norm3(v) <= max(min_speed_mps, 0.0):
         return False
     return contains_direction(cone, v, margin_rad=margin_rad)
@@ -332,7 +326,7 @@ def aiming_direction(
         Unit vector normal to ``cone.axis_ned``.
     """
     axis = cone.axis_ned
-    v = _vec3("reference_ned", reference_ned)
+    v = np.array(vec3(reference_ned, "reference_ned"))
     speed = norm3(v)
     if speed <= _EPS:
         return side_step_direction(axis, axis)
@@ -454,7 +448,7 @@ def escape_point(
         ``c + r̂ (R + clearance_m) + t̂ slide_m`` [m, NED], with ``r̂ = (p - c)/|p - c|``
         and ``t̂`` the unit tangent part of the reference (omitted when it has none).
     """
-    pos = _vec3("pos_ned_m", pos_ned_m)
+    pos = np.array(vec3(pos_ned_m, "pos_ned_m"))
     center = np.asarray(sphere.center_ned_m, dtype=float)
     ref = np.zeros(3) if reference_ned is None else np.asarray(reference_ned, dtype=float)
     away = pos - center

@@ -13,11 +13,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from protocols.config import UnknownKeyError, dataclass_from_mapping
+
 __all__ = ["GuidanceConfig", "UnknownGuidanceKeyError"]
 
 
-class UnknownGuidanceKeyError(TypeError):
-    """A guidance configuration mapping named a key that does not exist."""
+#: a guidance configuration mapping named a key that does not exist (also a TypeError)
+UnknownGuidanceKeyError = UnknownKeyError
 
 
 _INT_FIELDS = frozenset({"n_candidates", "max_tracks", "confirm_n", "confirm_m"})
@@ -146,10 +148,4 @@ class GuidanceConfig:
         ValueError
             If a value is out of range.
         """
-        known = [f.name for f in dataclasses.fields(cls)]
-        unknown = sorted(set(values) - set(known))
-        if unknown:
-            raise UnknownGuidanceKeyError(
-                f"unknown guidance config key(s) {unknown}; valid keys are {sorted(known)}"
-            )
-        return cls(**dict(values))
+        return dataclass_from_mapping(cls, values, "guidance")

@@ -41,6 +41,8 @@ from typing import Any
 
 import numpy as np
 
+from protocols.config import dataclass_from_mapping
+
 __all__ = [
     "EnvelopeConfig",
     "EnvelopeOutput",
@@ -122,13 +124,7 @@ class EnvelopeConfig:
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> EnvelopeConfig:
         """Build from a mapping; unknown keys raise ``TypeError`` naming them."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - names)
-        if unknown:
-            raise TypeError(
-                f"unknown envelope config key(s) {unknown}; valid keys: {sorted(names)}"
-            )
-        return cls(**dict(values))
+        return dataclass_from_mapping(cls, values, "envelope")
 
 
 @dataclass(frozen=True, eq=False)
