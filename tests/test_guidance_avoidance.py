@@ -14,15 +14,13 @@ from companion.guidance import (
     GuidanceConfig,
     GuidanceState,
     Mode,
-    ObstacleMemory,
     Reason,
     UnknownGuidanceKeyError,
-    aiming_point,
-    choose_aiming_point,
-    collision_cone,
     guidance_step,
-    update_memory,
 )
+from companion.guidance.cone import aiming_point, collision_cone
+from companion.guidance.memory import ObstacleMemory, update_memory
+from companion.guidance.planner import choose_aiming_point
 
 START_NED_M = np.array([20.0, 0.0, -7.0])
 GOAL_NED_M = np.array([0.0, 0.0, -7.0])

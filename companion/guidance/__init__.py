@@ -10,6 +10,16 @@ a mode, the avoidance flag of Fig. 11, a position setpoint and a yaw out.
 * :mod:`~companion.guidance.config` — the tuning, one frozen dataclass.
 * :mod:`~companion.guidance.envelope` — the safety envelope: the carrot inside known-free
   space (:mod:`companion.known_space`) and the stopping-distance speed limit.
+
+The public API is the step and its types; the geometry and planning functions are
+public in their own modules (``companion.guidance.cone`` etc.) for tests and tools.
+
+* :class:`Guidance` / :func:`guidance_step` — one perception frame in, a
+  :class:`GuidanceOutput` (mode, :class:`Reason`, avoidance flag, setpoint, yaw) out; the
+  state between frames is a :class:`GuidanceState`.
+* :class:`GuidanceConfig` — the tuning (unknown keys: :class:`UnknownGuidanceKeyError`).
+* :class:`BoundarySphere` / :class:`SphereLike` — what perception hands in;
+  :class:`TrackedObstacle` — what the memory keeps.
 """
 
 from companion.guidance.avoidance import (
@@ -20,49 +30,20 @@ from companion.guidance.avoidance import (
     Reason,
     guidance_step,
 )
-from companion.guidance.cone import (
-    BoundarySphere,
-    CollisionCone,
-    SphereLike,
-    aiming_direction,
-    aiming_point,
-    collision_cone,
-    contains_direction,
-    escape_point,
-    is_critical,
-    segment_intersects_sphere,
-    side_step_direction,
-    tangent_circle_points,
-)
+from companion.guidance.cone import BoundarySphere, SphereLike
 from companion.guidance.config import GuidanceConfig, UnknownGuidanceKeyError
-from companion.guidance.memory import ObstacleMemory, TrackedObstacle, update_memory
-from companion.guidance.planner import AimChoice, choose_aiming_point, overlapping_cluster
+from companion.guidance.memory import TrackedObstacle
 
 __all__ = [
-    "AimChoice",
     "BoundarySphere",
-    "CollisionCone",
     "Guidance",
     "GuidanceConfig",
     "GuidanceOutput",
     "GuidanceState",
     "Mode",
-    "ObstacleMemory",
     "Reason",
     "SphereLike",
     "TrackedObstacle",
     "UnknownGuidanceKeyError",
-    "aiming_direction",
-    "aiming_point",
-    "choose_aiming_point",
-    "collision_cone",
-    "contains_direction",
-    "escape_point",
     "guidance_step",
-    "is_critical",
-    "overlapping_cluster",
-    "segment_intersects_sphere",
-    "side_step_direction",
-    "tangent_circle_points",
-    "update_memory",
 ]

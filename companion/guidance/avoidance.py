@@ -270,15 +270,10 @@ def guidance_step(
         This step's decision.
     """
     cfg = GuidanceConfig() if config is None else config
-    time_s = float(time_s)
-    if not math.isfinite(time_s):
-        raise ValueError(f"time_s must be finite, got {time_s!r}")
-    if state.time_s is not None and time_s < state.time_s:
-        raise ValueError(f"simulation time went backwards: {time_s} s after {state.time_s} s")
+    time_s = _check_time(state, time_s)
     pos = np.array(vec3(pos_ned_m, "pos_ned_m"))
     vel = np.array(vec3(vel_ned_mps, "vel_ned_mps"))
     goal = np.array(vec3(goal_ned_m, "goal_ned_m"))
-
     memory = update_memory(
         state.memory,
         detections,
@@ -290,183 +285,250 @@ def guidance_step(
     )
     tracks = tuple(t for t in memory.tracks if t.confirmed)
     cones = [collision_cone(pos, t.sphere) for t in tracks]
-
     # Unreachable goal (inside a confirmed boundary): the goal becomes the stop point just
     # outside it; once there (or once held for this reason) the vehicle holds, reported.
     blocking = [t for t in tracks if _inside_ball(goal, t.sphere)]
     unreachable = bool(blocking)
     if unreachable:
         goal = _stop_short(pos, goal, blocking, cfg.goal_standoff_m)
-
-    to_goal = goal - pos
-    goal_dist = norm3(to_goal)
-    speed = norm3(vel)
-    if speed >= cfg.min_speed_mps and speed > 0.0:
-        ref = vel
-    elif goal_dist > 1e-9:
-        ref = to_goal
+    f = _Frame(time_s, pos, goal, _reference(pos, vel, goal, cfg), tracks, cones)
+    live_ids = {t.track_id for t in tracks}
+    d = _Decision(setpoint=goal, cleared={i for i in state.cleared_ids if i in live_ids})
+    inside = [i for i, c in enumerate(cones) if c.apex_inside]
+    if inside:
+        _escape_boundary(state, f, inside, d, cfg)
     else:
-        ref = np.zeros(3)
-    has_ref = bool(np.any(ref != 0.0))
+        _avoid_threats(state, f, d, cfg)
+    if unreachable and (
+        (state.mode is Mode.HOLD and state.unreachable) or f.goal_dist < cfg.goal_standoff_m
+    ):
+        d.mode, d.reason = Mode.HOLD, Reason.GOAL_UNREACHABLE
+        d.aim, d.aim_dir = None, None
+    hold = _latch_hold(state, f, d)
+    yaw = _yaw(state, f, d, yaw_rad, cfg)
+    return _outputs(f, d, memory, hold, yaw)
 
-    mode, reason = Mode.NAVIGATE, Reason.NO_THREAT
+
+def _check_time(state: GuidanceState, time_s: float) -> float:
+    time_s = float(time_s)
+    if not math.isfinite(time_s):
+        raise ValueError(f"time_s must be finite, got {time_s!r}")
+    if state.time_s is not None and time_s < state.time_s:
+        raise ValueError(f"simulation time went backwards: {time_s} s after {state.time_s} s")
+    return time_s
+
+
+@dataclass(frozen=True, eq=False)
+class _Frame:
+    """What one step sees: time, vehicle, (stop-point) goal, reference, confirmed tracks."""
+
+    time_s: float
+    pos: np.ndarray
+    goal: np.ndarray
+    ref: np.ndarray
+    tracks: tuple[TrackedObstacle, ...]
+    cones: list
+
+    @property
+    def goal_dist(self) -> float:
+        return norm3(self.goal - self.pos)
+
+    @property
+    def has_ref(self) -> bool:
+        return bool(np.any(self.ref != 0.0))
+
+    def goal_blocked(self, i: int) -> bool:
+        """The straight path to the goal crosses track ``i``'s sphere."""
+        return self.goal_dist > 1e-9 and segment_intersects_sphere(
+            self.pos, self.goal, self.tracks[i].sphere
+        )
+
+
+@dataclass(eq=False)
+class _Decision:
+    """The step's decision as the phases build it."""
+
+    setpoint: np.ndarray
+    cleared: set[int]
+    mode: Mode = Mode.NAVIGATE
+    reason: Reason = Reason.NO_THREAT
     active: int | None = None
     clear_since: float | None = None
-    setpoint = goal
     aim: np.ndarray | None = None
     aim_dir: tuple[float, float, float] | None = None
 
-    live_ids = {t.track_id for t in tracks}
-    cleared = {i for i in state.cleared_ids if i in live_ids}
-    inside = [i for i, c in enumerate(cones) if c.apex_inside]
-    if inside:
-        active = max(inside, key=lambda i: (cones[i].radius_m - cones[i].distance_m, -i))
-        mode, reason = Mode.AVOID, Reason.INSIDE_BOUNDARY
-        keep_going = (
-            np.asarray(state.aim_dir_ned)
-            if state.aim_dir_ned is not None and state.active_id == tracks[active].track_id
-            else ref
-        )
-        setpoint = escape_point(
-            pos,
-            tracks[active].sphere,
-            clearance_m=cfg.escape_clearance_m,
-            reference_ned=keep_going,
-            slide_m=cfg.min_setpoint_distance_m,
-        )
-        aim_dir = state.aim_dir_ned if state.active_id == tracks[active].track_id else None
+
+def _reference(pos, vel, goal, cfg: GuidanceConfig) -> np.ndarray:
+    """Step 2: the velocity; below ``min_speed_mps`` the direction to the goal; else zero."""
+    to_goal = goal - pos
+    speed = norm3(vel)
+    if speed >= cfg.min_speed_mps and speed > 0.0:
+        return vel
+    if norm3(to_goal) > 1e-9:
+        return to_goal
+    return np.zeros(3)
+
+
+def _escape_boundary(state, f: _Frame, inside: list[int], d: _Decision, cfg) -> None:
+    """Step 3: on or inside a boundary sphere → out of the deepest one, sliding along."""
+    cones, tracks = f.cones, f.tracks
+    active = max(inside, key=lambda i: (cones[i].radius_m - cones[i].distance_m, -i))
+    d.active = active
+    d.mode, d.reason = Mode.AVOID, Reason.INSIDE_BOUNDARY
+    same = state.active_id == tracks[active].track_id
+    keep_going = np.asarray(state.aim_dir_ned) if state.aim_dir_ned is not None and same else f.ref
+    d.setpoint = escape_point(
+        f.pos,
+        tracks[active].sphere,
+        clearance_m=cfg.escape_clearance_m,
+        reference_ned=keep_going,
+        slide_m=cfg.min_setpoint_distance_m,
+    )
+    d.aim_dir = state.aim_dir_ned if same else None
+
+
+def _avoid_threats(state, f: _Frame, d: _Decision, cfg) -> None:
+    """Steps 4–7: threats, hysteresis on the active obstacle, the aiming point or HOLD."""
+    cones, tracks = f.cones, f.tracks
+    threats = [
+        i
+        for i, c in enumerate(cones)
+        if f.has_ref
+        and (c.surface_distance_m <= f.goal_dist + cfg.goal_clearance_m or f.goal_blocked(i))
+        and contains_direction(c, f.ref)
+        and (tracks[i].track_id not in d.cleared or f.goal_blocked(i))
+    ]
+    kept, kept_reason = _keep_active(state, f, threats, d, cfg)
+    candidates = threats if kept is None else sorted({*threats, kept})
+    if not candidates:
+        return
+    active = min(candidates, key=lambda i: (cones[i].surface_distance_m, i))
+    d.active = active
+    d.reason = Reason.CRITICAL if active in threats else kept_reason
+    if d.reason is not Reason.HYSTERESIS:
+        d.clear_since = None
+    if active in threats and _inside_ball(f.goal, cones[active]):
+        d.mode, d.reason = Mode.HOLD, Reason.GOAL_INSIDE_BOUNDARY
     else:
+        _plan_aim(state, f, sorted({active, *threats}), d, cfg)
 
-        def goal_blocked(i: int) -> bool:
-            return goal_dist > 1e-9 and segment_intersects_sphere(pos, goal, tracks[i].sphere)
 
-        threats = [
-            i
-            for i, c in enumerate(cones)
-            if has_ref
-            and (c.surface_distance_m <= goal_dist + cfg.goal_clearance_m or goal_blocked(i))
-            and contains_direction(c, ref)
-            and (tracks[i].track_id not in cleared or goal_blocked(i))
-        ]
-        kept: int | None = None
-        kept_reason = Reason.CRITICAL
-        if state.mode is not Mode.NAVIGATE:
-            kept = next((i for i, t in enumerate(tracks) if t.track_id == state.active_id), None)
-        if kept is not None and kept not in threats:
-            cone = cones[kept]
-            behind = not has_ref or float(ref @ cone.axis_ned) <= 0.0
-            if goal_blocked(kept):
-                kept_reason = Reason.GOAL_BLOCKED
-            elif behind:
-                cleared.add(tracks[kept].track_id)
-                kept = None
-            elif contains_direction(cone, ref, margin_rad=cfg.exit_margin_rad):
-                kept_reason = Reason.HYSTERESIS
-            else:
-                since = time_s if state.clear_since_s is None else state.clear_since_s
-                if time_s - since >= cfg.min_clear_time_s:
-                    cleared.add(tracks[kept].track_id)
-                    kept = None
-                else:
-                    kept_reason, clear_since = Reason.HYSTERESIS, since
-
-        candidates = threats if kept is None else sorted({*threats, kept})
-        if candidates:
-            active = min(candidates, key=lambda i: (cones[i].surface_distance_m, i))
-            reason = Reason.CRITICAL if active in threats else kept_reason
-            if reason is not Reason.HYSTERESIS:
-                clear_since = None
-            if active in threats and _inside_ball(goal, cones[active]):
-                mode, reason = Mode.HOLD, Reason.GOAL_INSIDE_BOUNDARY
-            else:
-                seeds = sorted({active, *threats})
-                plan_ref = ref
-                if (
-                    state.mode is Mode.AVOID
-                    and state.aim_dir_ned is not None
-                    and state.active_id == tracks[active].track_id
-                ):
-                    # Commit to the side chosen on entry: Eq. (28) against the previous
-                    # aiming direction (the commanded velocity) rather than the actual
-                    # velocity; see "Committing to a side" in the module docstring.
-                    plan_ref = np.asarray(state.aim_dir_ned)
-                choice = choose_aiming_point(
-                    cones,
-                    plan_ref,
-                    n_candidates=cfg.n_candidates,
-                    tie_angle_rad=cfg.tie_angle_rad,
-                    cone_margin_rad=cfg.cone_margin_rad,
-                    candidate_indices=overlapping_cluster(
-                        cones, seeds, margin_rad=cfg.cone_margin_rad
-                    ),
-                    max_elevation_rad=cfg.max_aim_elevation_rad,
-                )
-                if choice is None:
-                    mode, reason = Mode.HOLD, Reason.NO_FREE_DIRECTION
-                else:
-                    mode = Mode.AVOID
-                    aim = choice.aiming_point_ned_m
-                    aim_dir = tuple(float(x) for x in choice.direction_ned)
-                    reach = min(
-                        max(
-                            choice.distance_m + cfg.setpoint_extension_m,
-                            cfg.min_setpoint_distance_m,
-                        ),
-                        cfg.max_setpoint_distance_m,
-                    )
-                    setpoint = pos + choice.direction_ned * reach
-
-    if unreachable and (
-        (state.mode is Mode.HOLD and state.unreachable) or goal_dist < cfg.goal_standoff_m
-    ):
-        mode, reason = Mode.HOLD, Reason.GOAL_UNREACHABLE
-        aim, aim_dir = None, None
-    hold: tuple[float, float, float] | None = None
-    if mode is Mode.HOLD:
-        if state.mode is Mode.HOLD and state.hold_ned_m is not None:
-            hold = state.hold_ned_m
+def _keep_active(state, f: _Frame, threats: list[int], d: _Decision, cfg):
+    """Step 5: whether the previous active obstacle stays active, and why (hysteresis)."""
+    kept: int | None = None
+    kept_reason = Reason.CRITICAL
+    if state.mode is not Mode.NAVIGATE:
+        kept = next((i for i, t in enumerate(f.tracks) if t.track_id == state.active_id), None)
+    if kept is None or kept in threats:
+        return kept, kept_reason
+    cone = f.cones[kept]
+    behind = not f.has_ref or float(f.ref @ cone.axis_ned) <= 0.0
+    if f.goal_blocked(kept):
+        kept_reason = Reason.GOAL_BLOCKED
+    elif behind:
+        d.cleared.add(f.tracks[kept].track_id)
+        kept = None
+    elif contains_direction(cone, f.ref, margin_rad=cfg.exit_margin_rad):
+        kept_reason = Reason.HYSTERESIS
+    else:
+        since = f.time_s if state.clear_since_s is None else state.clear_since_s
+        if f.time_s - since >= cfg.min_clear_time_s:
+            d.cleared.add(f.tracks[kept].track_id)
+            kept = None
         else:
-            hold = (float(pos[0]), float(pos[1]), float(pos[2]))
-        setpoint = np.array(hold)
-        clear_since = None
+            kept_reason, d.clear_since = Reason.HYSTERESIS, since
+    return kept, kept_reason
 
+
+def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
+    """Step 7: the aiming point (Eq. 28) and the carrot along it, or HOLD if none."""
+    plan_ref = f.ref
+    if (
+        state.mode is Mode.AVOID
+        and state.aim_dir_ned is not None
+        and state.active_id == f.tracks[d.active].track_id
+    ):
+        # Commit to the side chosen on entry: Eq. (28) against the previous
+        # aiming direction (the commanded velocity) rather than the actual
+        # velocity; see "Committing to a side" in the module docstring.
+        plan_ref = np.asarray(state.aim_dir_ned)
+    choice = choose_aiming_point(
+        f.cones,
+        plan_ref,
+        n_candidates=cfg.n_candidates,
+        tie_angle_rad=cfg.tie_angle_rad,
+        cone_margin_rad=cfg.cone_margin_rad,
+        candidate_indices=overlapping_cluster(f.cones, seeds, margin_rad=cfg.cone_margin_rad),
+        max_elevation_rad=cfg.max_aim_elevation_rad,
+    )
+    if choice is None:
+        d.mode, d.reason = Mode.HOLD, Reason.NO_FREE_DIRECTION
+        return
+    d.mode = Mode.AVOID
+    d.aim = choice.aiming_point_ned_m
+    d.aim_dir = tuple(float(x) for x in choice.direction_ned)
+    reach = min(
+        max(choice.distance_m + cfg.setpoint_extension_m, cfg.min_setpoint_distance_m),
+        cfg.max_setpoint_distance_m,
+    )
+    d.setpoint = f.pos + choice.direction_ned * reach
+
+
+def _latch_hold(state, f: _Frame, d: _Decision) -> tuple[float, float, float] | None:
+    """HOLD latches the position where it was entered; the setpoint is that point."""
+    if d.mode is not Mode.HOLD:
+        return None
+    if state.mode is Mode.HOLD and state.hold_ned_m is not None:
+        hold = state.hold_ned_m
+    else:
+        hold = (float(f.pos[0]), float(f.pos[1]), float(f.pos[2]))
+    d.setpoint = np.array(hold)
+    d.clear_since = None
+    return hold
+
+
+def _yaw(state, f: _Frame, d: _Decision, yaw_rad: float | None, cfg) -> float:
+    """Face the horizontal direction to the setpoint; else hold the previous yaw."""
     previous_yaw = state.yaw_rad if state.yaw_rad is not None else yaw_rad
-    to_setpoint = setpoint - pos
-    if mode is not Mode.HOLD and math.hypot(to_setpoint[0], to_setpoint[1]) >= max(
+    to_setpoint = d.setpoint - f.pos
+    if d.mode is not Mode.HOLD and math.hypot(to_setpoint[0], to_setpoint[1]) >= max(
         cfg.yaw_min_distance_m, 1e-9
     ):
-        yaw = math.atan2(float(to_setpoint[1]), float(to_setpoint[0]))
-    else:
-        yaw = 0.0 if previous_yaw is None else float(previous_yaw)
+        return math.atan2(float(to_setpoint[1]), float(to_setpoint[0]))
+    return 0.0 if previous_yaw is None else float(previous_yaw)
 
-    setpoint = np.array(setpoint, dtype=float)
+
+def _outputs(f: _Frame, d: _Decision, memory, hold, yaw: float):
+    """The next state and this step's output, arrays frozen."""
+    setpoint = np.array(d.setpoint, dtype=float)
     setpoint.setflags(write=False)
+    aim = d.aim
     if aim is not None:
         aim = np.array(aim, dtype=float)
         aim.setflags(write=False)
-    active_track = None if active is None else tracks[active]
+    active_track = None if d.active is None else f.tracks[d.active]
     new_state = GuidanceState(
-        mode=mode,
+        mode=d.mode,
         active_id=None if active_track is None else active_track.track_id,
-        clear_since_s=clear_since,
+        clear_since_s=d.clear_since,
         hold_ned_m=hold,
         yaw_rad=yaw,
-        time_s=time_s,
+        time_s=f.time_s,
         memory=memory,
-        cleared_ids=frozenset(cleared),
-        aim_dir_ned=aim_dir,
-        unreachable=mode is Mode.HOLD and reason is Reason.GOAL_UNREACHABLE,
+        cleared_ids=frozenset(d.cleared),
+        aim_dir_ned=d.aim_dir,
+        unreachable=d.mode is Mode.HOLD and d.reason is Reason.GOAL_UNREACHABLE,
     )
     output = GuidanceOutput(
-        time_s=time_s,
-        mode=mode,
-        reason=reason,
-        avoidance_flag=mode is not Mode.NAVIGATE,
+        time_s=f.time_s,
+        mode=d.mode,
+        reason=d.reason,
+        avoidance_flag=d.mode is not Mode.NAVIGATE,
         setpoint_ned_m=setpoint,
         yaw_rad=yaw,
         active_obstacle=active_track,
         aiming_point_ned_m=aim,
-        tracks=tracks,
+        tracks=f.tracks,
     )
     return new_state, output
 
