@@ -269,6 +269,33 @@ def test_signal_stops_cleanly_with_stats(tmp_path, sig):
         proc.close()
 
 
+def test_ready_file_holds_the_readiness_line_while_running(tmp_path):
+    """``--ready-file`` (the shared lifecycle): written once READY, removed at exit."""
+    frames = tmp_path / "pairs"
+    frames.mkdir()
+    for i in range(3):
+        left, right = _pair(i)
+        cv2.imwrite(str(frames / f"left_{i}.png"), left)
+        cv2.imwrite(str(frames / f"right_{i}.png"), right)
+    ready = tmp_path / "ready"
+    proc = CameraProcess(
+        [
+            *("replay", str(frames), "--rate", "0.5", "--intrinsics", "60,60,31.5,23.5,0.2"),
+            *("--wait-subscriber", "0", "--zenoh-listen", f"tcp/127.0.0.1:{_free_tcp_port()}"),
+            *("--ready-file", str(ready)),
+        ]
+    )
+    try:
+        line = proc.wait_ready()
+        assert ready.read_text().strip() == line.strip()
+        proc.proc.send_signal(signal.SIGINT)
+        code, stats = proc.wait_exit(5.0)
+        assert code == 0 and stats["stopped_by"] == "signal", proc.logs()
+        assert not ready.exists()
+    finally:
+        proc.close()
+
+
 def test_missing_device_is_one_line_without_traceback(tmp_path):
     calib = _write_tiny_calibration(tmp_path / "c.yml")
     proc = subprocess.run(

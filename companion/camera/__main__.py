@@ -16,11 +16,13 @@ Once the source delivers and the Zenoh publisher is declared it prints one line 
     STEREO_CAMERA READY key=stereo_avoid/sim1/stereo source=replay:rec size=320x240
         rectify=none zenoh=listen:tcp/127.0.0.1:7447
 
-and at exit (end of a replay, ``--max-frames``, SIGINT or SIGTERM) ``STEREO_CAMERA STATS
-{json}``. Capture times are ``time.monotonic_ns()`` at grab for cameras and the recorded
-timestamps mapped onto the monotonic clock at replay start for replays
-(:mod:`companion.camera.sources`). Exit status: 0 on a clean stop, 1 on a camera, file or
-transport error, 2 on a bad configuration or calibration; errors are one line on stderr.
+(also written to ``--ready-file``, removed at exit: the same lifecycle as plant-sim and the
+companion, :func:`protocols.process.run_until_signalled`) and at exit (end of a replay,
+``--max-frames``, SIGINT or SIGTERM) ``STEREO_CAMERA STATS {json}``. Capture times are
+``time.monotonic_ns()`` at grab for cameras and the recorded timestamps mapped onto the
+monotonic clock at replay start for replays (:mod:`companion.camera.sources`). Exit
+status: 0 on a clean stop, 1 on a camera, file or transport error, 2 on a bad
+configuration or calibration; errors are one line on stderr.
 """
 
 from __future__ import annotations
@@ -32,16 +34,19 @@ import logging
 import math
 import os
 import re
-import signal
 import sys
-import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, TextIO
+from typing import TYPE_CHECKING
 
-from protocols.process import DEFAULT_ENDPOINT, add_zenoh_arguments, default_listen
+from protocols.process import (
+    DEFAULT_ENDPOINT,
+    add_zenoh_arguments,
+    default_listen,
+    run_until_signalled,
+)
 from protocols.zenoh_session import ZenohSettings, zenoh_config
 
 if TYPE_CHECKING:  # numpy & co. load inside main(), after OPENBLAS_NUM_THREADS is set
@@ -49,13 +54,13 @@ if TYPE_CHECKING:  # numpy & co. load inside main(), after OPENBLAS_NUM_THREADS 
 
 __all__ = [
     "CameraConfig",
+    "CameraService",
     "SourceConfig",
     "SourceKind",
     "build_parser",
     "config_from_args",
     "main",
     "make_source",
-    "run",
 ]
 
 _log = logging.getLogger("companion.camera")
@@ -223,6 +228,11 @@ def _common_options() -> argparse.ArgumentParser:
     )
     o.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
     o.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    o.add_argument(
+        "--ready-file",
+        type=Path,
+        help="also write the readiness line to this file (removed at exit): a healthcheck",
+    )
     return p
 
 
@@ -387,31 +397,24 @@ class _Stats:
         }
 
 
-def _wait_for_subscriber(publisher, timeout_s: float, stop: threading.Event, key: str) -> None:
-    if timeout_s <= 0:
-        return
-    deadline = time.monotonic() + timeout_s
-    logged = False
-    while not stop.is_set() and not publisher.has_subscribers:
-        if not logged:
-            _log.info("waiting for a subscriber on %s", key)
-            logged = True
-        if time.monotonic() >= deadline:
-            _log.warning("no subscriber after %.1f s: publishing anyway", timeout_s)
-            return
-        stop.wait(0.01)
+def _sleep(seconds: float, should_stop: Callable[[], bool]) -> bool:
+    """Sleep ``seconds`` in short slices; True if asked to stop meanwhile."""
+    deadline = time.monotonic() + seconds
+    while not should_stop():
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return False
+        time.sleep(min(left, 0.01))
+    return True
 
 
-def run(
-    config: CameraConfig,
-    stop: threading.Event | None = None,
-    out: TextIO | None = None,
-    clock: Callable[[], int] = time.monotonic_ns,
-) -> dict:
-    """Open the source and the publisher, print READY, publish until done; return the stats.
+class CameraService:
+    """Source → (rectify) → :class:`~protocols.frame_publisher.FramePublisher`, on the
+    shared lifecycle (:func:`protocols.process.run_until_signalled`): :meth:`open`,
+    :meth:`readiness_line`, :meth:`run`, :meth:`close` (returns the stats).
 
-    Raises
-    ------
+    Raises (from :meth:`open`)
+    --------------------------
     companion.camera.sources.SourceError
         The source cannot deliver.
     companion.camera.calibration.CalibrationError, ValueError
@@ -419,71 +422,106 @@ def run(
     zenoh.ZError
         The session cannot be opened.
     """
-    import zenoh
 
-    from companion.camera.calibration import load_calibration
-    from protocols.frame_publisher import FramePublisher
-    from protocols.keys import stereo_key
+    def __init__(self, config: CameraConfig, clock: Callable[[], int] = time.monotonic_ns):
+        from protocols.keys import stereo_key
 
-    stop = stop if stop is not None else threading.Event()
-    out = out if out is not None else sys.stdout
-    calibration = None
-    if config.calibration_files:
-        calibration = load_calibration(config.calibration_files, config.calibration_units)
-    key = stereo_key(config.vehicle_id)
-    try:
-        zenoh_conf = zenoh_config(config.zenoh)
-    except zenoh.ZError as exc:
-        raise ValueError(f"zenoh config: {exc}") from None
-    live = config.source.kind is not SourceKind.REPLAY
-    stats = _Stats()
-    source = make_source(config.source)
-    source.open()
-    try:
-        intrinsics, rectify, origin = _geometry(config, source, calibration)
-        with zenoh.open(zenoh_conf) as session:
-            # live: the newest frame matters; replay: deliver every recorded pair
-            publisher = FramePublisher(session, key, drop=live)
-            z = config.zenoh
-            eps = [f"listen:{e}" for e in z.listen] + [f"connect:{e}" for e in z.connect]
-            print(
-                f"STEREO_CAMERA READY key={key} source={source.description} "
-                f"size={intrinsics.width_px}x{intrinsics.height_px} rectify={origin} "
-                f"zenoh={','.join(eps) or 'config'}",
-                file=out,
-                flush=True,
+        self.config = config
+        self.clock = clock
+        self.key = stereo_key(config.vehicle_id)
+        self.stats = _Stats()
+        self._source = None
+        self._session = None
+        self._publisher = None
+        self._geometry = None
+
+    def open(self) -> None:
+        import zenoh
+
+        from companion.camera.calibration import load_calibration
+        from protocols.frame_publisher import FramePublisher
+
+        config = self.config
+        calibration = None
+        if config.calibration_files:
+            calibration = load_calibration(config.calibration_files, config.calibration_units)
+        try:
+            zenoh_conf = zenoh_config(config.zenoh)
+        except zenoh.ZError as exc:
+            raise ValueError(f"zenoh config: {exc}") from None
+        self._source = make_source(config.source)
+        self._source.open()
+        self._geometry = _geometry(config, self._source, calibration)
+        self._session = zenoh.open(zenoh_conf)
+        # live: the newest frame matters; replay: deliver every recorded pair
+        live = config.source.kind is not SourceKind.REPLAY
+        self._publisher = FramePublisher(self._session, self.key, drop=live)
+
+    def readiness_line(self) -> str:
+        intrinsics, _rectify, origin = self._geometry
+        z = self.config.zenoh
+        eps = [f"listen:{e}" for e in z.listen] + [f"connect:{e}" for e in z.connect]
+        return (
+            f"STEREO_CAMERA READY key={self.key} source={self._source.description} "
+            f"size={intrinsics.width_px}x{intrinsics.height_px} rectify={origin} "
+            f"zenoh={','.join(eps) or 'config'}"
+        )
+
+    def run(self, should_stop: Callable[[], bool]) -> None:
+        """Publish until the source ends, ``max_frames`` or ``should_stop()``."""
+        config, stats, clock = self.config, self.stats, self.clock
+        intrinsics, rectify, _origin = self._geometry
+        self._wait_for_subscriber(should_stop)
+        stats.stopped_by = "signal"
+        while not should_stop():
+            pair = self._source.read()
+            if pair is None:
+                stats.stopped_by = "end"
+                _sleep(_FLUSH_S, should_stop)
+                return
+            delay_ns = pair.capture_ns - clock()
+            if delay_ns > 0 and _sleep(delay_ns / 1e9, should_stop):
+                return
+            left, right = (
+                (pair.left, pair.right) if rectify is None else rectify(pair.left, pair.right)
             )
-            _wait_for_subscriber(publisher, config.wait_subscriber_s, stop, key)
-            stats.stopped_by = "signal"
-            while not stop.is_set():
-                pair = source.read()
-                if pair is None:
-                    stats.stopped_by = "end"
-                    stop.wait(_FLUSH_S)
-                    break
-                delay_ns = pair.capture_ns - clock()
-                if delay_ns > 0 and stop.wait(delay_ns / 1e9):
-                    break
-                left, right = (
-                    (pair.left, pair.right) if rectify is None else rectify(pair.left, pair.right)
-                )
-                if not publisher.publish(stats.frames, pair.capture_ns, intrinsics, left, right):
-                    stats.publish_errors += 1
-                now = clock()
-                lag_ms = (now - pair.capture_ns) / 1e6
-                stats.lag_sum_ms += lag_ms
-                stats.max_lag_ms = max(stats.max_lag_ms, lag_ms)
-                stats.first_ns = stats.first_ns if stats.first_ns is not None else now
-                stats.last_ns = now
-                stats.frames += 1
-                if config.max_frames is not None and stats.frames >= config.max_frames:
-                    stats.stopped_by = "max_frames"
-                    stop.wait(_FLUSH_S)
-                    break
-            publisher.close()
-    finally:
-        source.close()
-    return stats.as_dict()
+            if not self._publisher.publish(stats.frames, pair.capture_ns, intrinsics, left, right):
+                stats.publish_errors += 1
+            now = clock()
+            lag_ms = (now - pair.capture_ns) / 1e6
+            stats.lag_sum_ms += lag_ms
+            stats.max_lag_ms = max(stats.max_lag_ms, lag_ms)
+            stats.first_ns = stats.first_ns if stats.first_ns is not None else now
+            stats.last_ns = now
+            stats.frames += 1
+            if config.max_frames is not None and stats.frames >= config.max_frames:
+                stats.stopped_by = "max_frames"
+                _sleep(_FLUSH_S, should_stop)
+                return
+
+    def _wait_for_subscriber(self, should_stop: Callable[[], bool]) -> None:
+        timeout_s = self.config.wait_subscriber_s
+        if timeout_s <= 0:
+            return
+        deadline = time.monotonic() + timeout_s
+        logged = False
+        while not should_stop() and not self._publisher.has_subscribers:
+            if not logged:
+                _log.info("waiting for a subscriber on %s", self.key)
+                logged = True
+            if time.monotonic() >= deadline:
+                _log.warning("no subscriber after %.1f s: publishing anyway", timeout_s)
+                return
+            time.sleep(0.01)
+
+    def close(self) -> dict:
+        if self._publisher is not None:
+            self._publisher.close()
+        if self._session is not None:
+            self._session.close()
+        if self._source is not None:
+            self._source.close()
+        return self.stats.as_dict()
 
 
 def _one_line(exc: BaseException) -> str:
@@ -513,15 +551,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, OSError) as exc:
         print(f"{_PROG}: configuration error: {_one_line(exc)}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-
-    def _on_signal(signum, _frame) -> None:
-        _log.info("signal %d: stopping", signum)
-        stop.set()
-
-    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        stats = run(config, stop)
+        stats = run_until_signalled(
+            CameraService(config), log_name="stereo-camera", ready_file=args.ready_file
+        )
     except (CalibrationError, ValueError) as exc:
         print(f"{_PROG}: configuration error: {_one_line(exc)}", file=sys.stderr)
         return 2
@@ -534,9 +567,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:
         print(f"{_PROG}: error: {_one_line(exc)}", file=sys.stderr)
         return 1
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
     print(f"STEREO_CAMERA STATS {json.dumps(stats)}", flush=True)
     return 0
 
