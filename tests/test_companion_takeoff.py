@@ -582,7 +582,7 @@ def test_prearm_refusal_over_udp_is_a_clear_terminal_error(rig):
         elif mtype == "SET_POSITION_TARGET_LOCAL_NED":
             setpoints += 1
     assert companion.proc.wait(timeout=10) == 3, rig.logs()
-    camera.undeclare()
+    camera.close()
     session.close()
     assert arms == 3 and setpoints == 0
     err = companion.stderr_text()
