@@ -386,15 +386,17 @@ def guidance_step(
                 mode, reason = Mode.HOLD, Reason.GOAL_INSIDE_BOUNDARY
             else:
                 seeds = sorted({active, *threats})
+                cluster = overlapping_cluster(cones, seeds, margin_rad=cfg.cone_margin_rad)
                 plan_ref = ref
                 if (
                     state.mode is Mode.AVOID
                     and state.aim_dir_ned is not None
-                    and state.active_id == tracks[active].track_id
+                    and state.active_id in {tracks[i].track_id for i in cluster}
                 ):
                     # Commit to the side chosen on entry: Eq. (28) against the previous
                     # aiming direction (the commanded velocity) rather than the actual
-                    # velocity; see "Committing to a side" in the module docstring.
+                    # velocity; see "Committing to a side" in the module docstring. The
+                    # obstacle is the cluster (several map pieces), not one sphere.
                     plan_ref = np.asarray(state.aim_dir_ned)
                 choice = choose_aiming_point(
                     cones,
@@ -402,10 +404,10 @@ def guidance_step(
                     n_candidates=cfg.n_candidates,
                     tie_angle_rad=cfg.tie_angle_rad,
                     cone_margin_rad=cfg.cone_margin_rad,
-                    candidate_indices=overlapping_cluster(
-                        cones, seeds, margin_rad=cfg.cone_margin_rad
-                    ),
+                    candidate_indices=cluster,
                     max_elevation_rad=cfg.max_aim_elevation_rad,
+                    vertical_weight=cfg.vertical_weight,
+                    cluster_tie=plan_ref is ref,
                 )
                 if choice is None:
                     mode, reason = Mode.HOLD, Reason.NO_FREE_DIRECTION
