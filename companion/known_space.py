@@ -625,6 +625,23 @@ def _unseen_run(grid, origin, voxel, px, py, pz, ux, uy, uz, limit):
     return limit
 
 
+@numba.njit(cache=True)
+def _unseen_runs(grid, origin, voxel, points, vx, vy, vz, limit):
+    """:func:`_unseen_run` from each of ``points`` (n, 3) away from the viewpoint v."""
+    out = np.zeros(points.shape[0])
+    for m in range(points.shape[0]):
+        dx = points[m, 0] - vx
+        dy = points[m, 1] - vy
+        dz = points[m, 2] - vz
+        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if d > 1e-9:
+            out[m] = _unseen_run(
+                grid, origin, voxel, points[m, 0], points[m, 1], points[m, 2],
+                dx / d, dy / d, dz / d, limit,
+            )  # fmt: skip
+    return out
+
+
 @functools.cache
 def _warm_up() -> None:
     """Compile (or load from numba's cache) the kernels once per process."""
@@ -642,7 +659,7 @@ def _warm_up() -> None:
     _clear_occupied_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3)
     grid[4, 4, 4] = OCCUPIED
     _pieces(grid, origin, 2, 0.2, 0.8, 0.8, 0.8, 0.5, 0.8, 0.8, 0.8)
-    _unseen_run(grid, origin, 0.2, 0.8, 0.8, 0.8, 1.0, 0.0, 0.0, 0.5)
+    _unseen_runs(grid, origin, 0.2, np.full((1, 3), 0.8), 0.0, 0.0, 0.0, 0.5)
 
 
 class KnownSpace:
@@ -853,6 +870,18 @@ class KnownSpace:
                 self.grid, self.origin_vox, self.config.voxel_m, float(p[0]), float(p[1]),
                 float(p[2]), float(u[0]), float(u[1]), float(u[2]), float(limit_m),
             )
+        )  # fmt: skip
+
+    def unseen_runs_m(self, points_ned_m, viewpoint_ned_m, limit_m: float) -> np.ndarray:
+        """:meth:`unseen_run_m` from each of ``points_ned_m`` (n, 3) along the direction
+        away from ``viewpoint_ned_m`` (0 for a point at the viewpoint)."""
+        pts = np.ascontiguousarray(points_ned_m, dtype=float).reshape(-1, 3)
+        v = np.asarray(viewpoint_ned_m, dtype=float)
+        if limit_m <= 0.0:
+            return np.zeros(pts.shape[0])
+        return _unseen_runs(
+            self.grid, self.origin_vox, self.config.voxel_m, pts, float(v[0]), float(v[1]),
+            float(v[2]), float(limit_m),
         )  # fmt: skip
 
     def occupied_points_ned_m(self) -> np.ndarray:

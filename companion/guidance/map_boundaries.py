@@ -30,12 +30,13 @@ The goal and the real surface
 An inflated sphere can hold a goal that is in fact clear of the obstacle (a goal 1 m in
 front of a wall). The goal's clearance is therefore measured from the real surface, the
 OCCUPIED voxels: the goal is *blocked* by a piece when it lies within ``inflate_m`` of the
-piece's nearest voxel surface, or when its own voxel is not FREE (it may lie in the blind
-spot, inside the obstacle). A piece whose sphere holds a goal that is not blocked is
-replaced by its eight sub-pieces (cubes of half the edge, at most 0.52 m radius); a
-sub-piece sphere holding the goal is trimmed to end just short of it (its blind spot
-dropped and its inflation reduced; the goal's voxel was seen free and its clearance from
-the real surface is at least ``inflate_m``). A sub-piece too wide to trim (the goal nearer
+piece's nearest voxel surface, or, when its own voxel is not FREE, within ``inflate_m +
+blind_depth_m`` (it may lie in the blind spot, inside the obstacle). A piece whose sphere
+holds a goal that is not blocked is replaced by its eight sub-pieces (cubes of half the
+edge, at most 0.52 m radius); a sub-piece sphere holding the goal is trimmed to end just
+short of it (its blind spot dropped and its inflation reduced: the goal's clearance from
+the real surface is at least ``inflate_m``, and the safety envelope still keeps every
+setpoint in space seen free). A sub-piece too wide to trim (the goal nearer
 its centroid than its voxels reach) keeps its full sphere: the goal counts as blocked, and
 guidance stops short of it, reported. Guidance then sees a goal inside a sphere exactly
 when it is blocked (``Reason.GOAL_UNREACHABLE``).
@@ -143,25 +144,20 @@ def _boundaries_of(
 ) -> list[MapBoundary]:
     """Spheres of ``pieces`` (module docstring); trimmed where a reachable goal is inside."""
     half_voxel = 0.5 * space.config.voxel_m
+    blind = space.unseen_runs_m(pieces.centroid_ned_m, pos, space.config.blind_depth_m)
     out = []
     for m in range(len(pieces)):
         c = pieces.centroid_ned_m[m]
         r = float(pieces.radius_m[m])
         bearing = c - pos
         dist = math.sqrt(float(bearing @ bearing))
-        e = 0.0
-        if dist > 1e-9:
-            u = bearing / dist
-            depth_m = space.config.blind_depth_m
-            e = min(depth_m, space.unseen_run_m(c, u, depth_m))
-            centre = c + 0.5 * e * u
-        else:
-            centre = c.copy()
+        e = float(blind[m]) if dist > 1e-9 else 0.0
+        centre = c + (0.5 * e / dist) * bearing if e > 0.0 else c.copy()
         radius = r + 0.5 * e + config.inflate_m
         gap = max(float(pieces.nearest_to_point_m[m]) - half_voxel, 0.0)
         trimmed = False
         to_goal = float(np.linalg.norm(goal - centre))
-        if level == 1 and to_goal < radius and goal_free and gap >= config.inflate_m:
+        if level == 1 and to_goal < radius and not _blocks(gap, goal_free, space, config):
             d = float(np.linalg.norm(goal - c))
             if d - _TRIM_EPS_M >= r:  # the trimmed sphere still encloses the voxels
                 centre, radius, e, trimmed = c.copy(), d - _TRIM_EPS_M, 0.0, True
@@ -210,8 +206,7 @@ def map_boundaries(
     split = {
         b.track_key
         for b in boundaries
-        if goal_free
-        and b.goal_gap_m >= cfg.inflate_m
+        if not _blocks(b.goal_gap_m, goal_free, space, cfg)
         and float(np.linalg.norm(goal - np.asarray(b.center_ned_m))) < b.radius_m
     }
     if split:
@@ -225,6 +220,14 @@ def map_boundaries(
         boundaries = [b for b in boundaries if b.track_key not in split]
         boundaries += _boundaries_of(space, sub, 1, pos, goal, goal_free, cfg)
     return tuple(sorted(boundaries, key=lambda b: b.track_key))
+
+
+def _blocks(gap_m: float, goal_free: bool, space: KnownSpace, config: MapBoundaryConfig) -> bool:
+    """Does a piece whose nearest voxel surface is ``gap_m`` from the goal block it?"""
+    if gap_m < config.inflate_m:
+        return True  # too near the real surface
+    # an unseen goal within the blind spot's depth of the surface may be inside the obstacle
+    return not goal_free and gap_m < config.inflate_m + space.config.blind_depth_m
 
 
 def _fields(p: Pieces) -> tuple[np.ndarray, ...]:
