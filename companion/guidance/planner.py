@@ -24,11 +24,13 @@ make two refinements worth having, both off by default (then the above is exact)
   candidate and the reference by it: among nearly equal detours the level one wins, as a
   multirotor pilot would fly it. A lumpy union of pieces otherwise tilts the nearest free
   direction up or down by the accident of where the pieces' cubes fall.
-* ``cluster_tie``: when the reference is within ``tie_angle_rad`` of the cluster's mean
-  axis (the candidate cones' axes weighted by their solid angle), the approach is head-on
-  to the cluster as a whole and candidates to the right of the reference (its
-  right-hand horizontal normal, as the single-sphere tie-break) are ranked first: the
-  side no longer depends on which piece happened to be seen first.
+* ``cluster_tie``: when the reference's azimuth is within ``tie_angle_rad`` of the
+  azimuth of the cluster's mean axis (the candidate cones' axes weighted by their solid
+  angle) and its elevation within the widest cone's half-angle of the axis's, the
+  approach is head-on to the cluster as a whole: candidates to the right of the reference
+  (its right-hand horizontal normal, as the single-sphere tie-break) are ranked first.
+  The side no longer depends on which piece happened to be seen first, nor on whether
+  the first pieces seen lie a little above or below the path.
 """
 
 from __future__ import annotations
@@ -213,13 +215,21 @@ def choose_aiming_point(
     if cluster_tie and ref_norm > 1e-9:
         weights = [1.0 - math.cos(min(cones[i].half_angle_rad, 0.5 * math.pi)) for i in generators]
         mean_axis = sum(w * cones[i].axis_ned for w, i in zip(weights, generators, strict=True))
-        mean_norm = float(np.linalg.norm(mean_axis))
         horizontal = math.hypot(float(ref[0]), float(ref[1]))
-        if (
-            mean_norm > 1e-9
-            and horizontal > 1e-9
-            and float(ref @ mean_axis) / (ref_norm * mean_norm) >= math.cos(tie_angle_rad)
-        ):
+        mean_h = math.hypot(float(mean_axis[0]), float(mean_axis[1]))
+        if horizontal > 1e-9 and mean_h > 1e-9:
+            azimuth = math.atan2(
+                float(ref[0] * mean_axis[1] - ref[1] * mean_axis[0]),
+                float(ref[0] * mean_axis[0] + ref[1] * mean_axis[1]),
+            )
+            elevation = math.atan2(-float(mean_axis[2]), mean_h) - math.atan2(
+                -float(ref[2]), horizontal
+            )
+            widest = max(cones[i].half_angle_rad for i in generators)
+            head_on = abs(azimuth) <= tie_angle_rad and abs(elevation) < widest
+        else:
+            head_on = False
+        if head_on:
             right = np.array([-ref[1], ref[0], 0.0]) / horizontal
             left = (dirs @ right < -1e-9).astype(np.int8)
     order = np.lexsort((sample, owner, vert_q, -cos_q, left))
