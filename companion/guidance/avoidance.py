@@ -48,12 +48,14 @@ Committing to a side
 On entry the aiming point is Eq. (28)'s: the tangent point nearest the velocity (or the
 head-on tie-break). While the same obstacle stays active, the reference becomes the
 previous aiming direction, i.e. the commanded direction of travel, so the aiming point
-moves continuously around the circle on the side chosen at entry. Using the actual
-velocity every frame is unstable in closed loop: the horizontal channel is tilt-limited
-(±15°) while the vertical one is not, so any small vertical part of the aiming direction
-grows the vertical velocity faster than the lateral one, which pulls the next aiming
-point further up or down; in the §6 scenario a 1° perception bias turned a side-step
-into a climb within half a second.
+moves continuously around the circle on the side chosen at entry. With several spheres
+per obstacle (map pieces) the active one changes as pieces come into range; the side is
+kept while the previously active one is in the cluster of overlapping cones avoided.
+Using the actual velocity every frame is unstable in closed loop: the horizontal channel
+is tilt-limited (±15°) while the vertical one is not, so any small vertical part of the
+aiming direction grows the vertical velocity faster than the lateral one, which pulls
+the next aiming point further up or down; in the §6 scenario a 1° perception bias turned
+a side-step into a climb within half a second.
 
 Setpoint while avoiding
 -----------------------
