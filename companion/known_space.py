@@ -84,6 +84,7 @@ __all__ = [
     "UNKNOWN",
     "KnownSpace",
     "KnownSpaceConfig",
+    "Pieces",
 ]
 
 UNKNOWN = np.int8(0)
@@ -124,6 +125,13 @@ class KnownSpaceConfig:
         vehicle is there) [m].
     start_free_radius_m : float
         On the first frame, voxels within this distance become FREE [m] (assumption).
+    piece_vox : int
+        Edge of the cubes that cut OCCUPIED voxels into pieces [voxels], even (6 → 1.2 m:
+        a piece's cells lie within 1.04 m of its centroid; its eight sub-pieces are cubes
+        of half the edge); see :meth:`KnownSpace.pieces`.
+    blind_depth_m : float
+        Deepest blind spot assumed behind a piece, away from the viewer (Fig. 4) [m];
+        it ends earlier where the map has seen the space free.
     """
 
     voxel_m: float = 0.2
@@ -136,14 +144,18 @@ class KnownSpaceConfig:
     sky_min_elevation_deg: float = -5.0
     ego_clear_radius_m: float = 0.25
     start_free_radius_m: float = 1.2
+    piece_vox: int = 6
+    blind_depth_m: float = 1.2
 
     def __post_init__(self) -> None:
-        for name in ("size_xy_vox", "size_z_vox", "pixel_stride"):
+        for name in ("size_xy_vox", "size_z_vox", "pixel_stride", "piece_vox"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
         if self.size_xy_vox < 8 or self.size_z_vox < 8 or self.pixel_stride < 1:
             raise ValueError("grid sizes must be >= 8 voxels and pixel_stride >= 1")
+        if self.piece_vox < 2 or self.piece_vox % 2:
+            raise ValueError(f"piece_vox must be even and >= 2, got {self.piece_vox}")
         for name in ("voxel_m", "max_range_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
@@ -152,6 +164,7 @@ class KnownSpaceConfig:
             "hit_clear_m",
             "ego_clear_radius_m",
             "start_free_radius_m",
+            "blind_depth_m",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
@@ -173,6 +186,37 @@ class KnownSpaceConfig:
                 f"unknown known-space config key(s) {unknown}; valid keys: {sorted(names)}"
             )
         return cls(**dict(values))
+
+
+@dataclass(frozen=True, eq=False)
+class Pieces:
+    """OCCUPIED space cut into bounded pieces (:meth:`KnownSpace.pieces`), one row each.
+
+    Attributes
+    ----------
+    key : ndarray, shape (n, 3), int64
+        Global index of the piece's cube (``floor(point / (piece_vox · voxel_m))``): the
+        same cube has the same key in every frame, wherever the grid is centred.
+    centroid_ned_m : ndarray, shape (n, 3)
+        Mean of the centres of its OCCUPIED voxels [m, NED].
+    radius_m : ndarray, shape (n,)
+        Radius of the sphere about the centroid that encloses its voxels (whole cubes) [m].
+    n_voxels : ndarray, shape (n,), int64
+    nearest_m : ndarray, shape (n,)
+        Distance from the query position to its nearest voxel centre [m].
+    nearest_to_point_m : ndarray, shape (n,)
+        Distance from the query's second point (the goal) to its nearest voxel centre [m].
+    """
+
+    key: np.ndarray
+    centroid_ned_m: np.ndarray
+    radius_m: np.ndarray
+    n_voxels: np.ndarray
+    nearest_m: np.ndarray
+    nearest_to_point_m: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.radius_m.shape[0])
 
 
 # ---- kernels -----------------------------------------------------------------------------
@@ -460,6 +504,144 @@ def _free_distance(
     return last
 
 
+@numba.njit(cache=True)
+def _pieces(grid, origin, piece, voxel, px, py, pz, reach, qx, qy, qz):
+    """OCCUPIED voxels cut into cubes of ``piece`` voxels (global, grid-aligned).
+
+    A cube is a piece when one of its OCCUPIED voxels is centred within ``reach`` [m] of
+    ``p``; all of its OCCUPIED voxels (in the grid) belong to it. Returns, per piece: the
+    cube's global index (3 int64), the centroid of its voxel centres [m, NED], the radius
+    of the sphere about the centroid enclosing its voxels (whole cubes) [m], the number of
+    voxels and the distances from ``p`` and from ``q`` to the nearest voxel centre [m].
+    """
+    ni, nj, nk = grid.shape
+    r_vox = math.ceil(reach / voxel) + 1
+    ci = math.floor(px / voxel) - origin[0]
+    cj = math.floor(py / voxel) - origin[1]
+    ck = math.floor(pz / voxel) - origin[2]
+    lo = np.array([max(ci - r_vox, 0), max(cj - r_vox, 0), max(ck - r_vox, 0)])
+    hi = np.array([min(ci + r_vox + 1, ni), min(cj + r_vox + 1, nj), min(ck + r_vox + 1, nk)])
+    if lo[0] >= hi[0] or lo[1] >= hi[1] or lo[2] >= hi[2]:
+        none = np.zeros(0)
+        return np.zeros((0, 3), np.int64), np.zeros((0, 3)), none, np.zeros(0, np.int64), none, none
+    c_lo = np.empty(3, np.int64)
+    n_c = np.empty(3, np.int64)
+    for a in range(3):
+        c_lo[a] = (lo[a] + origin[a]) // piece
+        n_c[a] = (hi[a] - 1 + origin[a]) // piece - c_lo[a] + 1
+    flag = np.zeros((n_c[0], n_c[1], n_c[2]), np.bool_)
+    r2 = reach * reach
+    for i in range(lo[0], hi[0]):
+        x = (i + origin[0] + 0.5) * voxel - px
+        for j in range(lo[1], hi[1]):
+            y = (j + origin[1] + 0.5) * voxel - py
+            for k in range(lo[2], hi[2]):
+                if grid[i, j, k] != 2:
+                    continue
+                z = (k + origin[2] + 0.5) * voxel - pz
+                if x * x + y * y + z * z <= r2:
+                    flag[
+                        (i + origin[0]) // piece - c_lo[0],
+                        (j + origin[1]) // piece - c_lo[1],
+                        (k + origin[2]) // piece - c_lo[2],
+                    ] = True
+    n = 0
+    for a in range(n_c[0]):
+        for b in range(n_c[1]):
+            for c in range(n_c[2]):
+                if flag[a, b, c]:
+                    n += 1
+    keys = np.empty((n, 3), np.int64)
+    centroid = np.zeros((n, 3))
+    radius = np.zeros(n)
+    count = np.zeros(n, np.int64)
+    near_p = np.full(n, np.inf)
+    near_q = np.full(n, np.inf)
+    m = 0
+    half_diag = 0.5 * math.sqrt(3.0) * voxel
+    for a in range(n_c[0]):
+        for b in range(n_c[1]):
+            for c in range(n_c[2]):
+                if not flag[a, b, c]:
+                    continue
+                g = (c_lo[0] + a, c_lo[1] + b, c_lo[2] + c)
+                keys[m, 0] = g[0]
+                keys[m, 1] = g[1]
+                keys[m, 2] = g[2]
+                i0 = max(g[0] * piece - origin[0], 0)
+                i1 = min((g[0] + 1) * piece - origin[0], ni)
+                j0 = max(g[1] * piece - origin[1], 0)
+                j1 = min((g[1] + 1) * piece - origin[1], nj)
+                k0 = max(g[2] * piece - origin[2], 0)
+                k1 = min((g[2] + 1) * piece - origin[2], nk)
+                sx = sy = sz = 0.0
+                for i in range(i0, i1):
+                    x = (i + origin[0] + 0.5) * voxel
+                    for j in range(j0, j1):
+                        y = (j + origin[1] + 0.5) * voxel
+                        for k in range(k0, k1):
+                            if grid[i, j, k] != 2:
+                                continue
+                            z = (k + origin[2] + 0.5) * voxel
+                            count[m] += 1
+                            sx += x
+                            sy += y
+                            sz += z
+                            dp = math.sqrt((x - px) ** 2 + (y - py) ** 2 + (z - pz) ** 2)
+                            dq = math.sqrt((x - qx) ** 2 + (y - qy) ** 2 + (z - qz) ** 2)
+                            near_p[m] = min(near_p[m], dp)
+                            near_q[m] = min(near_q[m], dq)
+                mx = sx / count[m]
+                my = sy / count[m]
+                mz = sz / count[m]
+                centroid[m, 0] = mx
+                centroid[m, 1] = my
+                centroid[m, 2] = mz
+                far2 = 0.0
+                for i in range(i0, i1):
+                    x = (i + origin[0] + 0.5) * voxel - mx
+                    for j in range(j0, j1):
+                        y = (j + origin[1] + 0.5) * voxel - my
+                        for k in range(k0, k1):
+                            if grid[i, j, k] == 2:
+                                z = (k + origin[2] + 0.5) * voxel - mz
+                                far2 = max(far2, x * x + y * y + z * z)
+                radius[m] = math.sqrt(far2) + half_diag
+                m += 1
+    return keys, centroid, radius, count, near_p, near_q
+
+
+@numba.njit(cache=True)
+def _unseen_run(grid, origin, voxel, px, py, pz, ux, uy, uz, limit):
+    """Distance [m] from p along the unit direction u to the first FREE voxel (≤ limit)."""
+    inv = 1.0 / voxel
+    step = 0.5 * voxel
+    n = int(limit / step)
+    for s in range(1, n + 1):
+        t = s * step
+        i, j, k = _cell(grid, origin, inv, px + t * ux, py + t * uy, pz + t * uz)
+        if i >= 0 and grid[i, j, k] == 1:
+            return t
+    return limit
+
+
+@numba.njit(cache=True)
+def _unseen_runs(grid, origin, voxel, points, vx, vy, vz, limit):
+    """:func:`_unseen_run` from each of ``points`` (n, 3) away from the viewpoint v."""
+    out = np.zeros(points.shape[0])
+    for m in range(points.shape[0]):
+        dx = points[m, 0] - vx
+        dy = points[m, 1] - vy
+        dz = points[m, 2] - vz
+        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if d > 1e-9:
+            out[m] = _unseen_run(
+                grid, origin, voxel, points[m, 0], points[m, 1], points[m, 2],
+                dx / d, dy / d, dz / d, limit,
+            )  # fmt: skip
+    return out
+
+
 @functools.cache
 def _warm_up() -> None:
     """Compile (or load from numba's cache) the kernels once per process."""
@@ -475,6 +657,9 @@ def _warm_up() -> None:
     _mark_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3, True)
     _free_distance(grid, origin, 0.2, 0.8, 0.8, 0.8, 1.0, 0.0, 0.0, 0.1, 0.1, 0.5, 0.1, 0.2)
     _clear_occupied_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3)
+    grid[4, 4, 4] = OCCUPIED
+    _pieces(grid, origin, 2, 0.2, 0.8, 0.8, 0.8, 0.5, 0.8, 0.8, 0.8)
+    _unseen_runs(grid, origin, 0.2, np.full((1, 3), 0.8), 0.0, 0.0, 0.0, 0.5)
 
 
 class KnownSpace:
@@ -634,6 +819,70 @@ class KnownSpace:
             float(near_field_m),
         )
         return max(float(d), 0.0)
+
+    def pieces(
+        self, pos_ned_m, reach_m: float, point_ned_m=None, piece_vox: int | None = None
+    ) -> Pieces:
+        """OCCUPIED space near ``pos_ned_m`` cut into pieces of bounded size.
+
+        The grid is cut into cubes of ``piece_vox`` voxels aligned with LOCAL_NED; every
+        cube holding an OCCUPIED voxel centred within ``reach_m`` of ``pos_ned_m`` is a
+        piece, with all its OCCUPIED voxels. A piece's voxels lie within
+        ``piece_vox · voxel_m · √3 / 2`` of its centroid (1.04 m by default), so an
+        extended obstacle (a wall) is several pieces, never one growing blob; a small
+        obstacle across cube faces is a few small pieces whose spheres overlap.
+        ``point_ned_m`` (default ``pos_ned_m``): a second point whose distance to each
+        piece's nearest voxel is reported (the goal's clearance to the real surface).
+        ``piece_vox`` (default the config's) sets another cube edge [voxels].
+        """
+        c = self.config
+        size = c.piece_vox if piece_vox is None else int(piece_vox)
+        if size < 1:
+            raise ValueError(f"piece_vox must be >= 1, got {piece_vox!r}")
+        p = np.asarray(pos_ned_m, dtype=float)
+        q = p if point_ned_m is None else np.asarray(point_ned_m, dtype=float)
+        keys, centroid, radius, count, near_p, near_q = _pieces(
+            self.grid,
+            self.origin_vox,
+            size,
+            c.voxel_m,
+            float(p[0]),
+            float(p[1]),
+            float(p[2]),
+            float(reach_m),
+            float(q[0]),
+            float(q[1]),
+            float(q[2]),
+        )
+        return Pieces(keys, centroid, radius, count, near_p, near_q)
+
+    def unseen_run_m(self, start_ned_m, direction_ned, limit_m: float) -> float:
+        """Distance [m] from ``start_ned_m`` along ``direction_ned`` to the first FREE
+        voxel, in half-voxel steps, at most ``limit_m`` (outside the grid is unknown)."""
+        u = np.asarray(direction_ned, dtype=float)
+        n = math.sqrt(float(u @ u))
+        if not n > 1e-9 or limit_m <= 0.0:
+            return 0.0
+        u = u / n
+        p = np.asarray(start_ned_m, dtype=float)
+        return float(
+            _unseen_run(
+                self.grid, self.origin_vox, self.config.voxel_m, float(p[0]), float(p[1]),
+                float(p[2]), float(u[0]), float(u[1]), float(u[2]), float(limit_m),
+            )
+        )  # fmt: skip
+
+    def unseen_runs_m(self, points_ned_m, viewpoint_ned_m, limit_m: float) -> np.ndarray:
+        """:meth:`unseen_run_m` from each of ``points_ned_m`` (n, 3) along the direction
+        away from ``viewpoint_ned_m`` (0 for a point at the viewpoint)."""
+        pts = np.ascontiguousarray(points_ned_m, dtype=float).reshape(-1, 3)
+        v = np.asarray(viewpoint_ned_m, dtype=float)
+        if limit_m <= 0.0:
+            return np.zeros(pts.shape[0])
+        return _unseen_runs(
+            self.grid, self.origin_vox, self.config.voxel_m, pts, float(v[0]), float(v[1]),
+            float(v[2]), float(limit_m),
+        )  # fmt: skip
 
     def occupied_points_ned_m(self) -> np.ndarray:
         """Centres of the OCCUPIED voxels [m, NED], shape (n, 3)."""

@@ -1,8 +1,10 @@
 """The companion's pure avoidance pipeline: stereo frame + pose at capture → setpoint.
 
-One call per frame: perception (disparity → depth → boundary spheres in NED, paper §4–5),
-the known-space map (the depth folded in with the pose at capture), guidance (collision
-cone, aiming point, mode switching, Fig. 5), then the safety envelope (the position target
+One call per frame: perception (disparity → depth, paper §4), the known-space map (the
+depth folded in with the pose at capture), the collision safety boundaries (Fig. 4) cut
+from the map's occupied space (several bounded spheres per extended obstacle,
+:mod:`companion.guidance.map_boundaries`), guidance (collision cone, aiming point, mode
+switching, Fig. 5), then the safety envelope (the position target
 moved no farther than known-free space allows, a speed limit; DESIGN.md "The safety
 envelope"). No sockets, files or clocks: the networked service and the lockstep harness
 both run exactly this.
@@ -17,6 +19,7 @@ import numpy as np
 
 from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
+from companion.guidance.map_boundaries import MapBoundary, MapBoundaryConfig, map_boundaries
 from companion.known_space import KnownSpace, KnownSpaceConfig
 from companion.perception import PerceptionConfig, PerceptionResult, StereoPerception
 from protocols.config import vec3
@@ -52,6 +55,7 @@ class PipelineOutput:
     perception: PerceptionResult
     guidance: GuidanceOutput
     envelope: EnvelopeOutput
+    boundaries: tuple[MapBoundary, ...] = ()
 
     @property
     def setpoint_ned_m(self) -> np.ndarray:
@@ -87,6 +91,10 @@ class AvoidancePipeline:
         self.perception = StereoPerception(perception)
         self.guidance = Guidance(guidance)
         self.known_space = KnownSpace(known_space)
+        p = self.perception.config
+        self.boundary_config = MapBoundaryConfig(
+            detect_range_m=p.threshold_m, inflate_m=p.vehicle_radius_m + p.safety_margin_m
+        )
         self.envelope_config = EnvelopeConfig() if envelope is None else envelope
 
     def process(self, frame: StereoFrame, pose: PoseAtCapture) -> PipelineOutput:
@@ -102,12 +110,15 @@ class AvoidancePipeline:
             )
         else:
             self.known_space.mark_vehicle(pose.pos_ned_m)
+        boundaries = map_boundaries(
+            self.known_space, pose.pos_ned_m, self.goal_ned_m, self.boundary_config
+        )
         decision = self.guidance.step(
             time_s=frame.capture_ns * 1e-9,
             pos_ned_m=pose.pos_ned_m,
             vel_ned_mps=pose.vel_ned_mps,
             goal_ned_m=self.goal_ned_m,
-            detections=seen.obstacles,
+            detections=boundaries,
             yaw_rad=pose.yaw_rad,
         )
         bounded = envelope_step(
@@ -117,4 +128,6 @@ class AvoidancePipeline:
             free_distance=self.known_space.free_distance_m,
             config=self.envelope_config,
         )
-        return PipelineOutput(perception=seen, guidance=decision, envelope=bounded)
+        return PipelineOutput(
+            perception=seen, guidance=decision, envelope=bounded, boundaries=boundaries
+        )

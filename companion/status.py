@@ -1,6 +1,9 @@
 """The companion's status on Zenoh: one JSON document per processed frame.
 
 Key ``stereo_avoid/<vehicle_id>/companion/status`` (:func:`protocols.keys.companion_status_key`).
+``obstacles`` are the spheres perception fitted in this frame; ``boundaries`` the
+collision safety boundaries guidance avoided (pieces of the known-space map,
+:mod:`companion.guidance.map_boundaries`).
 :func:`status_document` is pure; :class:`StatusPublisher` puts it on the wire.
 
 Document (NED, SI units; latencies in ms of the host's monotonic clock)::
@@ -9,6 +12,7 @@ Document (NED, SI units; latencies in ms of the host's monotonic clock)::
      "autopilot_mode": "GUIDED", "mode": "avoid", "reason": "critical", "avoidance_flag": true,
      "setpoint_ned_m": [..], "yaw_rad": .., "aiming_point_ned_m": [..] | null,
      "obstacles": [{"center_ned_m": [..], "radius_m": .., "range_m": ..}],
+     "boundaries": [{"center_ned_m": [..], "radius_m": .., "key": ..}],
      "pos_ned_m": [..], "pose": "ok", "health": "healthy", "waypoint": 0,
      "latency_ms": {"receive_to_send": .., "compute": ..}, "counters": {...}}
 """
@@ -60,6 +64,14 @@ def status_document(out: PipelineOutput, **extra: Any) -> dict[str, Any]:
                 "range_m": round(float(o.nearest_range_m), 4),
             }
             for o in out.perception.obstacles
+        ],
+        "boundaries": [
+            {
+                "center_ned_m": _vec(b.center_ned_m),
+                "radius_m": round(float(b.radius_m), 4),
+                "key": int(b.track_key),
+            }
+            for b in out.boundaries
         ],
     }
     doc.update(extra)

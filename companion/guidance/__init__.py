@@ -6,6 +6,8 @@ a mode, the avoidance flag of Fig. 11, a position setpoint and a yaw out.
 * :mod:`~companion.guidance.cone` — cone geometry, Eq. (28), the head-on tie-break.
 * :mod:`~companion.guidance.planner` — aiming point among several obstacles, or none.
 * :mod:`~companion.guidance.memory` — obstacles remembered out of the field of view.
+* :mod:`~companion.guidance.map_boundaries` — the boundary spheres cut from the
+  known-space map (several bounded pieces per extended obstacle).
 * :mod:`~companion.guidance.avoidance` — NAVIGATE / AVOID / HOLD with hysteresis.
 * :mod:`~companion.guidance.config` — the tuning, one frozen dataclass.
 * :mod:`~companion.guidance.envelope` — the safety envelope: the carrot inside known-free

@@ -48,11 +48,13 @@ Committing to a side
 On entry the aiming point is Eq. (28)'s: the tangent point nearest the velocity (or the
 head-on tie-break). While the same obstacle stays active, the reference becomes the
 previous aiming direction, i.e. the commanded direction of travel, so the aiming point
-moves continuously around the circle on the side chosen at entry. Using the actual
-velocity every frame is unstable in closed loop: the horizontal channel is tilt-limited
-(±15°) while the vertical one is not, so any small vertical part of the aiming direction
-grows the vertical velocity faster than the lateral one, which pulls the next aiming
-point further up or down; in the §6 scenario a 1° perception bias turned a side-step
+moves continuously around the circle on the side chosen at entry. With several spheres
+per obstacle (map pieces) the active one changes as pieces come into range; the side is
+kept while the previously active one is in the cluster of overlapping cones avoided.
+Using the actual velocity every frame is unstable in closed loop: the horizontal channel
+is tilt-limited (±15°) while the vertical one is not, so any small vertical part of the
+aiming direction grows the vertical velocity faster than the lateral one, which pulls
+the next aiming point further up or down; in the §6 scenario a 1° perception bias turned a side-step
 into a climb within half a second.
 
 Setpoint while avoiding
@@ -442,15 +444,17 @@ def _keep_active(state, f: _Frame, threats: list[int], d: _Decision, cfg):
 
 def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
     """Step 7: the aiming point (Eq. 28) and the carrot along it, or HOLD if none."""
+    cluster = overlapping_cluster(f.cones, seeds, margin_rad=cfg.cone_margin_rad)
     plan_ref = f.ref
     if (
         state.mode is Mode.AVOID
         and state.aim_dir_ned is not None
-        and state.active_id == f.tracks[d.active].track_id
+        and state.active_id in {f.tracks[i].track_id for i in cluster}
     ):
         # Commit to the side chosen on entry: Eq. (28) against the previous
         # aiming direction (the commanded velocity) rather than the actual
-        # velocity; see "Committing to a side" in the module docstring.
+        # velocity; see "Committing to a side" in the module docstring. The
+        # obstacle is the cluster (several map pieces), not one sphere.
         plan_ref = np.asarray(state.aim_dir_ned)
     choice = choose_aiming_point(
         f.cones,
@@ -458,8 +462,10 @@ def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
         n_candidates=cfg.n_candidates,
         tie_angle_rad=cfg.tie_angle_rad,
         cone_margin_rad=cfg.cone_margin_rad,
-        candidate_indices=overlapping_cluster(f.cones, seeds, margin_rad=cfg.cone_margin_rad),
+        candidate_indices=cluster,
         max_elevation_rad=cfg.max_aim_elevation_rad,
+        vertical_weight=cfg.vertical_weight,
+        cluster_tie=plan_ref is f.ref,
     )
     if choice is None:
         d.mode, d.reason = Mode.HOLD, Reason.NO_FREE_DIRECTION

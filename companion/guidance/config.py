@@ -88,6 +88,12 @@ class GuidanceConfig:
     max_aim_elevation_rad : float
         Aiming directions steeper than this are not candidates (12°: the safety
         envelope's steepest path, inside the camera's ±18.5° vertical view).
+    vertical_weight : float
+        The planner ranks aiming directions by their angle to the reference with vertical
+        components scaled by this (3: a level detour wins over a climb of a third of its
+        angle; 1 is Eq. 28 exactly). Several spheres per obstacle (the map's pieces) make
+        the free direction nearest the velocity tilt by where the pieces fall; a
+        multirotor keeps its altitude unless climbing is clearly shorter.
     """
 
     n_candidates: int = 72
@@ -111,6 +117,7 @@ class GuidanceConfig:
     confirm_m: int = 3
     confirm_immediate_m: float = 2.0
     max_aim_elevation_rad: float = math.radians(12.0)
+    vertical_weight: float = 3.0
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
@@ -124,6 +131,8 @@ class GuidanceConfig:
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{field.name} must be finite and >= 0, got {value!r}")
             object.__setattr__(self, field.name, float(value))
+        if self.vertical_weight <= 0.0:
+            raise ValueError(f"vertical_weight must be > 0, got {self.vertical_weight!r}")
         if self.tie_angle_rad >= 0.5 * math.pi:
             raise ValueError(f"tie_angle_rad must be < π/2, got {self.tie_angle_rad!r}")
         if self.confirm_n > self.confirm_m or self.confirm_m > 30:

@@ -29,6 +29,17 @@ Rules (parameters in :class:`~companion.guidance.config.GuidanceConfig`):
 * **Timeout.** ``memory_timeout_s`` forgets only a track whose surface is farther than
   ``forget_distance_m``: an obstacle beside or above the vehicle is never timed out.
 
+Map pieces (keyed detections)
+-----------------------------
+A detection with an integer ``track_key`` (a piece of the known-space map,
+:mod:`companion.guidance.map_boundaries`) is not merged: the map already *is* the memory
+(occupied space persists until seen free, and is confirmed over two frames before it is
+occupied). The track with that id takes the detection's sphere as it is — it may shrink
+when space is seen free, and it never grows by merging — and is confirmed at once; a
+keyed track missing from an update is gone from the map's reach and is dropped. Keyed
+tracks do not count against ``max_tracks`` (dropping a piece of a wall would open a false
+gap). The rules above apply to detections without a key (perception's per-frame spheres).
+
 Pure functions over frozen values; time is simulation time passed in by the caller.
 """
 
@@ -64,6 +75,8 @@ class TrackedObstacle:
         Bit mask of the latest updates that detected it (bit 0: the latest).
     confirmed : bool
         See "Confirmation" in the module docstring.
+    keyed : bool
+        A map piece (see "Map pieces" in the module docstring); ``track_id`` is its key.
     """
 
     track_id: int
@@ -73,6 +86,7 @@ class TrackedObstacle:
     n_detections: int = 1
     recent: int = 1
     confirmed: bool = True
+    keyed: bool = False
 
 
 @dataclass(frozen=True)
@@ -166,9 +180,11 @@ def update_memory(
     pos = np.asarray(pos_ned_m, dtype=float)
     vel = np.asarray(vel_ned_mps, dtype=float)
     goal = None if goal_ned_m is None else np.asarray(goal_ned_m, dtype=float)
-    spheres = [BoundarySphere.of(d) for d in detections]
+    detections = list(detections)
+    keyed = _keyed_tracks(memory, [d for d in detections if _key(d) is not None], time_s)
+    spheres = [BoundarySphere.of(d) for d in detections if _key(d) is None]
 
-    tracks = list(memory.tracks)
+    tracks = [t for t in memory.tracks if not t.keyed]
     next_id = memory.next_id
     seen: set[int] = set()  # indices into ``tracks`` updated in this call
 
@@ -241,4 +257,35 @@ def update_memory(
         kept.sort(key=lambda t: (-t.last_seen_s, t.track_id))
         kept = kept[: config.max_tracks]
     kept.sort(key=lambda t: t.track_id)
-    return ObstacleMemory(tracks=tuple(kept), next_id=next_id)
+    return ObstacleMemory(tracks=tuple(kept) + keyed, next_id=next_id)
+
+
+def _key(detection) -> int | None:
+    key = getattr(detection, "track_key", None)
+    if key is None:
+        return None
+    if isinstance(key, bool) or not isinstance(key, int | np.integer):
+        raise ValueError(f"track_key must be an integer, got {key!r}")
+    return int(key)
+
+
+def _keyed_tracks(
+    memory: ObstacleMemory, detections: list, time_s: float
+) -> tuple[TrackedObstacle, ...]:
+    """This update's map pieces as tracks (see "Map pieces"), ordered by key."""
+    previous = {t.track_id: t for t in memory.tracks if t.keyed}
+    by_key: dict[int, TrackedObstacle] = {}
+    for det in detections:
+        key = _key(det)
+        if key in by_key:
+            raise ValueError(f"two detections share track_key {key}")
+        old = previous.get(key)
+        by_key[key] = TrackedObstacle(
+            track_id=key,
+            sphere=BoundarySphere.of(det),
+            first_seen_s=time_s if old is None else old.first_seen_s,
+            last_seen_s=time_s,
+            n_detections=1 if old is None else old.n_detections + 1,
+            keyed=True,
+        )
+    return tuple(by_key[k] for k in sorted(by_key))

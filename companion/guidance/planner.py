@@ -16,6 +16,21 @@ obstacle order given, then the sample order (the right-hand side-step first, see
 :mod:`companion.guidance.cone`). A reference within ``tie_angle_rad`` of the axis of a
 cone that contains it (the nearest such, by surface distance) is snapped onto that axis
 first, so near-head-on noise cannot flip the side.
+
+Several spheres per obstacle (the map's pieces, :mod:`companion.guidance.map_boundaries`)
+make two refinements worth having, both off by default (then the above is exact):
+
+* ``vertical_weight`` > 1 ranks by the angle after scaling the vertical components of the
+  candidate and the reference by it: among nearly equal detours the level one wins, as a
+  multirotor pilot would fly it. A lumpy union of pieces otherwise tilts the nearest free
+  direction up or down by the accident of where the pieces' cubes fall.
+* ``cluster_tie``: when the reference's azimuth is within ``tie_angle_rad`` of the
+  azimuth of the cluster's mean axis (the candidate cones' axes weighted by their solid
+  angle) and its elevation within the widest cone's half-angle of the axis's, the
+  approach is head-on to the cluster as a whole: candidates to the right of the reference
+  (its right-hand horizontal normal, as the single-sphere tie-break) are ranked first.
+  The side no longer depends on which piece happened to be seen first, nor on whether
+  the first pieces seen lie a little above or below the path.
 """
 
 from __future__ import annotations
@@ -89,6 +104,8 @@ def choose_aiming_point(
     cone_margin_rad: float = 0.0,
     candidate_indices: Sequence[int] | None = None,
     max_elevation_rad: float | None = None,
+    vertical_weight: float = 1.0,
+    cluster_tie: bool = False,
 ) -> AimChoice | None:
     """Choose the free tangent point whose direction is nearest the reference direction.
 
@@ -113,6 +130,11 @@ def choose_aiming_point(
         Candidates climbing or descending more steeply are rejected (the safety envelope
         flies no path steeper than the camera's view covers, so such an aiming point
         would be flown clamped, into the obstacle).
+    vertical_weight : float
+        Ranking weight of vertical deviation (module docstring; 1: Eq. 28 exactly).
+    cluster_tie : bool
+        Head-on to the candidate cones' cluster: right-hand candidates first (module
+        docstring).
 
     Returns
     -------
@@ -134,6 +156,8 @@ def choose_aiming_point(
             raise ValueError("all cones must share the vehicle position as apex")
     if n_candidates < 1:
         raise ValueError(f"n_candidates must be >= 1, got {n_candidates}")
+    if not (math.isfinite(vertical_weight) and vertical_weight > 0.0):
+        raise ValueError(f"vertical_weight must be finite and > 0, got {vertical_weight!r}")
 
     by_urgency = sorted(range(len(cones)), key=lambda i: (cones[i].surface_distance_m, i))
     ref = np.asarray(reference_ned, dtype=float)
@@ -178,9 +202,37 @@ def choose_aiming_point(
     if max_elevation_rad is not None:
         free &= np.abs(dirs[:, 2]) <= math.sin(max_elevation_rad) + 1e-12
 
-    cos_q = np.round((dirs @ ref_hat) * 1e9)
+    if vertical_weight != 1.0:
+        scale = np.array([1.0, 1.0, vertical_weight])
+        dirs_w = dirs * scale
+        dirs_w /= np.linalg.norm(dirs_w, axis=1)[:, None]
+        ref_w = ref_hat * scale
+        cos_q = np.round((dirs_w @ (ref_w / np.linalg.norm(ref_w))) * 1e9)
+    else:
+        cos_q = np.round((dirs @ ref_hat) * 1e9)
     vert_q = np.round(np.abs(np.concatenate(units)[:, 2]) * 1e9)
-    order = np.lexsort((sample, owner, vert_q, -cos_q))
+    left = np.zeros(len(pts), dtype=np.int8)
+    if cluster_tie and ref_norm > 1e-9:
+        weights = [1.0 - math.cos(min(cones[i].half_angle_rad, 0.5 * math.pi)) for i in generators]
+        mean_axis = sum(w * cones[i].axis_ned for w, i in zip(weights, generators, strict=True))
+        horizontal = math.hypot(float(ref[0]), float(ref[1]))
+        mean_h = math.hypot(float(mean_axis[0]), float(mean_axis[1]))
+        if horizontal > 1e-9 and mean_h > 1e-9:
+            azimuth = math.atan2(
+                float(ref[0] * mean_axis[1] - ref[1] * mean_axis[0]),
+                float(ref[0] * mean_axis[0] + ref[1] * mean_axis[1]),
+            )
+            elevation = math.atan2(-float(mean_axis[2]), mean_h) - math.atan2(
+                -float(ref[2]), horizontal
+            )
+            widest = max(cones[i].half_angle_rad for i in generators)
+            head_on = abs(azimuth) <= tie_angle_rad and abs(elevation) < widest
+        else:
+            head_on = False
+        if head_on:
+            right = np.array([-ref[1], ref[0], 0.0]) / horizontal
+            left = (dirs @ right < -1e-9).astype(np.int8)
+    order = np.lexsort((sample, owner, vert_q, -cos_q, left))
     free_ranked = np.flatnonzero(free[order])
     if free_ranked.size == 0:
         return None

@@ -1,0 +1,234 @@
+"""Collision safety boundaries (paper Fig. 4) built from the known-space map.
+
+The paper forms one sphere per detected obstacle. Fitted to what one frame shows, that
+sphere must grow to cover an extended obstacle (a 9.6 × 6 m wall became a 12.4 m sphere:
+a goal beyond the wall looked "inside", an 8 m climb over a 1.2 m wall). Here the
+boundaries come from the known-space map (:mod:`companion.known_space`) instead: its
+OCCUPIED voxels, which persist until seen free, are cut into pieces of bounded size
+(:meth:`~companion.known_space.KnownSpace.pieces`, cubes of 1.2 m), and each piece gets
+its own sphere, so the cone and aiming-point logic of §5 runs unchanged on several
+spheres per extended obstacle.
+
+One piece's sphere
+------------------
+* **Cells.** The sphere about the piece's centroid ``c`` enclosing its voxels, radius
+  ``r`` (at most ``piece_vox · voxel · √3 / 2``, 1.04 m by default).
+* **Blind spot** (Fig. 4: the far side of an obstacle, which the camera cannot see, is
+  obstacle too). Along the bearing ``u`` from the vehicle to ``c`` the space behind the
+  piece is unseen for ``e = min(blind_depth_m, distance from c to the first FREE voxel
+  along u)``; the sphere encloses the piece and its copy moved back by ``e``: centre
+  ``c + u e / 2``, radius ``r + e / 2``. Space seen free behind the piece (from another
+  viewpoint) ends the blind spot early.
+* **Inflation.** ``+ inflate_m`` (vehicle radius + safety margin, as perception's spheres).
+
+Only pieces with an OCCUPIED voxel within ``detect_range_m`` of the vehicle are
+boundaries (the paper's detection threshold, 4 m in §6: avoidance starts where the paper
+starts it). Occupied space beyond it still stops the vehicle through the safety envelope.
+
+The goal and the real surface
+-----------------------------
+An inflated sphere can hold a goal that is in fact clear of the obstacle (a goal 1 m in
+front of a wall). The goal's clearance is therefore measured from the real surface, the
+OCCUPIED voxels: the goal is *blocked* by a piece when it lies within ``inflate_m`` of the
+piece's nearest voxel surface, or, when its own voxel is not FREE, within ``inflate_m +
+blind_depth_m`` (it may lie in the blind spot, inside the obstacle). A piece whose sphere
+holds a goal that is not blocked is replaced by its eight sub-pieces (cubes of half the
+edge, at most 0.52 m radius); a sub-piece sphere holding the goal is trimmed to end just
+short of it (its blind spot dropped and its inflation reduced: the goal's clearance from
+the real surface is at least ``inflate_m``, and the safety envelope still keeps every
+setpoint in space seen free). A sub-piece too wide to trim (the goal nearer
+its centroid than its voxels reach) keeps its full sphere: the goal counts as blocked, and
+guidance stops short of it, reported. Guidance then sees a goal inside a sphere exactly
+when it is blocked (``Reason.GOAL_UNREACHABLE``).
+
+Each boundary carries a stable ``track_key``: the global index of its cube (and its
+level), the same in every frame, so guidance's hysteresis and side commitment follow a
+piece from frame to frame; the obstacle memory replaces a keyed track's sphere each frame
+instead of growing it (:mod:`companion.guidance.memory`).
+
+Pure: the map is read, never written; no clock, no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.known_space import FREE, KnownSpace, Pieces
+
+__all__ = ["MapBoundary", "MapBoundaryConfig", "map_boundaries", "track_key"]
+
+_KEY_FLAG = 1 << 62  # keyed tracks: ids far above the memory's own counter
+_KEY_OFFSET = 1 << 19  # cube indices within ±2^19 (±629 km at 1.2 m cubes)
+_TRIM_EPS_M = 1e-3  # a trimmed sphere ends this far short of the goal
+
+
+def track_key(level: int, cube: np.ndarray) -> int:
+    """Stable track id of the cube ``cube`` (3 ints) at ``level`` (0 piece, 1 sub-piece)."""
+    i, j, k = (int(v) + _KEY_OFFSET for v in cube)
+    if not (0 <= i < 1 << 20 and 0 <= j < 1 << 20 and 0 <= k < 1 << 20):
+        raise ValueError(f"cube index {tuple(int(v) for v in cube)} out of the key range")
+    return _KEY_FLAG | (level << 60) | (i << 40) | (j << 20) | k
+
+
+@dataclass(frozen=True)
+class MapBoundaryConfig:
+    """Which pieces are boundaries and how they are inflated.
+
+    Attributes
+    ----------
+    detect_range_m : float
+        A piece is a boundary when one of its voxels is within this distance of the
+        vehicle [m] (perception's ``threshold_m``, the paper's 4 m).
+    inflate_m : float
+        Vehicle radius + safety margin added to every sphere [m] (perception's
+        ``vehicle_radius_m + safety_margin_m``, 0.35 + 0.3).
+    """
+
+    detect_range_m: float = 4.0
+    inflate_m: float = 0.65
+
+    def __post_init__(self) -> None:
+        for name in ("detect_range_m", "inflate_m"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"{name} must be a number, got {value!r}")
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} must be finite and positive, got {value!r}")
+
+
+@dataclass(frozen=True)
+class MapBoundary:
+    """One piece's collision safety boundary (a :class:`~companion.guidance.cone.SphereLike`).
+
+    Attributes
+    ----------
+    center_ned_m : tuple of 3 float
+        Sphere centre [m, NED].
+    radius_m : float
+        Inflated radius [m].
+    track_key : int
+        Stable id of the piece (see :func:`track_key`).
+    piece_radius_m : float
+        Radius enclosing the piece's voxels, about their centroid [m].
+    blind_depth_m : float
+        Blind-spot depth behind the piece included in the sphere [m].
+    nearest_m : float
+        Vehicle to the piece's nearest voxel centre [m].
+    goal_gap_m : float
+        Goal to the piece's nearest voxel surface (centre distance − half a voxel) [m].
+    trimmed : bool
+        The sphere was trimmed to leave a reachable goal outside.
+    """
+
+    center_ned_m: tuple[float, float, float]
+    radius_m: float
+    track_key: int
+    piece_radius_m: float
+    blind_depth_m: float
+    nearest_m: float
+    goal_gap_m: float
+    trimmed: bool = False
+
+
+def _boundaries_of(
+    space: KnownSpace,
+    pieces: Pieces,
+    level: int,
+    pos: np.ndarray,
+    goal: np.ndarray,
+    goal_free: bool,
+    config: MapBoundaryConfig,
+) -> list[MapBoundary]:
+    """Spheres of ``pieces`` (module docstring); trimmed where a reachable goal is inside."""
+    half_voxel = 0.5 * space.config.voxel_m
+    blind = space.unseen_runs_m(pieces.centroid_ned_m, pos, space.config.blind_depth_m)
+    out = []
+    for m in range(len(pieces)):
+        c = pieces.centroid_ned_m[m]
+        r = float(pieces.radius_m[m])
+        bearing = c - pos
+        dist = math.sqrt(float(bearing @ bearing))
+        e = float(blind[m]) if dist > 1e-9 else 0.0
+        centre = c + (0.5 * e / dist) * bearing if e > 0.0 else c.copy()
+        radius = r + 0.5 * e + config.inflate_m
+        gap = max(float(pieces.nearest_to_point_m[m]) - half_voxel, 0.0)
+        trimmed = False
+        to_goal = float(np.linalg.norm(goal - centre))
+        if level == 1 and to_goal < radius and not _blocks(gap, goal_free, space, config):
+            d = float(np.linalg.norm(goal - c))
+            if d - _TRIM_EPS_M >= r:  # the trimmed sphere still encloses the voxels
+                centre, radius, e, trimmed = c.copy(), d - _TRIM_EPS_M, 0.0, True
+        out.append(
+            MapBoundary(
+                center_ned_m=tuple(float(x) for x in centre),
+                radius_m=float(radius),
+                track_key=track_key(level, pieces.key[m]),
+                piece_radius_m=r,
+                blind_depth_m=float(e),
+                nearest_m=float(pieces.nearest_m[m]),
+                goal_gap_m=gap,
+                trimmed=trimmed,
+            )
+        )
+    return out
+
+
+def map_boundaries(
+    space: KnownSpace, pos_ned_m, goal_ned_m, config: MapBoundaryConfig | None = None
+) -> tuple[MapBoundary, ...]:
+    """Boundary spheres of the OCCUPIED space near the vehicle (module docstring).
+
+    Parameters
+    ----------
+    space : KnownSpace
+        The map, after this frame's update.
+    pos_ned_m, goal_ned_m : array_like, shape (3,)
+        Vehicle position and goal [m, NED].
+    config : MapBoundaryConfig, optional
+
+    Returns
+    -------
+    tuple of MapBoundary
+        Ordered by ``track_key``.
+    """
+    cfg = MapBoundaryConfig() if config is None else config
+    pos = np.asarray(pos_ned_m, dtype=float)
+    goal = np.asarray(goal_ned_m, dtype=float)
+    pieces = space.pieces(pos, cfg.detect_range_m, goal)
+    if len(pieces) == 0:
+        return ()
+    goal_free = space.state_at(goal) == int(FREE)
+    boundaries = _boundaries_of(space, pieces, 0, pos, goal, goal_free, cfg)
+    # a reachable goal inside a piece's sphere: that piece is replaced by its sub-pieces
+    split = {
+        b.track_key
+        for b in boundaries
+        if not _blocks(b.goal_gap_m, goal_free, space, cfg)
+        and float(np.linalg.norm(goal - np.asarray(b.center_ned_m))) < b.radius_m
+    }
+    if split:
+        # every sub-piece of a split piece: reach out by the piece's diagonal
+        half = space.config.piece_vox // 2
+        diag_m = space.config.piece_vox * space.config.voxel_m * math.sqrt(3.0)
+        sub = space.pieces(pos, cfg.detect_range_m + diag_m, goal, piece_vox=half)
+        parents = np.floor_divide(sub.key, 2)
+        keep = np.array([track_key(0, p) in split for p in parents], dtype=bool)
+        sub = Pieces(*(np.asarray(f)[keep] for f in _fields(sub)))
+        boundaries = [b for b in boundaries if b.track_key not in split]
+        boundaries += _boundaries_of(space, sub, 1, pos, goal, goal_free, cfg)
+    return tuple(sorted(boundaries, key=lambda b: b.track_key))
+
+
+def _blocks(gap_m: float, goal_free: bool, space: KnownSpace, config: MapBoundaryConfig) -> bool:
+    """Does a piece whose nearest voxel surface is ``gap_m`` from the goal block it?"""
+    if gap_m < config.inflate_m:
+        return True  # too near the real surface
+    # an unseen goal within the blind spot's depth of the surface may be inside the obstacle
+    return not goal_free and gap_m < config.inflate_m + space.config.blind_depth_m
+
+
+def _fields(p: Pieces) -> tuple[np.ndarray, ...]:
+    return (p.key, p.centroid_ned_m, p.radius_m, p.n_voxels, p.nearest_m, p.nearest_to_point_m)

@@ -1,0 +1,196 @@
+"""Boundary spheres from the known-space map: pieces against closed-form geometry, the
+Fig. 4 blind spot, goal clearance from the real surface, keyed memory, planner options."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from companion.guidance import (
+    BoundarySphere,
+    GuidanceConfig,
+    ObstacleMemory,
+    choose_aiming_point,
+    collision_cone,
+    update_memory,
+)
+from companion.guidance.map_boundaries import MapBoundaryConfig, map_boundaries, track_key
+from companion.known_space import FREE, OCCUPIED, KnownSpace, KnownSpaceConfig
+
+VOXEL_M = KnownSpaceConfig().voxel_m
+PIECE_M = KnownSpaceConfig().piece_vox * VOXEL_M
+HALF_DIAG_M = 0.5 * math.sqrt(3.0) * VOXEL_M
+POS = np.array([0.1, 0.1, -7.1])  # a voxel centre
+INFLATE_M = MapBoundaryConfig().inflate_m
+
+
+def _space_with_wall(north_m: float = 3.1, half_width_m: float = 4.8, half_height_m: float = 3.0):
+    """A one-voxel-thick wall of OCCUPIED voxels across north, centred on the vehicle's
+    line, as seen from POS (nothing else known)."""
+    space = KnownSpace()
+    space.mark_vehicle(POS)
+    c = space.config
+    i = math.floor(north_m / c.voxel_m) - space.origin_vox[0]
+    j0 = math.floor((POS[1] - half_width_m) / c.voxel_m) - space.origin_vox[1]
+    j1 = math.floor((POS[1] + half_width_m) / c.voxel_m) - space.origin_vox[1]
+    k0 = math.floor((POS[2] - half_height_m) / c.voxel_m) - space.origin_vox[2]
+    k1 = math.floor((POS[2] + half_height_m) / c.voxel_m) - space.origin_vox[2]
+    space.grid[i, j0:j1, k0:k1] = OCCUPIED
+    return space
+
+
+def _occupied_within(space: KnownSpace, reach_m: float) -> np.ndarray:
+    pts = space.occupied_points_ned_m()
+    return pts[np.linalg.norm(pts - POS, axis=1) <= reach_m]
+
+
+def test_a_wall_is_cut_into_bounded_pieces_that_cover_it():
+    space = _space_with_wall()
+    pieces = space.pieces(POS, 4.0)
+    # closed form: the cubes (1.2 m, aligned with LOCAL_NED) crossing the wall's plane
+    # that hold a voxel centre within 4 m of POS
+    cells = _occupied_within(space, 4.0)
+    cubes = {tuple(np.floor(p / PIECE_M).astype(int)) for p in cells}
+    assert len(pieces) == len(cubes) > 10
+    assert {tuple(k) for k in pieces.key} == cubes
+    # a full face of a cube (6 × 6 voxels, one thick): radius = half its diagonal in the
+    # plane (voxel centres 1.0 m apart) + half a voxel's diagonal
+    full = pieces.n_voxels == 36
+    assert np.any(full)
+    np.testing.assert_allclose(
+        pieces.radius_m[full], math.sqrt(0.5**2 + 0.5**2) + HALF_DIAG_M, rtol=1e-12
+    )
+    assert np.all(pieces.radius_m <= 0.5 * math.sqrt(3.0) * PIECE_M + 1e-12)
+    # every occupied voxel within reach lies in the sphere of its piece
+    for p in cells:
+        m = np.flatnonzero((pieces.key == np.floor(p / PIECE_M).astype(int)).all(axis=1))[0]
+        assert np.linalg.norm(p - pieces.centroid_ned_m[m]) + HALF_DIAG_M <= pieces.radius_m[m]
+    # nearest voxel centre: straight ahead, (3.1 − 0.1) m (POS and the wall are voxel centres)
+    assert pieces.nearest_m.min() == pytest.approx(3.0, abs=1e-9)
+
+
+def test_boundaries_of_a_wall_are_many_small_spheres_not_one_growing_one():
+    """The 9.6 × 6 m wall that became a 12.4 m sphere: now every sphere is a piece
+    (≤ 1.04 m) + at most the blind-spot depth / 2 + vehicle radius and margin."""
+    space = _space_with_wall()
+    goal = np.array([0.1, 0.1, -20.0])  # far above: not near the wall
+    spheres = map_boundaries(space, POS, goal)
+    bound = 0.5 * math.sqrt(3.0) * PIECE_M + 0.5 * space.config.blind_depth_m + INFLATE_M
+    assert len(spheres) > 10
+    assert max(s.radius_m for s in spheres) <= bound + 1e-9
+    # nothing behind the wall was seen: the blind spot is the full depth, pushed away
+    # from the vehicle (north), so every centre lies beyond the wall's plane
+    assert all(s.blind_depth_m == pytest.approx(space.config.blind_depth_m) for s in spheres)
+    assert all(s.center_ned_m[0] > 3.1 for s in spheres)
+    # the highest sphere top: the wall's real top + at most one piece + blind/2 + inflation
+    top = min(s.center_ned_m[2] - s.radius_m for s in spheres)
+    assert top >= POS[2] - 3.0 - bound - 1e-9
+    # stable keys: the same map gives the same ids
+    assert [s.track_key for s in spheres] == [s.track_key for s in map_boundaries(space, POS, goal)]
+    assert len({s.track_key for s in spheres}) == len(spheres)
+
+
+def test_blind_spot_ends_where_the_space_behind_was_seen_free():
+    space = _space_with_wall(half_width_m=0.5, half_height_m=0.5)
+    before = map_boundaries(space, POS, POS)
+    depth = space.config.blind_depth_m
+    # mark the space 0.6 m behind the wall free (seen from another viewpoint)
+    i = math.floor((3.1 + 0.6) / VOXEL_M) - space.origin_vox[0]
+    space.grid[i:, :, :][space.grid[i:, :, :] == 0] = FREE
+    after = map_boundaries(space, POS, POS)
+    assert before and all(s.blind_depth_m == pytest.approx(depth) for s in before)
+    assert all(s.blind_depth_m < depth for s in after)
+    assert all(s.blind_depth_m <= 0.6 + 0.1 + VOXEL_M for s in after)
+
+
+def test_goal_clearance_is_measured_from_the_real_surface():
+    space = _space_with_wall(north_m=3.1)
+    surface_n = 3.1  # south face of the wall voxels (3.0 … 3.2)
+    # the space in front of the wall is seen free
+    i = math.floor(surface_n / VOXEL_M) - space.origin_vox[0]
+    front = space.grid[:i]
+    front[front == 0] = FREE
+
+    def holds(goal) -> bool:
+        return any(
+            np.linalg.norm(goal - np.asarray(s.center_ned_m)) < s.radius_m
+            for s in map_boundaries(space, POS, goal)
+        )
+
+    # 1.0 m before the wall (≥ vehicle radius + margin from the real surface): reachable,
+    # though it lies inside the inflated, blind-spot-extended sphere of the wall's pieces
+    goal_ok = np.array([surface_n - 1.0 + 0.05, 0.1, -7.1])
+    untrimmed = map_boundaries(space, POS, np.array([0.1, 0.1, -20.0]))
+    assert any(np.linalg.norm(goal_ok - s.center_ned_m) < s.radius_m for s in untrimmed)
+    assert not holds(goal_ok)
+    assert any(s.trimmed for s in map_boundaries(space, POS, goal_ok))
+    # 0.4 m before the real surface: blocked (guidance stops short, reported)
+    assert holds(np.array([surface_n - 0.4 + 0.05, 0.1, -7.1]))
+    # 1 m behind the wall, unseen: within the blind spot, may be inside the obstacle
+    assert holds(np.array([surface_n + 0.2 + 1.0, 0.1, -7.1]))
+    # 2 m behind it (beyond blind depth + inflation from the real surface): reachable
+    assert not holds(np.array([surface_n + 0.2 + 2.0, 0.1, -7.1]))
+
+
+def test_track_key_is_stable_and_distinct_per_level():
+    a = track_key(0, np.array([1, -2, 3]))
+    assert a == track_key(0, (1, -2, 3)) and a != track_key(1, (1, -2, 3))
+    assert a >= 1 << 62
+    with pytest.raises(ValueError):
+        track_key(0, (1 << 20, 0, 0))
+
+
+# --- keyed memory -------------------------------------------------------------------
+
+
+class _Piece:
+    def __init__(self, key, center, radius):
+        self.track_key, self.center_ned_m, self.radius_m = key, center, radius
+
+
+def test_keyed_pieces_replace_never_grow_and_are_not_capped():
+    cfg = GuidanceConfig(max_tracks=2)
+    here = {"pos_ned_m": POS, "vel_ned_mps": [0.0, 0.0, 0.0], "config": cfg}
+    key = track_key(0, (2, 0, -6))
+    pieces = [_Piece(track_key(0, (2, j, -6)), (3.0, 1.2 * j, -7.0), 1.5) for j in range(5)]
+    mem = update_memory(ObstacleMemory(), pieces, time_s=0.0, **here)
+    assert len(mem.tracks) == 5 and all(t.keyed and t.confirmed for t in mem.tracks)
+    # seen smaller (space cleared): the track shrinks; a key missing is dropped
+    mem = update_memory(mem, [_Piece(key, (3.0, 0.0, -7.0), 1.0)], time_s=0.1, **here)
+    (track,) = mem.tracks
+    assert track.track_id == key and track.sphere == BoundarySphere((3.0, 0.0, -7.0), 1.0)
+    assert track.first_seen_s == 0.0 and track.n_detections == 2
+    with pytest.raises(ValueError, match="share track_key"):
+        update_memory(mem, [pieces[0], pieces[0]], time_s=0.2, **here)
+
+
+# --- planner options ------------------------------------------------------------------
+
+
+def test_cluster_head_on_passes_on_the_right_whatever_piece_is_nearer():
+    """Two pieces side by side, the western one wider: head-on (south-bound) the free
+    edge nearest the velocity is east (left), the cluster tie-break takes west (right).
+    Neither axis is within the 5° tie angle of the velocity; the cluster's mean axis is."""
+    pos = np.array([20.0, 0.0, -7.0])
+    cones = [
+        collision_cone(pos, BoundarySphere((10.0, -1.0, -7.0), 1.8)),
+        collision_cone(pos, BoundarySphere((10.0, 0.9, -7.0), 1.4)),
+    ]
+    ref = [-1.0, 0.0, 0.0]
+    plain = choose_aiming_point(cones, ref, tie_angle_rad=math.radians(5.0))
+    tie = choose_aiming_point(cones, ref, tie_angle_rad=math.radians(5.0), cluster_tie=True)
+    assert plain.direction_ned[1] > 0.0  # east: Eq. (28) on the lumpy union
+    assert tie.direction_ned[1] < 0.0  # west: right of the south-bound velocity
+
+
+def test_vertical_weight_prefers_a_level_detour():
+    pos = np.zeros(3)
+    cones = [collision_cone(pos, BoundarySphere((10.0, 0.0, 0.6), 2.0))]  # a bit below
+    eq28 = choose_aiming_point(cones, [1.0, 0.0, 0.0])
+    level = choose_aiming_point(cones, [1.0, 0.0, 0.0], vertical_weight=3.0)
+    assert eq28.direction_ned[2] < -0.1  # over the top: nearest the velocity
+    assert abs(level.direction_ned[2]) < abs(eq28.direction_ned[2]) / 2
+    with pytest.raises(ValueError):
+        choose_aiming_point(cones, [1.0, 0.0, 0.0], vertical_weight=0.0)
