@@ -8,15 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from companion.guidance import (
-    BoundarySphere,
-    GuidanceConfig,
-    ObstacleMemory,
-    choose_aiming_point,
-    collision_cone,
-    update_memory,
-)
+from companion.guidance import BoundarySphere, GuidanceConfig
+from companion.guidance.cone import collision_cone
 from companion.guidance.map_boundaries import MapBoundaryConfig, map_boundaries, track_key
+from companion.guidance.memory import ObstacleMemory, update_memory
+from companion.guidance.planner import choose_aiming_point
 from companion.known_space import FREE, OCCUPIED, KnownSpace, KnownSpaceConfig
 
 VOXEL_M = KnownSpaceConfig().voxel_m
