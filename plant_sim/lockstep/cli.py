@@ -89,7 +89,7 @@ def _montecarlo(args: argparse.Namespace) -> int:
     from plant_sim.lockstep.montecarlo import is_safe
 
     log = sys.stderr if args.json else sys.stdout
-    spec = BatchSpec(args.seed, args.n, args.family, args.perception)
+    spec = BatchSpec(args.seed, args.n, args.family, args.perception, args.max_time_s)
     out = args.out or Path(
         f"runs/montecarlo/{args.family}-{args.perception}-s{args.seed}-n{args.n}"
     )
@@ -122,6 +122,7 @@ def _montecarlo(args: argparse.Namespace) -> int:
                     pending,
                     family=args.family,
                     perception=args.perception,
+                    max_time_s=args.max_time_s,
                     on_record=on_record,
                 )
         bar.close()
@@ -163,7 +164,8 @@ def _replay(args: argparse.Namespace) -> int:
         return 2
     single_threaded()  # as every Monte Carlo worker flies it: the same verdict
     out = args.out or Path(f"runs/replay-{seed}")
-    return _fly_and_report(scene_of(seed, args.family), out, args.json, run_config(args.perception))
+    cfg = run_config(args.perception, args.max_time_s)
+    return _fly_and_report(scene_of(seed, args.family), out, args.json, cfg)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -210,6 +212,12 @@ def _parser() -> argparse.ArgumentParser:
         default="stereo",
         help="stereo matcher (default) or ground truth (the renderer's exact depth)",
     )
+    mc.add_argument(
+        "--max-time-s",
+        type=float,
+        default=None,
+        help="simulation time limit per scene (default 90 s; shorter for smoke runs)",
+    )
     replay = sub.add_parser("replay", help="fly one Monte Carlo scene again by its seed")
     replay.add_argument("target", metavar="SEED", help="Monte Carlo seed (an integer)")
     replay.add_argument("--out", type=Path, default=None, help="output folder")
@@ -217,6 +225,9 @@ def _parser() -> argparse.ArgumentParser:
     replay.add_argument("--family", choices=families, default="mixed", help="scene family")
     replay.add_argument(
         "--perception", choices=perceptions, default="stereo", help="as in montecarlo"
+    )
+    replay.add_argument(
+        "--max-time-s", type=float, default=None, help="as in montecarlo (default 90 s)"
     )
     sil = sub.add_parser("sil", help="plant-sim + companion as processes on loopback")
     sil.add_argument("--scenario", type=Path, default=None, help="plant-sim scenario file")
@@ -266,6 +277,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _replay(args)
     if args.n < 1 or args.jobs < 1:
         print("stereo-avoid: --n and --jobs must be >= 1", file=sys.stderr)
+        return 2
+    if args.max_time_s is not None and not args.max_time_s > 0:
+        print("stereo-avoid: --max-time-s must be > 0", file=sys.stderr)
         return 2
     return _montecarlo(args)
 

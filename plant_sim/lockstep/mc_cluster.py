@@ -17,6 +17,7 @@ its first task. A seed whose worker dies more often than Dask's retry limit is a
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 from collections.abc import Callable, Iterable, Iterator
@@ -46,19 +47,25 @@ def warm_up() -> None:
 
 
 class WarmUp(WorkerPlugin):
-    """Worker plugin: :func:`warm_up` once when a worker joins (before its first scene)."""
+    """Worker plugin: :func:`warm_up` once when a worker joins (before its first scene).
+
+    The warm-up runs in a thread, not in the worker's event loop: loading (or, on a fresh
+    checkout, compiling) the kernels takes seconds to minutes, and a blocked event loop
+    misses the heartbeats the scheduler judges a worker alive by.
+    """
 
     name = "stereo-avoid-warm-up"
 
-    def setup(self, worker) -> None:
-        warm_up()
+    async def setup(self, worker) -> None:
+        await asyncio.get_running_loop().run_in_executor(None, warm_up)
 
 
 @contextlib.contextmanager
 def dask_client(address: str | None = None, *, n_workers: int = 2) -> Iterator[Client]:
     """A Dask client: connected to the scheduler at ``address`` (``tcp://host:8786``), or
     to a local cluster of ``n_workers`` single-threaded worker processes on this machine
-    (no dashboard). The warm-up plugin is registered on every worker, present or future.
+    (scheduler on 127.0.0.1 at free ports). The warm-up plugin is registered on every
+    worker, present or future.
     """
     if address is not None:
         client = Client(address, timeout="30s")
@@ -75,7 +82,9 @@ def dask_client(address: str | None = None, *, n_workers: int = 2) -> Iterator[C
             n_workers=n_workers,
             threads_per_worker=1,
             processes=True,
-            dashboard_address=None,
+            host="127.0.0.1",  # loopback only: nothing of a local run is reachable from outside
+            scheduler_port=0,  # a free port
+            dashboard_address=":0",  # its HTTP server (health, metrics) on a free port too
             silence_logs=logging.ERROR,
             env=dict(_WORKER_ENV),  # passed on to each worker's Nanny
         ) as cluster,
@@ -91,6 +100,7 @@ def fly_on_cluster(
     *,
     family: str,
     perception: str,
+    max_time_s: float | None = None,
     on_record: Callable[[dict[str, Any]], None],
 ) -> None:
     """Fly ``seeds`` as tasks on ``client``'s cluster; ``on_record(record)`` (in this
@@ -102,6 +112,7 @@ def fly_on_cluster(
         seeds,
         family=family,
         perception=perception,
+        max_time_s=max_time_s,
         key=[f"scene-{family}-{perception}-{s}" for s in seeds],
         pure=False,
     )

@@ -48,12 +48,15 @@ class BatchSpec:
     n: int
     family: str = "mixed"
     perception: str = "stereo"  # one of PERCEPTIONS
+    max_time_s: float | None = None  # simulation time limit per scene; None: RunConfig's
 
     def __post_init__(self) -> None:
         if self.n < 1:
             raise ValueError(f"n must be >= 1, got {self.n}")
         if self.perception not in PERCEPTIONS:
             raise ValueError(f"perception must be one of {PERCEPTIONS}, got {self.perception!r}")
+        if self.max_time_s is not None and not self.max_time_s > 0:
+            raise ValueError(f"max_time_s must be positive, got {self.max_time_s!r}")
 
     @property
     def seeds(self) -> range:
@@ -147,7 +150,7 @@ class ResultsFile:
         if have != self.spec:
             raise ResultsFileError(
                 f"{self.out_dir} holds another batch ({have}); --resume needs the same "
-                f"--seed, --n, --family and --perception ({self.spec})"
+                f"--seed, --n, --family, --perception and --max-time-s ({self.spec})"
             )
 
     def _read(self) -> dict[int, dict[str, Any]]:

@@ -43,12 +43,15 @@ def scene_of(seed: int, family: str = "mixed"):
     return mixed_scene(seed) if family == "mixed" else family_scene(seed, family)
 
 
-def run_config(perception: str = "stereo") -> RunConfig:
+def run_config(perception: str = "stereo", max_time_s: float | None = None) -> RunConfig:
     """The configuration Monte Carlo flies with: the defaults, ``perception`` "stereo" (the
-    companion's matcher) or "truth" (the renderer's exact depth)."""
+    companion's matcher) or "truth" (the renderer's exact depth), and ``max_time_s`` if
+    given (a shorter horizon for smoke runs; default :class:`RunConfig`'s)."""
     if perception not in PERCEPTIONS:
         raise ValueError(f"perception must be one of {PERCEPTIONS}, got {perception!r}")
-    return RunConfig(truth_perception=perception == "truth")
+    if max_time_s is None:
+        return RunConfig(truth_perception=perception == "truth")
+    return RunConfig(truth_perception=perception == "truth", max_time_s=max_time_s)
 
 
 def single_threaded() -> None:
@@ -63,18 +66,23 @@ def single_threaded() -> None:
     numba.set_num_threads(1)  # per calling thread in numba: call it in the task's thread
 
 
-def fly_seed(seed: int, family: str = "mixed", perception: str = "stereo") -> Verdict:
+def fly_seed(
+    seed: int, family: str = "mixed", perception: str = "stereo", max_time_s: float | None = None
+) -> Verdict:
     """Fly the random scene of ``seed`` (in ``family``) with :func:`run_config`."""
     single_threaded()
-    return run_scene(scene_of(seed, family), run_config(perception), record_history=False).verdict
+    cfg = run_config(perception, max_time_s)
+    return run_scene(scene_of(seed, family), cfg, record_history=False).verdict
 
 
-def fly_record(seed: int, family: str = "mixed", perception: str = "stereo") -> dict[str, Any]:
+def fly_record(
+    seed: int, family: str = "mixed", perception: str = "stereo", max_time_s: float | None = None
+) -> dict[str, Any]:
     """:func:`fly_seed` as a results record (a Dask task): the verdict, the perception and
     the worker (host:pid). A scene that raises is an ``"error"`` verdict, not a lost task."""
     wall_start = time.perf_counter()
     try:
-        verdict = fly_seed(seed, family, perception)
+        verdict = fly_seed(seed, family, perception, max_time_s)
     except Exception as exc:  # one broken scene must not end a 100k batch: it is reported
         message = f"{type(exc).__name__}: {exc}"
         verdict = error_verdict(seed, message, time.perf_counter() - wall_start)
@@ -110,17 +118,18 @@ def run_batch(
     progress: Callable[[int, int, Verdict], None] | None = None,
     family: str = "mixed",
     perception: str = "stereo",
+    max_time_s: float | None = None,
 ) -> list[Verdict]:
     """Fly every seed; verdicts in seed order. ``jobs`` > 1: a local Dask cluster of that
     many single-threaded worker processes (:mod:`~plant_sim.lockstep.mc_cluster`)."""
     if family != "mixed" and family not in FAMILIES:
         raise ValueError(f"unknown scene family {family!r}; valid: mixed, {list(FAMILIES)}")
-    run_config(perception)  # validates
+    run_config(perception, max_time_s)  # validates
     seeds = list(seeds)
     verdicts: dict[int, Verdict] = {}
     if jobs <= 1:
         for seed in seeds:
-            verdicts[seed] = fly_seed(seed, family, perception)
+            verdicts[seed] = fly_seed(seed, family, perception, max_time_s)
             if progress is not None:
                 progress(len(verdicts), len(seeds), verdicts[seed])
     else:
@@ -134,7 +143,14 @@ def run_batch(
                 progress(len(verdicts), len(seeds), verdict)
 
         with dask_client(n_workers=jobs) as client:
-            fly_on_cluster(client, seeds, family=family, perception=perception, on_record=collect)
+            fly_on_cluster(
+                client,
+                seeds,
+                family=family,
+                perception=perception,
+                max_time_s=max_time_s,
+                on_record=collect,
+            )
     return [verdicts[s] for s in seeds]
 
 
