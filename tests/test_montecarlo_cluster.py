@@ -98,14 +98,11 @@ def test_a_killed_batch_resumes_without_flying_a_finished_seed_again(tmp_path):
         str(out),
     ]
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
-    first = subprocess.Popen(
-        cmd,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=env,
-        start_new_session=True,
-    )
+    log_path = tmp_path / "first.log"
+    with log_path.open("w") as log:
+        first = subprocess.Popen(
+            cmd, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
+        )
     results = out / "results.jsonl"
     deadline = time.monotonic() + 120.0
     try:
@@ -113,13 +110,13 @@ def test_a_killed_batch_resumes_without_flying_a_finished_seed_again(tmp_path):
             if results.exists() and len(results.read_text().splitlines()) >= 3:
                 break
             time.sleep(0.05)
-        assert first.poll() is None, f"the batch ended before it was killed:\n{first.stdout.read()}"
-        assert results.exists(), "no scene finished within 120 s"
+        assert first.poll() is None, f"ended before the kill:\n{log_path.read_text()}"
+        assert results.exists(), f"no scene finished within 120 s:\n{log_path.read_text()}"
     finally:
         os.killpg(first.pid, signal.SIGKILL)  # the CLI, its scheduler and its workers
         first.wait(timeout=30)
     before = {r["seed"] for r in _lines(results)}
-    assert 3 <= len(before) < 10
+    assert 3 <= len(before) < 10, log_path.read_text()
     second = subprocess.run(
         [*cmd, "--resume"], capture_output=True, text=True, env=env, timeout=180
     )
