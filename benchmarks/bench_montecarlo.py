@@ -12,8 +12,8 @@ Prints figures; asserts nothing. Run::
    (``time.thread_time``: what the machine's load does not inflate) and wall time.
    Stages are measured by wrapping the named functions for the duration of the run.
 2. **§6 lockstep wall time** (``stereo-avoid paper`` without the figures).
-3. **Throughput**: ``--scenes`` Monte Carlo scenes at ``--jobs`` workers, scenes/min,
-   with stereo and with ground-truth perception.
+3. **Throughput**: ``--scenes`` Monte Carlo scenes on a local Dask cluster of ``--jobs``
+   workers, scenes/min, with stereo and with ground-truth perception.
 
 The machine is shared: the load average is printed beside the figures; CPU times are the
 figures to compare between runs, wall times scale with the load.
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import functools
 import os
 import time
@@ -41,7 +42,7 @@ from companion.known_space import KnownSpace
 from companion.perception import StereoPerception
 from plant_sim.lockstep import harness
 from plant_sim.lockstep.harness import RunConfig, run_scene
-from plant_sim.lockstep.montecarlo import scene_of
+from plant_sim.lockstep.montecarlo import run_config, scene_of
 from plant_sim.lockstep.scenes import paper_scene
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.vehicle import Quadrotor
@@ -107,6 +108,7 @@ def instrumented(clock: StageClock) -> Iterator[None]:
         (Guidance, "step", "guidance"),
         (companion.pipeline, "envelope_step", "envelope"),
         (Quadrotor, "step", "physics"),
+        (Quadrotor, "step_watching", "physics"),  # physics + per-step clearance and tilt
         (harness, "_record", "history"),
     ]
     saved = []
@@ -132,7 +134,7 @@ def profile_scenes(seeds: list[int], config: RunConfig) -> tuple[StageClock, int
         for seed in seeds:
             scene = scene_of(seed)
             with clock.stage("harness bookkeeping"):
-                verdict = run_scene(scene, config).verdict
+                verdict = run_scene(scene, config, record_history=False).verdict
             frames += verdict.frames
             sim_s += verdict.sim_time_s
     return clock, frames, sim_s
@@ -162,17 +164,21 @@ def print_breakdown(title: str, clock: StageClock, frames: int, sim_s: float) ->
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--profile-seeds", type=int, default=3, help="scenes to profile")
-    parser.add_argument("--scenes", type=int, default=20, help="scenes for the throughput")
+    parser.add_argument(
+        "--scenes", type=int, default=20, help="scenes for the throughput (0: skip it)"
+    )
     parser.add_argument("--jobs", type=int, default=2, help="Monte Carlo workers")
     args = parser.parse_args()
     numba.set_num_threads(1)
     cv2.setNumThreads(1)
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 
-    run_scene(scene_of(0), RunConfig(max_time_s=1.0))  # numba caches, OpenCV, imports
     seeds = list(range(1000, 1000 + args.profile_seeds))
-    clock, frames, sim_s = profile_scenes(seeds, RunConfig())
-    print_breakdown(f"stereo perception, seeds {seeds}", clock, frames, sim_s)
+    for perception in ("stereo", "truth"):
+        cfg = run_config(perception)
+        run_scene(scene_of(0), dataclasses.replace(cfg, max_time_s=1.0))  # caches, imports
+        clock, frames, sim_s = profile_scenes(seeds, cfg)
+        print_breakdown(f"{perception} perception, seeds {seeds}", clock, frames, sim_s)
 
     t0 = time.perf_counter()
     verdict = run_scene(paper_scene(), RunConfig()).verdict
@@ -181,16 +187,27 @@ def main() -> None:
         f"simulated (goal reached: {verdict.reached_goal})"
     )
 
-    from plant_sim.lockstep.montecarlo import run_batch
+    if args.scenes < 1:
+        return
+    from plant_sim.lockstep.mc_cluster import dask_client, fly_on_cluster
 
-    t0 = time.perf_counter()
-    run_batch(range(2000, 2000 + args.scenes), jobs=args.jobs)
-    wall = time.perf_counter() - t0
-    print(
-        f"\nMonte Carlo: {args.scenes} scenes at --jobs {args.jobs} in {wall:.1f} s: "
-        f"{60.0 * args.scenes / wall:.1f} scenes/min "
-        f"(load average {os.getloadavg()[0]:.1f})"
-    )
+    with dask_client(n_workers=args.jobs) as client:  # cluster start-up and warm-up excluded
+        for perception in ("stereo", "truth"):
+            done: list[dict] = []
+            t0 = time.perf_counter()
+            fly_on_cluster(
+                client,
+                range(2000, 2000 + args.scenes),
+                family="mixed",
+                perception=perception,
+                on_record=done.append,
+            )
+            wall = time.perf_counter() - t0
+            print(
+                f"\nMonte Carlo, {perception}: {args.scenes} scenes on a local Dask cluster of "
+                f"{args.jobs} workers in {wall:.1f} s: {60.0 * args.scenes / wall:.1f} "
+                f"scenes/min (load average {os.getloadavg()[0]:.1f})"
+            )
 
 
 if __name__ == "__main__":
