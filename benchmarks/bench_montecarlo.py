@@ -11,6 +11,8 @@ Prints figures; asserts nothing. Run::
    the harness's own bookkeeping (everything else inside ``run_scene``) — in CPU time
    (``time.thread_time``: what the machine's load does not inflate) and wall time.
    Stages are measured by wrapping the named functions for the duration of the run.
+   With ground-truth perception, "render" is the depth-only ray cast and "matcher" the
+   conversion of the true depth to disparities.
 2. **§6 lockstep wall time** (``stereo-avoid paper`` without the figures).
 3. **Throughput**: ``--scenes`` Monte Carlo scenes on a local Dask cluster of ``--jobs``
    workers, scenes/min, with stereo and with ground-truth perception.
@@ -44,6 +46,7 @@ from plant_sim.lockstep import harness
 from plant_sim.lockstep.harness import RunConfig, run_scene
 from plant_sim.lockstep.montecarlo import run_config, scene_of
 from plant_sim.lockstep.scenes import paper_scene
+from plant_sim.lockstep.truth_perception import TruthPerception
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.vehicle import Quadrotor
 
@@ -99,8 +102,10 @@ def instrumented(clock: StageClock) -> Iterator[None]:
     """Wrap the stages' functions (class and module attributes) while the block runs."""
     targets = [
         (StereoCameraRenderer, "render", "render"),
+        (StereoCameraRenderer, "render_depth", "render"),  # ground truth: depth only
         (StereoPerception, "disparity_fixed", "matcher"),
         (StereoPerception, "coarse_disparity_fixed", "matcher"),
+        (TruthPerception, "disparity_fixed", "matcher"),  # ground truth: depth → disparity
         (StereoPerception, "process", "perception (rest)"),
         (KnownSpace, "integrate", "known space"),
         (KnownSpace, "mark_vehicle", "known space"),
@@ -168,13 +173,19 @@ def main() -> None:
         "--scenes", type=int, default=20, help="scenes for the throughput (0: skip it)"
     )
     parser.add_argument("--jobs", type=int, default=2, help="Monte Carlo workers")
+    parser.add_argument(
+        "--perception",
+        choices=["stereo", "truth", "both"],
+        default="both",
+        help="which breakdowns to print",
+    )
     args = parser.parse_args()
     numba.set_num_threads(1)
     cv2.setNumThreads(1)
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 
     seeds = list(range(1000, 1000 + args.profile_seeds))
-    for perception in ("stereo", "truth"):
+    for perception in ("stereo", "truth") if args.perception == "both" else (args.perception,):
         cfg = run_config(perception)
         run_scene(scene_of(0), dataclasses.replace(cfg, max_time_s=1.0))  # caches, imports
         clock, frames, sim_s = profile_scenes(seeds, cfg)
