@@ -30,6 +30,19 @@ SEEDS = range(40, 60)  # 20 seeds, five of each family
 HORIZON_S = 1.5  # simulation seconds per scene
 
 
+@pytest.fixture(autouse=True)
+def _restore_thread_counts():
+    """Monte Carlo flies single-threaded (montecarlo.single_threaded); give the other test
+    modules of this process their thread counts back."""
+    import cv2
+    import numba
+
+    cv2_threads, numba_threads = cv2.getNumThreads(), numba.get_num_threads()
+    yield
+    cv2.setNumThreads(cv2_threads)
+    numba.set_num_threads(numba_threads)
+
+
 def _comparable(verdict) -> dict:
     fields = dataclasses.asdict(verdict)
     fields.pop("wall_time_s")  # the only field that depends on the machine
