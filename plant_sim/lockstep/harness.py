@@ -242,7 +242,7 @@ def run_scene(
             collided = min_surface < cfg.collision_distance_m
             failure = "collision" if collided else "companion_stopped"
             break
-        # advance to the next frame, watching commanded tilt and clearance at control rate
+        # advance to the next frame, watching commanded tilt and clearance at every step
         seq += 1
         t_next = seq * frame_period_s
         n_steps = _steps_until(quad, t_next)
