@@ -420,8 +420,13 @@ def _render_pair(
     cloud_amp,
     row_step,
     gain_right,
+    depth_only,
 ):
     """Both eyes in one parallel pass over rows; ray directions and the sky are shared.
+
+    With ``depth_only`` only the left eye's true depth is traced (no second eye, no
+    shading, no noise; ``left`` and ``right`` are left as they are): the ground-truth
+    perception of the lockstep harness needs nothing else.
 
     The eyes differ only in their origins (``origins[0]`` left, ``origins[1]`` right): a
     pixel's ray direction, and hence the sky (at infinity), is the same for both. Rows are
@@ -482,6 +487,9 @@ def _render_pair(
                 if t < t0:
                     t0 = t
                     hit0 = -1
+            if depth_only:
+                depth[v, u] = t0
+                continue
             t1, hit1 = _trace(eye_sph, 1, n_spheres, dx, dy, dz, aa)
             if has_shapes:
                 t1, hit1 = _trace_shapes(
@@ -632,6 +640,9 @@ class StereoCameraRenderer:
         lattice.flags.writeable = False
         self._lattice = lattice
         self._lattice_flat = lattice.reshape(-1)  # the kernels' view: [(ix * L + iy) * L + layer]
+        self._row_step = _coprime_step(self.camera.height_px)
+        self._arrays_of: World | None = None
+        self._arrays: tuple[np.ndarray, np.ndarray, np.ndarray] = ()  # type: ignore[assignment]
 
     def render(self, world: World, pos_ned_m, R_ned_from_frd, noise_seed: int = 0) -> StereoRender:
         """Render both eyes for the vehicle pose.
@@ -652,10 +663,23 @@ class StereoCameraRenderer:
         StereoRender
             Left and right uint8 images and the left eye's true depth [m].
         """
-        cam = self.camera
-        R_frd = np.asarray(R_ned_from_frd, dtype=np.float64)
-        pos = np.asarray(pos_ned_m, dtype=np.float64).reshape(3)
-        R_ned_cam = np.ascontiguousarray(R_frd @ R_FRD_FROM_CAM)
+        left, right, depth = self._cast(world, pos_ned_m, R_ned_from_frd, noise_seed, False)
+        p = self.params
+        if p.degraded:
+            left, right = _degrade(left, right, p, int(noise_seed) & 0x7FFFFFFF)
+        return StereoRender(left=left, right=right, depth_left_m=depth)
+
+    def render_depth(self, world: World, pos_ned_m, R_ned_from_frd) -> np.ndarray:
+        """The left eye's true depth alone, ``(H, W)`` float32 [m] along the optical axis,
+        ``inf`` for sky: :meth:`render`'s ``depth_left_m`` without the images (one eye, no
+        shading; several times cheaper), for ground-truth perception."""
+        return self._cast(world, pos_ned_m, R_ned_from_frd, 0, True)[2]
+
+    def _world_arrays(self, world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The kernel's per-obstacle rows (spheres, boxes, cylinders); built once per world
+        (a :class:`World` is immutable, so the last one's rows are reused)."""
+        if self._arrays_of is world:
+            return self._arrays
         spheres = np.array(
             [
                 (*s.center_ned_m, s.radius_m, 7 * s.texture_seed + 3 * i, s.material.contrast)
@@ -688,6 +712,19 @@ class StereoCameraRenderer:
             ],
             dtype=np.float64,
         ).reshape(-1, 7)
+        for rows in (spheres, boxes, cyls):
+            rows.flags.writeable = False
+        self._arrays_of, self._arrays = world, (spheres, boxes, cyls)
+        return self._arrays
+
+    def _cast(self, world: World, pos_ned_m, R_ned_from_frd, noise_seed: int, depth_only: bool):
+        """Run the ray caster: (left, right, depth); the images are undefined when
+        ``depth_only``."""
+        cam = self.camera
+        R_frd = np.asarray(R_ned_from_frd, dtype=np.float64)
+        pos = np.asarray(pos_ned_m, dtype=np.float64).reshape(3)
+        R_ned_cam = np.ascontiguousarray(R_frd @ R_FRD_FROM_CAM)
+        spheres, boxes, cyls = self._world_arrays(world)
         ground = world.ground
         has_ground = ground is not None
         ground_down = ground.down_m if ground is not None else 0.0
@@ -699,9 +736,9 @@ class StereoCameraRenderer:
         p = self.params
         blurred = p.blur_h_px > 0.0 or p.blur_v_px > 0.0
         seed = int(noise_seed) & 0x7FFFFFFF
-        origins = np.array(
-            [pos + R_frd @ np.array([0.0, side * cam.baseline_m, 0.0]) for side in (-0.5, 0.5)]
-        )  # left eye (reference) then right eye
+        half_b = 0.5 * cam.baseline_m
+        # left eye (reference) then right eye, at body y = -b/2 and +b/2
+        origins = np.array([pos - half_b * R_frd[:, 1], pos + half_b * R_frd[:, 1]])
         _render_pair(
             left,
             right,
@@ -724,9 +761,8 @@ class StereoCameraRenderer:
             0.0 if blurred else p.noise_std,
             seed,
             p.sky_cloud_amplitude,
-            _coprime_step(cam.height_px),
+            self._row_step,
             float(p.gain_right),
+            bool(depth_only),
         )
-        if p.degraded:
-            left, right = _degrade(left, right, p, seed)
-        return StereoRender(left=left, right=right, depth_left_m=depth)
+        return left, right, depth

@@ -138,6 +138,77 @@ def _advance(
     return state, phase, yaw_sp_ned_rad, on_ground
 
 
+@numba.njit(cache=True)
+def _advance_watching(
+    state,
+    ctrl_out,
+    n_steps,
+    phase,
+    steps_per_control,
+    dt_s,
+    pos_sp_m,
+    vel_sp_mps,
+    yaw_sp_ned_rad,
+    yaw_rate_sp_radps,
+    gains_pos,
+    gains_att,
+    max_tilt_rad,
+    min_vertical_accel_mps2,
+    k,
+    armed,
+    ground_z_m,
+    centres_paper_m,
+    radii_m,
+):
+    """:func:`_advance` one step at a time, watching after each step the commanded tilt
+    (MAVLink roll and pitch, as :meth:`Quadrotor.tilt_cmd_rad`) and the distance from the
+    vehicle to the nearest sphere surface (centres in the paper frame).
+
+    Returns (state, phase, yaw target, on_ground, max |roll cmd|, max |pitch cmd|,
+    min surface distance).
+    """
+    max_roll = 0.0
+    max_pitch = 0.0
+    min_surface = np.inf
+    on_ground = False
+    for _ in range(n_steps):
+        state, phase, yaw_sp_ned_rad, on_ground = _advance(
+            state,
+            ctrl_out,
+            1,
+            phase,
+            steps_per_control,
+            dt_s,
+            pos_sp_m,
+            vel_sp_mps,
+            yaw_sp_ned_rad,
+            yaw_rate_sp_radps,
+            gains_pos,
+            gains_att,
+            max_tilt_rad,
+            min_vertical_accel_mps2,
+            k,
+            armed,
+            ground_z_m,
+        )
+        phi = ctrl_out[fc.OUT_PHI_D]
+        theta = ctrl_out[fc.OUT_THETA_D]
+        psi = ctrl_out[fc.OUT_PSI_D]
+        sf, cf = math.sin(phi), math.cos(phi)
+        st, ct = math.sin(theta), math.cos(theta)
+        sp, cp = math.sin(psi), math.cos(psi)
+        r20 = -cf * st * cp + sf * sp
+        r21 = cf * st * sp + sf * cp
+        max_roll = max(max_roll, abs(math.atan2(r21, cf * ct)))
+        max_pitch = max(max_pitch, abs(math.asin(max(-1.0, min(1.0, r20)))))
+        for j in range(radii_m.shape[0]):
+            dx = state[0] - centres_paper_m[j, 0]
+            dy = state[1] - centres_paper_m[j, 1]
+            dz = state[2] - centres_paper_m[j, 2]
+            min_surface = min(min_surface, math.sqrt(dx * dx + dy * dy + dz * dz) - radii_m[j])
+    return state, phase, yaw_sp_ned_rad, on_ground, max_roll, max_pitch, min_surface
+
+
 class Quadrotor:
     """The paper's quadrotor with its FL + LQ flight controller, stepped in simulation time.
 
@@ -266,6 +337,68 @@ class Quadrotor:
         self._steps += int(n_steps)
         if not np.all(np.isfinite(self._state)):
             raise FloatingPointError(f"vehicle state diverged at t={self.time_s:.3f} s")
+
+    def step_watching(
+        self, n_steps: int, sphere_centres_ned_m: np.ndarray, sphere_radii_m: np.ndarray
+    ) -> tuple[float, float, float]:
+        """:meth:`step` ``n_steps`` times one step at a time, in one compiled call, watching.
+
+        Returns the largest |commanded roll| and |commanded pitch| [rad] after any of the
+        steps (as :meth:`tilt_cmd_rad` would read them) and the smallest distance from the
+        vehicle to a sphere's surface [m] (``inf`` with no sphere): the lockstep harness's
+        per-step monitoring without a Python call per step.
+
+        Parameters
+        ----------
+        n_steps : int
+            Physics steps, >= 0.
+        sphere_centres_ned_m : numpy.ndarray, shape (N, 3)
+            Sphere centres, LOCAL_NED [m].
+        sphere_radii_m : numpy.ndarray, shape (N,)
+            Sphere radii [m].
+        """
+        if n_steps < 0:
+            raise ValueError(f"n_steps must be >= 0, got {n_steps}")
+        centres = np.asarray(sphere_centres_ned_m, dtype=float).reshape(-1, 3)
+        radii = np.asarray(sphere_radii_m, dtype=float).reshape(-1)
+        if centres.shape[0] != radii.shape[0]:
+            raise ValueError(f"{centres.shape[0]} sphere centres but {radii.shape[0]} radii")
+        if n_steps == 0:
+            return 0.0, 0.0, math.inf
+        centres_paper = np.ascontiguousarray(paper_frames.paper_from_ned(centres))
+        (
+            self._state,
+            self._phase,
+            self._yaw_sp_rad,
+            self._on_ground,
+            max_roll,
+            max_pitch,
+            min_surface,
+        ) = _advance_watching(
+            self._state,
+            self._ctrl_out,
+            int(n_steps),
+            self._phase,
+            self.control.steps_per_control,
+            self._dt_s,
+            self._pos_sp,
+            self._vel_sp,
+            self._yaw_sp_rad,
+            self._yaw_rate_sp,
+            self._gains_pos,
+            self._gains_att,
+            self._max_tilt_rad,
+            self.control.min_vertical_accel_mps2,
+            self._k,
+            self._armed,
+            self._ground_z_m,
+            centres_paper,
+            radii,
+        )
+        self._steps += int(n_steps)
+        if not np.all(np.isfinite(self._state)):
+            raise FloatingPointError(f"vehicle state diverged at t={self.time_s:.3f} s")
+        return float(max_roll), float(max_pitch), float(min_surface)
 
     def run_until(self, time_s: float) -> None:
         """Advance to the physics step at or just after ``time_s``."""

@@ -5,13 +5,18 @@ Subcommands
 ``stereo-avoid paper [--out DIR] [--json]``
     Fly §6 (start (20, 0, −7), goal (0, 0, −7), obstacle (10, 0, −7) r 1.5 m), print
     progress and a verdict, write Fig. 6–11 as PNG and the time history as CSV.
-``stereo-avoid montecarlo --n N --seed S [--jobs J] [--family F] [--json]``
-    N random scenes (seeds S … S+N−1) on J processes; a summary table or JSON, with the
-    seed of every failure so it can be replayed with ``stereo-avoid replay SEED``.
-    Families (``plant_sim.lockstep.scenes``): path, climb, goal_near, facing_away, or
-    mixed (the default: the family of seed s is the (s mod 4)-th).
-``stereo-avoid replay SEED [--family F] [--out DIR] [--json]``
-    One random scene, with figures, exactly as Monte Carlo flew it.
+``stereo-avoid montecarlo --n N [--seed S] [--family F] [--perception stereo|truth]
+[--cluster ADDRESS | --jobs J] [--out DIR] [--resume] [--json]``
+    N random scenes (seeds S … S+N−1) as tasks on a Dask cluster: the scheduler at
+    ADDRESS (``tcp://host:8786``), or a local cluster of J worker processes. Verdicts
+    stream to DIR/results.jsonl as they finish (``--resume`` flies only the seeds not in
+    it), with a progress bar (rate, ETA); at the end a summary table and figures in DIR,
+    with the seed of every failure to replay. Families (``plant_sim.lockstep.scenes``):
+    path, climb, goal_near, facing_away, or mixed (the default: the family of seed s is
+    the (s mod 4)-th). ``--perception truth``: the renderer's exact depth instead of the
+    stereo matcher (``plant_sim.lockstep.truth_perception``).
+``stereo-avoid replay SEED [--family F] [--perception P] [--out DIR] [--json]``
+    One random scene, with figures, exactly as Monte Carlo flew it (same verdict).
 ``stereo-avoid sil [--scenario FILE] [--speedup N] [--out DIR] [--json]``
     plant-sim and the companion as two processes over MAVLink and Zenoh on loopback;
     the same verdict and figures, from plant-sim's ground-truth log.
@@ -19,8 +24,9 @@ Subcommands
     the paper's scene (north from home at 7 m) on ArduPilot's ArduCopter SITL, taken off
     by the companion, plant-sim as the camera only (:mod:`plant_sim.lockstep.sitl`).
 
-Exit status: 0 when every run reached its goal without collision, 1 otherwise, 2 on a
-usage error.
+Exit status: 0 when every run reached its goal without collision (montecarlo: every
+scene ended safely, at the goal or in a reported stop, and none collided), 1 otherwise, 2
+on a usage error.
 """
 
 from __future__ import annotations
@@ -29,11 +35,12 @@ import argparse
 import json
 import os
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
 from plant_sim.lockstep.harness import RunConfig, RunResult, run_scene
-from plant_sim.lockstep.montecarlo import run_batch, scene_of, summarize
+from plant_sim.lockstep.montecarlo import run_config, scene_of, single_threaded, summarize
 from plant_sim.lockstep.report import write_run_report
 from plant_sim.lockstep.scenes import FAMILIES, Scene, paper_scene
 
@@ -48,8 +55,10 @@ def _progress(stream):
     return report
 
 
-def _fly_and_report(scene: Scene, out_dir: Path, as_json: bool) -> int:
-    cfg = RunConfig()
+def _fly_and_report(
+    scene: Scene, out_dir: Path, as_json: bool, cfg: RunConfig | None = None
+) -> int:
+    cfg = cfg or RunConfig()
     log = sys.stderr if as_json else sys.stdout
     print(f"flying scene '{scene.name}' in lockstep (simulation time)", file=log)
     result: RunResult = run_scene(scene, cfg, progress=_progress(log))
@@ -68,39 +77,95 @@ def _fly_and_report(scene: Scene, out_dir: Path, as_json: bool) -> int:
 
 
 def _montecarlo(args: argparse.Namespace) -> int:
-    log = sys.stderr if args.json else sys.stdout
-
-    def progress(done: int, total: int, verdict) -> None:
-        status = "ok" if verdict.passed else f"FAIL ({verdict.failure or 'goal not reached'})"
-        print(f"  [{done:4d}/{total}] seed {verdict.seed:6d} {status}", file=log)
-        log.flush()
-
-    verdicts = run_batch(
-        range(args.seed, args.seed + args.n), jobs=args.jobs, progress=progress, family=args.family
+    from plant_sim.lockstep.mc_cluster import dask_client, fly_on_cluster
+    from plant_sim.lockstep.mc_progress import ProgressBar
+    from plant_sim.lockstep.mc_report import write_report
+    from plant_sim.lockstep.mc_results import (
+        BatchSpec,
+        ResultsFile,
+        ResultsFileError,
+        verdict_from_record,
     )
-    summary = summarize(verdicts)
-    if args.json:
-        print(json.dumps(summary, indent=2))
-    else:
-        print(f"runs                 {summary['runs']}")
-        print(f"goal reached rate    {summary['goal_reached_rate']:.3f}")
-        print(f"safe outcome rate    {summary['safe_outcome_rate']:.3f} (goal or reported hold)")
-        fams = "  ".join(f"{k} {v['safe']}/{v['runs']}" for k, v in summary["by_family"].items())
-        print(f"safe by family       {fams}")
-        print(f"collision rate       {summary['collision_rate']:.3f}")
-        sep = summary["min_separation_m"]
+    from plant_sim.lockstep.montecarlo import is_safe
+
+    log = sys.stderr if args.json else sys.stdout
+    spec = BatchSpec(args.seed, args.n, args.family, args.perception, args.max_time_s)
+    out = args.out or Path(
+        f"runs/montecarlo/{args.family}-{args.perception}-s{args.seed}-n{args.n}"
+    )
+    try:
+        results = ResultsFile(out, spec, resume=args.resume)
+    except ResultsFileError as exc:
+        print(f"stereo-avoid montecarlo: {exc}", file=sys.stderr)
+        return 2
+    with results:
+        pending = results.pending
+        where = args.cluster or f"a local Dask cluster of {args.jobs} workers"
         print(
-            "min separation [m]   "
-            f"min {sep['min']:.2f}  p5 {sep['p5']:.2f}  median {sep['median']:.2f}"
+            f"Monte Carlo: {args.n} scenes ({args.family}, {args.perception} perception), "
+            f"{len(results.records)} already in {results.path}, {len(pending)} to fly on "
+            f"{where}",
+            file=log,
         )
-        print(f"avoidance time [s]   mean {summary['avoidance_time_s']['mean']:.2f}")
-        print(f"failures by cause    {summary['failures_by_cause'] or 'none'}")
-        if summary["failed_seeds"]:
-            print(
-                "replay a failure     stereo-avoid replay "
-                f"{summary['failed_seeds'][0]} --family {args.family}"
-            )
-    return 0 if summary["failed_seeds"] == [] else 1
+        bar = ProgressBar(args.n, len(results.records), log)
+        t0 = time.monotonic()
+
+        def on_record(record: dict) -> None:
+            results.append(record)
+            verdict = verdict_from_record(record)
+            bar.update(collided=verdict.collided, safe=is_safe(verdict))
+
+        if pending:
+            with dask_client(args.cluster, n_workers=args.jobs) as client:
+                fly_on_cluster(
+                    client,
+                    pending,
+                    family=args.family,
+                    perception=args.perception,
+                    max_time_s=args.max_time_s,
+                    on_record=on_record,
+                )
+        bar.close()
+        wall_s = time.monotonic() - t0
+        verdicts = results.verdicts()
+    summary = summarize(verdicts)
+    throughput = (
+        {"scenes": len(pending), "wall_s": wall_s, "scenes_per_min": 60 * len(pending) / wall_s}
+        if pending
+        else None
+    )
+    table = write_report(
+        out,
+        verdicts,
+        summary,
+        family=args.family,
+        perception=args.perception,
+        throughput=throughput,
+    )
+    if args.json:
+        print(json.dumps({**summary, "throughput": throughput}, indent=2))
+    else:
+        print(table)
+        print(f"report               {out}/summary.txt, *.png")
+    ok = summary["collisions"] == 0 and not summary["unsafe_seeds"]
+    return 0 if ok else 1
+
+
+def _replay(args: argparse.Namespace) -> int:
+    """``replay TARGET``: an integer is a Monte Carlo seed (flown again in lockstep)."""
+    try:
+        seed = int(args.target)
+    except ValueError:
+        print(
+            f"stereo-avoid replay: {args.target!r} is not a seed (an integer); this build "
+            "replays Monte Carlo seeds only",
+            file=sys.stderr,
+        )
+        return 2
+    single_threaded()  # as every Monte Carlo worker flies it: the same verdict
+    out = args.out or Path(f"runs/replay-{seed}")
+    cfg = run_config(args.perception, args.max_time_s)
+    return _fly_and_report(scene_of(seed, args.family), out, args.json, cfg)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -111,20 +176,59 @@ def _parser() -> argparse.ArgumentParser:
     paper = sub.add_parser("paper", help="fly the paper's §6 scenario in lockstep")
     paper.add_argument("--out", type=Path, default=Path("runs/paper"), help="output folder")
     paper.add_argument("--json", action="store_true", help="print the verdict as JSON")
-    mc = sub.add_parser("montecarlo", help="random scenes on all cores")
+    mc = sub.add_parser("montecarlo", help="random scenes on a Dask cluster (local or remote)")
     mc.add_argument("--n", type=int, default=20, help="number of scenes")
     mc.add_argument("--seed", type=int, default=0, help="first seed")
-    mc.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="processes")
+    mc.add_argument(
+        "--jobs",
+        type=int,
+        default=os.cpu_count() or 1,
+        help="worker processes of the local cluster (without --cluster)",
+    )
+    mc.add_argument(
+        "--cluster",
+        metavar="ADDRESS",
+        default=None,
+        help="Dask scheduler to run on (tcp://host:8786); default: a local cluster",
+    )
+    mc.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default runs/montecarlo/FAMILY-PERCEPTION-sSEED-nN)",
+    )
+    mc.add_argument(
+        "--resume", action="store_true", help="finish the run in --out: skip finished seeds"
+    )
     mc.add_argument("--json", action="store_true", help="print the summary as JSON")
     families = ["mixed", *FAMILIES]
     mc.add_argument(
         "--family", choices=families, default="mixed", help="scene family (mixed: by seed)"
     )
-    replay = sub.add_parser("replay", help="fly one Monte Carlo scene by its seed")
-    replay.add_argument("seed", type=int)
+    perceptions = ["stereo", "truth"]
+    mc.add_argument(
+        "--perception",
+        choices=perceptions,
+        default="stereo",
+        help="stereo matcher (default) or ground truth (the renderer's exact depth)",
+    )
+    mc.add_argument(
+        "--max-time-s",
+        type=float,
+        default=None,
+        help="simulation time limit per scene (default 90 s; shorter for smoke runs)",
+    )
+    replay = sub.add_parser("replay", help="fly one Monte Carlo scene again by its seed")
+    replay.add_argument("target", metavar="SEED", help="Monte Carlo seed (an integer)")
     replay.add_argument("--out", type=Path, default=None, help="output folder")
     replay.add_argument("--json", action="store_true", help="print the verdict as JSON")
     replay.add_argument("--family", choices=families, default="mixed", help="scene family")
+    replay.add_argument(
+        "--perception", choices=perceptions, default="stereo", help="as in montecarlo"
+    )
+    replay.add_argument(
+        "--max-time-s", type=float, default=None, help="as in montecarlo (default 90 s)"
+    )
     sil = sub.add_parser("sil", help="plant-sim + companion as processes on loopback")
     sil.add_argument("--scenario", type=Path, default=None, help="plant-sim scenario file")
     sil.add_argument("--speedup", type=float, default=4.0, help="simulation speed-up")
@@ -170,10 +274,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         plant_args = ("--autopilot-flavour", "px4") if args.autopilot == "plant-sim-px4" else ()
         return fly_sil_and_report(args.scenario, args.speedup, args.out, args.json, plant_args)
     if args.command == "replay":
-        out = args.out or Path(f"runs/replay-{args.seed}")
-        return _fly_and_report(scene_of(args.seed, args.family), out, args.json)
+        return _replay(args)
     if args.n < 1 or args.jobs < 1:
         print("stereo-avoid: --n and --jobs must be >= 1", file=sys.stderr)
+        return 2
+    if args.max_time_s is not None and not args.max_time_s > 0:
+        print("stereo-avoid: --max-time-s must be > 0", file=sys.stderr)
         return 2
     return _montecarlo(args)
 

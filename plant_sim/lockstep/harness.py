@@ -28,6 +28,7 @@ from companion.perception import PerceptionConfig
 from companion.pipeline import PoseAtCapture
 from plant_sim.lockstep.history import History
 from plant_sim.lockstep.scenes import Scene
+from plant_sim.lockstep.truth_perception import TruthPerception
 from plant_sim.params import ControlParams, QuadrotorParams
 from plant_sim.stereo_camera import RenderParams, StereoCameraRenderer
 from plant_sim.vehicle import Quadrotor, Setpoint, VehicleState
@@ -66,6 +67,9 @@ class RunConfig:
     # is processed and the autopilot keeps tracking the last setpoint; the run ends once
     # the vehicle has stopped (speed below 0.05 m/s for 1 s) or at max_time_s.
     companion_stop_s: float | None = None
+    # Ground-truth perception: the renderer's exact depth instead of the stereo matcher
+    # (plant_sim.lockstep.truth_perception); guidance, envelope and known space unchanged.
+    truth_perception: bool = False
 
     def __post_init__(self) -> None:
         for name in ("camera_rate_hz", "max_time_s", "goal_tolerance_m"):
@@ -138,6 +142,7 @@ def run_scene(
     *,
     progress: Callable[[float, float], None] | None = None,
     kill_times_s: Sequence[float] = (),
+    record_history: bool = True,
 ) -> RunResult:
     """Fly ``scene`` in lockstep until the goal, a collision or ``max_time_s``.
 
@@ -149,6 +154,9 @@ def run_scene(
         Simulation times at which to also simulate the companion's death: at the first
         frame at or after each, a copy of the plant flies on with the last setpoint
         (:class:`KillOutcome` in ``RunResult.kills``) while the run itself continues.
+    record_history : bool
+        Keep the per-frame time history (figures, CSV); False leaves ``RunResult.history``
+        empty (Monte Carlo keeps only the verdict).
     """
     cfg = config or RunConfig()
     wall_start = time.perf_counter()
@@ -169,6 +177,13 @@ def run_scene(
         cfg.known_space,
         cfg.envelope,
     )
+    truth: TruthPerception | None = None
+    if cfg.truth_perception:
+        truth = mission.pipeline.perception = TruthPerception(cfg.perception)
+        blank = np.zeros((intrinsics.height_px, intrinsics.width_px), np.uint8)
+        blank.flags.writeable = False
+    centres_ned_m = np.array([s.center_ned_m for s in scene.world.spheres]).reshape(-1, 3)
+    radii_m = np.array([s.radius_m for s in scene.world.spheres])
     goal = np.asarray(scene.goal_ned_m, dtype=float)
     history = History()
     frame_period_s = 1.0 / cfg.camera_rate_hz
@@ -186,14 +201,21 @@ def run_scene(
     kills: list[KillOutcome] = []
     while True:
         state = quad.snapshot()
-        frame = _render_frame(renderer, scene.world, state, seq, intrinsics)
-        pose = PoseAtCapture(state.pos_ned_m, state.vel_ned_mps, state.R_ned_from_frd)
+        R_ned_from_frd = state.R_ned_from_frd
+        if truth is None:
+            frame = _render_frame(renderer, scene.world, state, R_ned_from_frd, seq, intrinsics)
+        else:
+            depth = renderer.render_depth(scene.world, state.pos_ned_m, R_ned_from_frd)
+            truth.provide(seq, depth)
+            frame = StereoFrame(seq, round(state.time_s * 1e9), intrinsics, blank, blank)
+        pose = PoseAtCapture(state.pos_ned_m, state.vel_ned_mps, R_ned_from_frd)
         out = mission.step(frame, pose).output
         decision = out.guidance
         quad.set_setpoint(Setpoint(pos_ned_m=tuple(out.setpoint_ned_m), yaw_rad=out.yaw_rad))
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
-        goal_dist = float(np.linalg.norm(state.pos_ned_m - goal))
-        _record(history, state, surface, out, len(out.perception.obstacles))
+        goal_dist = math.dist(state.pos_ned_m, goal)
+        if record_history:
+            _record(history, state, surface, out, len(out.perception.obstacles))
         min_surface = min(min_surface, surface)
         if decision.avoidance_flag:
             avoid_time += frame_period_s
@@ -227,15 +249,14 @@ def run_scene(
             collided = min_surface < cfg.collision_distance_m
             failure = "collision" if collided else "companion_stopped"
             break
-        # advance to the next frame, watching commanded tilt and clearance at control rate
+        # advance to the next frame, watching commanded tilt and clearance at every step
         seq += 1
         t_next = seq * frame_period_s
-        while quad.time_s < t_next - 1e-12:
-            quad.step(quad.control.steps_per_control)
-            roll_cmd, pitch_cmd = quad.tilt_cmd_rad()
-            max_roll = max(max_roll, abs(roll_cmd))
-            max_pitch = max(max_pitch, abs(pitch_cmd))
-            min_surface = min(min_surface, nearest_surface_m(scene.world, quad.pos_ned_m))
+        n_steps = _steps_until(quad, t_next)
+        roll_cmd, pitch_cmd, surface_min = quad.step_watching(n_steps, centres_ned_m, radii_m)
+        max_roll = max(max_roll, roll_cmd)
+        max_pitch = max(max_pitch, pitch_cmd)
+        min_surface = min(min_surface, surface_min)
 
     verdict = Verdict(
         scene=scene.name,
@@ -254,6 +275,16 @@ def run_scene(
         hold_reason=hold_reason,
     )
     return RunResult(verdict=verdict, history=history, kills=tuple(kills))
+
+
+def _steps_until(quad: Quadrotor, time_s: float) -> int:
+    """Physics steps, in whole control periods, until the plant's clock reaches ``time_s``."""
+    dt_s, per = quad.dt_s, quad.control.steps_per_control
+    done = round(quad.time_s / dt_s)
+    n = 0
+    while (done + n) * dt_s < time_s - 1e-12:
+        n += per
+    return n
 
 
 def _kill_tail(quad: Quadrotor, world: World, stop_s: float, cfg: RunConfig) -> KillOutcome:
@@ -290,9 +321,14 @@ def _kill_tail(quad: Quadrotor, world: World, stop_s: float, cfg: RunConfig) -> 
 
 
 def _render_frame(
-    renderer: StereoCameraRenderer, world: World, state: VehicleState, seq: int, intrinsics
+    renderer: StereoCameraRenderer,
+    world: World,
+    state: VehicleState,
+    R_ned_from_frd: np.ndarray,
+    seq: int,
+    intrinsics,
 ) -> StereoFrame:
-    render = renderer.render(world, state.pos_ned_m, state.R_ned_from_frd, noise_seed=seq)
+    render = renderer.render(world, state.pos_ned_m, R_ned_from_frd, noise_seed=seq)
     return StereoFrame(
         sequence=seq,
         capture_ns=round(state.time_s * 1e9),

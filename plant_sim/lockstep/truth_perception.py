@@ -1,0 +1,100 @@
+"""Ground-truth perception for lockstep runs: the renderer's exact depth instead of a matcher.
+
+Monte Carlo flies every scene two ways (issue 13): with the stereo matcher, as the
+companion flies, and with *ground-truth* perception, which separates what guidance and the
+safety envelope do from what the matcher misses. :class:`TruthPerception` is the
+companion's :class:`~companion.perception.StereoPerception` with one part replaced: the
+disparity map comes from the left eye's true depth (:meth:`StereoCameraRenderer.render_depth
+<plant_sim.stereo_camera.StereoCameraRenderer.render_depth>`, the exact ray-cast geometry)
+as ``round(16 · f·b / depth)`` instead of OpenCV's block matchers. Everything downstream —
+obstacle pixels, blobs, boundary spheres, the depth map the known-space model folds in —
+is the companion's own code, unchanged.
+
+What a perfect stereo matcher still cannot do, this does not do either: a pixel whose
+match would lie left of the right image (``x − d < 0``: outside the right camera's view)
+is unmatched. The sky is matched at infinity (disparity 0), so beyond the blind band it
+certifies free space up to the known-space range, as a perfect matcher would.
+
+The truth for a frame is handed over with :meth:`TruthPerception.provide` before the
+pipeline processes that frame; a frame without its truth is an error, never stale depth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from companion.perception import PerceptionConfig, StereoPerception
+from protocols.stereo_frame import StereoFrame
+
+__all__ = ["TruthPerception", "truth_disparity_fixed"]
+
+_DISP_SCALE = 16  # OpenCV's fixed-point disparity: 1/16 px
+_INT16_MAX = np.iinfo(np.int16).max
+
+
+def truth_disparity_fixed(depth_m: np.ndarray, focal_baseline_m_px: float) -> np.ndarray:
+    """Exact int16 disparity (1/16 px, OpenCV's convention) of a true depth map.
+
+    Parameters
+    ----------
+    depth_m : numpy.ndarray, shape (H, W)
+        Depth along the optical axis [m]; ``inf`` for sky, NaN or <= 0 where unknown.
+    focal_baseline_m_px : float
+        ``f·b`` [m·px] (Eq. 27: depth = f·b / disparity).
+
+    Returns
+    -------
+    numpy.ndarray, int16
+        ``round(16 · f·b / depth)`` (0 for sky, saturated at the int16 maximum for a
+        surface nearer than ``16 · f·b / 32767``); -16 (unmatched) where the depth is not
+        positive or the match would lie left of the right image (``x − d < 0``).
+    """
+    depth = np.asarray(depth_m, dtype=np.float64)
+    if depth.ndim != 2:
+        raise ValueError(f"depth_m must be 2-D, got shape {depth.shape}")
+    valid = depth > 0.0  # False for NaN
+    with np.errstate(divide="ignore", invalid="ignore"):
+        disp16 = np.where(valid, _DISP_SCALE * focal_baseline_m_px / depth, -_DISP_SCALE)
+    disp16 = np.minimum(np.rint(disp16), _INT16_MAX).astype(np.int16)
+    columns = np.arange(depth.shape[1], dtype=np.float64)
+    # x − d < 0: the surface is outside the right camera's view
+    outside_right = disp16.astype(np.float64) > _DISP_SCALE * columns
+    disp16[outside_right] = -_DISP_SCALE
+    return disp16
+
+
+class TruthPerception(StereoPerception):
+    """:class:`~companion.perception.StereoPerception` on true disparities (module docstring).
+
+    Parameters
+    ----------
+    config : PerceptionConfig, optional
+        The companion's detector settings (threshold, blob and sphere parameters); the
+        matcher's settings are unused.
+    """
+
+    def __init__(self, config: PerceptionConfig | None = None) -> None:
+        super().__init__(config)
+        self._truth: tuple[int, np.ndarray] | None = None
+
+    def provide(self, sequence: int, depth_left_m: np.ndarray) -> None:
+        """The true depth of the left image of frame ``sequence`` (next to be processed)."""
+        self._truth = (int(sequence), depth_left_m)
+
+    def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
+        """True disparity of ``frame`` (int16, 1/16 px, -16 where a perfect matcher fails)."""
+        if self._truth is None or self._truth[0] != frame.sequence:
+            have = None if self._truth is None else self._truth[0]
+            raise RuntimeError(
+                f"TruthPerception: no true depth for frame {frame.sequence} "
+                f"(provide() was last given frame {have})"
+            )
+        depth = self._truth[1]
+        k = frame.intrinsics
+        if depth.shape != (k.height_px, k.width_px):
+            raise ValueError(f"true depth shape {depth.shape} != frame {(k.height_px, k.width_px)}")
+        return truth_disparity_fixed(depth, k.focal_baseline_m_px)
+
+    def coarse_disparity_fixed(self, frame: StereoFrame) -> None:
+        """No coarse pass: the true disparity ranges every distance already."""
+        return None
