@@ -108,10 +108,10 @@ class CompanionService:
         )
 
     def close(self) -> dict[str, Any]:
+        self.intake.close()  # first: no frame is counted after the final figures are taken
         stats = self.stats()
         if self.health is not None:
             self.health.stopped(self.fatal or "the companion stopped")
-        self.intake.close()
         if self._status is not None:
             self._status.close()
         if self._session is not None:

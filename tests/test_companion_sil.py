@@ -85,7 +85,9 @@ class Rig:
         c.wait_line(r"^COMPANION READY ", 60)
         return c
 
-    def plant(self, *args: str, run: str = "run0", connect=True, env=None) -> ChildProcess:
+    def plant(
+        self, *args: str, run: str = "run0", connect=True, env=None, speedup: float = SPEEDUP
+    ) -> ChildProcess:
         extra = ["--zenoh-connect", self.companion_zenoh] if connect else []
         p = ChildProcess(
             "plant-sim",
@@ -97,7 +99,7 @@ class Rig:
                 self.plant_zenoh,
                 *extra,
                 "--speedup",
-                f"{SPEEDUP:g}",
+                f"{speedup:g}",
                 "--log-dir",
                 str(self.tmp / run),
                 *args,
