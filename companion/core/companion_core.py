@@ -63,6 +63,7 @@ from companion.link.messages import (
     CompanionState,
     command_long,
     heartbeat_message,
+    mav_state,
     obstacle_distance_message,
     set_message_interval,
     set_mode_command,
@@ -321,7 +322,9 @@ class CompanionCore:
                     now_s,
                     msg.custom_mode,
                     msg.system_status in _IN_CONTROL_STATES,
-                    self._state() is CompanionState.ACTIVE,
+                    # the same test as for the twin's heartbeat: a companion in its hold is
+                    # still in control (else both yield and nobody steers)
+                    mav_state(self._state()) in _IN_CONTROL_STATES,
                 )
                 self._check_takeover(now_s)
             return
