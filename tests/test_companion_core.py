@@ -283,6 +283,29 @@ def test_core_yields_to_a_twin_with_a_higher_instance_id():
     assert not lower.events("takeover") and lower.setpoints()
 
 
+def test_core_in_its_hold_keeps_control_when_a_standby_twin_appears():
+    """A companion in its failsafe hold still counts as in control (its heartbeat says
+    MAV_STATE_CRITICAL, which a twin reads as "in control"): a standby twin with a lower
+    instance id appearing then must not make it yield, or both yield and nobody steers."""
+    rig = _steering_rig()  # instance 7
+    rig.run(1.0, frames=False)
+    assert [h["reason"] for h in rig.events("hold")] == ["stale_frames"]
+    rig.twin = mavlink.MAVLink_heartbeat_message(
+        mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+        mavlink.MAV_AUTOPILOT_INVALID,
+        0,
+        3,  # lower instance id: it would win the tie-break between two standby twins
+        mavlink.MAV_STATE_STANDBY,
+        3,
+    )
+    rig.run(2.0, frames=False)
+    n_setpoints = len(rig.setpoints())
+    rig.run(3.0)  # frames back: resume and steer again, the twin still heartbeating
+    assert not [e for e in rig.events("takeover") if e["blocked"]], rig.events("takeover")
+    assert len(rig.events("resume")) == 1
+    assert len(rig.setpoints()) > n_setpoints
+
+
 def test_core_clock_timesync_maps_and_implausible_frames_are_dropped():
     """TIMESYNC requests carry the injected clock; frames far from now are dropped."""
     rig = _steering_rig()
