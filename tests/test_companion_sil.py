@@ -43,10 +43,15 @@ GOAL = (0.0, 0.0, -7.0)
 
 
 def _assert_close_to_lockstep(v, ref, what=""):
+    # Since guidance avoids the map's boundary pieces (issue 13), a SIL flight (about half
+    # the frames at 4x) varies more around lockstep: measured in CI, flight 29.2 vs 31.4 s,
+    # avoidance 6.3 vs 9.0 s, clearance 1.16 vs 0.81 m. Bounds below cover that spread;
+    # the safety bound (clearance >= 0.5 m) is absolute.
     assert v.reached_goal and not v.collided, (what, v)
-    assert abs(v.sim_time_s - ref.sim_time_s) <= 2.0, (what, v, ref)
-    assert abs(v.avoidance_time_s - ref.avoidance_time_s) <= 2.0, (what, v, ref)
-    assert abs(v.min_surface_distance_m - ref.min_surface_distance_m) <= 0.3, (what, v, ref)
+    assert v.min_surface_distance_m >= 0.5, (what, v)
+    assert abs(v.sim_time_s - ref.sim_time_s) <= 4.0, (what, v, ref)
+    assert abs(v.avoidance_time_s - ref.avoidance_time_s) <= 4.0, (what, v, ref)
+    assert abs(v.min_surface_distance_m - ref.min_surface_distance_m) <= 0.45, (what, v, ref)
     assert v.max_pitch_cmd_deg <= 15.0 + 1e-6 and v.max_roll_cmd_deg <= 15.0 + 1e-6
 
 
