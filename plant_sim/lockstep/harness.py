@@ -124,10 +124,9 @@ class KillOutcome:
 
 
 def nearest_surface_m(world: World, pos_ned_m: np.ndarray) -> float:
-    """Distance from ``pos_ned_m`` to the nearest sphere surface [m]; inf with none."""
-    if not world.spheres:
-        return math.inf
-    return min(s.surface_distance_m(pos_ned_m) for s in world.spheres)
+    """Distance from ``pos_ned_m`` to the nearest obstacle surface of any shape [m] (negative
+    inside); inf with none."""
+    return world.surface_distance_m(pos_ned_m)
 
 
 def run_scene(
