@@ -186,7 +186,7 @@ class PerceptionConfig:
 
     threshold_m: float = 4.0
     matcher: Matcher = Matcher.BM
-    min_range_m: float = 1.2
+    min_range_m: float = 1.5
     near_range_m: float = 0.4
     max_range_m: float = 20.0
     block_size_px: int | None = None
