@@ -170,7 +170,7 @@ def test_results_are_deterministic_frozen_and_matcher_reused(renderer):
     pos = np.array([5.5, 0.0, -7.0])
     a = _see(renderer, perception, World(spheres=(PAPER_SPHERE,)), pos, LEVEL, seq=3)
     b = _see(renderer, perception, World(spheres=(PAPER_SPHERE,)), pos, LEVEL, seq=3)
-    assert len(perception._matchers) == 2  # the main and the near-range matcher, reused
+    assert len(perception.source._matchers) == 2  # the main and the near-range matcher, reused
     assert (a.sequence, a.capture_ns) == (3, 3000)
     np.testing.assert_array_equal(a.obstacles[0].center_ned_m, b.obstacles[0].center_ned_m)
     assert a.obstacles[0].radius_m == b.obstacles[0].radius_m
