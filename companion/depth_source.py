@@ -54,6 +54,7 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import cv2
+import numba
 import numpy as np
 
 from protocols.stereo_frame import StereoFrame
@@ -162,20 +163,61 @@ def depth_from_disparity(
 
 
 def drop_small_far_regions(depth: np.ndarray, min_area: int) -> int:
-    """Set to NaN (unknown) every 8-connected region of +inf pixels in ``depth`` smaller
-    than ``min_area`` pixels, in place; return how many pixels that made unknown.
+    """Set to NaN (unknown) every region of +inf pixels in ``depth`` with fewer than
+    ``min_area`` pixels, in place; return how many pixels that made unknown.
 
     A far claim ("nothing nearer along this ray") certifies free space; noise on a
     textureless surface yields small islands of one-pixel disparity that must not.
+    Regions are the 8-connected components of the 2 × 2 blocks holding a +inf pixel (a
+    quarter of the pixels to label; pixels one block apart belong to one region), and a
+    region's size is its count of +inf pixels.
     """
-    if min_area <= 1:
+    if min_area <= 1 or depth.size == 0:
         return 0
-    far = np.isinf(depth).view(np.uint8)
-    _, labels, stats, _ = cv2.connectedComponentsWithStats(far, connectivity=8)
-    small = stats[:, cv2.CC_STAT_AREA] < min_area
-    small[0] = False  # the background (finite or NaN pixels)
+    height, width = depth.shape
+    blocks = np.zeros(((height + 1) // 2, (width + 1) // 2), np.uint8)
+    if _far_per_block(depth, blocks) == 0:
+        return 0
+    n_labels, labels = cv2.connectedComponents((blocks > 0).view(np.uint8), connectivity=8)
+    small = _small_labels(labels, blocks, n_labels, min_area)
     if not small.any():
         return 0
-    drop = small[labels]
-    depth[drop] = np.nan
-    return int(np.count_nonzero(drop))
+    return _drop_far(depth, labels, small)
+
+
+@numba.njit(cache=True)
+def _far_per_block(depth, blocks):
+    """Count the +inf pixels of ``depth`` per 2 × 2 block into ``blocks``; return the total."""
+    total = 0
+    for y in range(depth.shape[0]):
+        for x in range(depth.shape[1]):
+            if depth[y, x] == np.inf:
+                blocks[y // 2, x // 2] += 1
+                total += 1
+    return total
+
+
+@numba.njit(cache=True)
+def _small_labels(labels, blocks, n_labels, min_area):
+    """uint8 flag per label: its blocks hold fewer than ``min_area`` +inf pixels (label 0,
+    the blocks without one, is never flagged)."""
+    area = np.zeros(n_labels, np.int64)
+    for y in range(labels.shape[0]):
+        for x in range(labels.shape[1]):
+            area[labels[y, x]] += blocks[y, x]
+    small = np.zeros(n_labels, np.uint8)
+    for i in range(1, n_labels):
+        small[i] = area[i] < min_area
+    return small
+
+
+@numba.njit(cache=True)
+def _drop_far(depth, labels, small):
+    """NaN for every +inf pixel of ``depth`` whose block's label is ``small``; the count."""
+    n = 0
+    for y in range(depth.shape[0]):
+        for x in range(depth.shape[1]):
+            if depth[y, x] == np.inf and small[labels[y // 2, x // 2]]:
+                depth[y, x] = np.nan
+                n += 1
+    return n

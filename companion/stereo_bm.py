@@ -145,8 +145,11 @@ def _merge_depth(disp, coarse, has_coarse, top, d_far, fb16, depth, too_near, fa
 
 @functools.cache
 def _warm_up() -> None:
-    """Compile (or load from numba's cache) the merge kernel once per process, with the
-    argument types :meth:`PaddedStereoBM.compute` uses (a cropped view of the output)."""
+    """Compile (or load from numba's cache) the merge and far-region kernels once per
+    process, with the argument types :meth:`PaddedStereoBM.compute` uses."""
+    far = np.full((3, 3), np.inf, np.float32)
+    far[1, 1] = np.nan
+    drop_small_far_regions(far, 100)
     main = np.full((6, 8), -16, np.int16)[1:5, 2:6]
     _merge_depth(
         main,
