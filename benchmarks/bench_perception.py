@@ -194,7 +194,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=3, help="passes over the frames")
     parser.add_argument("--only-perception", action="store_true", help="timing ratios only")
     parser.add_argument("--stages", action="store_true", help="CPU time per stage")
+    parser.add_argument(
+        "--cv-threads",
+        type=int,
+        help="OpenCV threads (1: CPU times free of its thread pool's spinning, the ratio "
+        "that holds under load; default: OpenCV's own choice)",
+    )
     args = parser.parse_args(argv)
+    if args.cv_threads is not None:
+        cv2.setNumThreads(args.cv_threads)
     print(
         f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
         f"cv2 threads {cv2.getNumThreads()}, numba threads {numba.get_num_threads()}, "
