@@ -67,7 +67,7 @@ def _padded(image: np.ndarray, pad_x: int, pad_y: int) -> np.ndarray:
     OpenCV's matchers compute nothing in the leftmost ``numDisparities`` columns and the
     half-block border; on the padded pair every real pixel is searched over the full range,
     and a match into the black band (outside the right camera's view) has no texture to lock
-    on, fails the left/right check, or is refused by :meth:`StereoPerception.disparity_fixed`.
+    on, fails the left/right check, or is refused by :meth:`PaddedStereoBM.disparity_fixed`.
     """
     out = cv2.copyMakeBorder(image, pad_y, pad_y, pad_x, pad_y, cv2.BORDER_REPLICATE)
     out[:, :pad_x] = 0
