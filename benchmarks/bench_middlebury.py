@@ -128,7 +128,7 @@ def _bare_matcher(perception: StereoPerception, intrinsics: StereoIntrinsics):
     """The OpenCV matcher with perception's settings, on the unpadded pair."""
     cfg = perception.config
     bare = cv2.StereoBM_create(
-        perception.num_disparities(intrinsics), perception.block_size(intrinsics)
+        perception.source.num_disparities(intrinsics), perception.source.block_size(intrinsics)
     )
     bare.setTextureThreshold(cfg.texture_threshold)
     bare.setUniquenessRatio(cfg.uniqueness_ratio)

@@ -6,6 +6,7 @@ Run with ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_perception.p
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import statistics
@@ -15,7 +16,9 @@ import cv2
 import numba
 import numpy as np
 
+from companion.bare_bm import BareStereoBM
 from companion.perception import PerceptionConfig, StereoPerception
+from companion.stereo_bm import noise_sigma
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import GroundPlane, Sphere, World
 from protocols.camera import CameraModel
@@ -62,7 +65,22 @@ def bench_renderer(n: int) -> None:
     print(f"renderer 320x240, 3 spheres + ground, per stereo pair: {_ms(times)} (goal <= 3 ms)")
 
 
-def bench_perception(width: int, height: int, n: int, repeats: int) -> None:
+def _bare_matcher(config: PerceptionConfig, k, min_range_m: float) -> cv2.StereoBM:
+    """The bare matcher: OpenCV StereoBM with perception's settings (block, texture,
+    uniqueness, speckle, left/right check) searching down to ``min_range_m``, nothing else,
+    on the unpadded pair (the leftmost ``numDisparities`` columns stay unsearched)."""
+    source = BareStereoBM(dataclasses.replace(config, min_range_m=min_range_m))
+    return source.opencv_matcher(k.width_px, k.focal_baseline_m_px)
+
+
+def _clocks() -> tuple[float, float]:
+    return time.perf_counter(), time.process_time()
+
+
+def bench_perception(width: int, height: int, n: int, repeats: int, stages: bool) -> None:
+    """Wall and CPU time per frame of the whole perception (decode -> obstacle spheres)
+    against two bare matchers on the same frames: the same full-resolution search range
+    (down to ``min_range_m``) and the 1.2 m range the issue measured its baseline with."""
     camera = CameraModel(width_px=width, height_px=height)
     renderer = StereoCameraRenderer(camera)
     poses = _poses(n)
@@ -71,40 +89,74 @@ def bench_perception(width: int, height: int, n: int, repeats: int) -> None:
         out = renderer.render(WORLD, pos, R, noise_seed=i)
         payloads.append(encode(StereoFrame(i, i, camera.intrinsics, out.left, out.right)))
     perception = StereoPerception()
+    cfg = perception.config
     frame0 = decode(payloads[0])
     perception.process(frame0, *poses[0])
-    # The bare matcher: the same OpenCV StereoBM with the same settings (range, block,
-    # texture, uniqueness, speckle, left/right check) on the unpadded pair, nothing else.
     k = frame0.intrinsics
-    bare = cv2.StereoBM_create(perception.num_disparities(k), perception.block_size(k))
-    cfg = perception.config
-    bare.setTextureThreshold(cfg.texture_threshold)
-    bare.setUniquenessRatio(cfg.uniqueness_ratio)
-    bare.setSpeckleWindowSize(cfg.speckle_window_px)
-    bare.setSpeckleRange(cfg.speckle_range_px)
-    bare.setDisp12MaxDiff(cfg.lr_max_diff_px)
-    t_pipe, t_bare, n_obstacles, with_obstacles = [], [], 0, []
+    bares = {
+        f"bare {cfg.min_range_m} m": _bare_matcher(cfg, k, cfg.min_range_m),
+        "bare 1.2 m": _bare_matcher(cfg, k, 1.2),
+    }
+    wall: dict[str, list[float]] = {name: [] for name in ("perception", *bares)}
+    cpu: dict[str, list[float]] = {name: [] for name in wall}
+    n_obstacles = 0
     for _ in range(repeats):
         for payload, (pos, R) in zip(payloads, poses, strict=True):
             frame = decode(payload)
-            t0 = time.perf_counter()
-            bare.compute(frame.left, frame.right)
-            t_bare.append(time.perf_counter() - t0)
-            t0 = time.perf_counter()
+            for name, bare in bares.items():
+                w0, c0 = _clocks()
+                bare.compute(frame.left, frame.right)
+                w1, c1 = _clocks()
+                wall[name].append(w1 - w0)
+                cpu[name].append(c1 - c0)
+            w0, c0 = _clocks()
             result = perception.process(decode(payload), pos, R)
-            t_pipe.append(time.perf_counter() - t0)
+            w1, c1 = _clocks()
+            wall["perception"].append(w1 - w0)
+            cpu["perception"].append(c1 - c0)
             n_obstacles += len(result.obstacles)
-            with_obstacles.append(bool(result.obstacles))
-    busy = [i for i, seen in enumerate(with_obstacles) if seen]
-    busy_ratio = statistics.mean(t_pipe[i] for i in busy) / statistics.mean(t_bare[i] for i in busy)
-    ratio = statistics.mean(t_pipe) / statistics.mean(t_bare)
-    hz = 1.0 / statistics.mean(t_pipe)
+    mean_ms = {name: 1e3 * statistics.mean(v) for name, v in wall.items()}
+    mean_cpu_ms = {name: 1e3 * statistics.mean(v) for name, v in cpu.items()}
+    per_frame = n_obstacles / len(cpu["perception"])
     print(
-        f"perception {width}x{height} (decode -> obstacle spheres): {_ms(t_pipe)}, {hz:5.1f} Hz; "
-        f"bare StereoBM {_ms(t_bare)}; ratio {ratio:.2f} (goal <= 1.5); "
-        f"{n_obstacles / len(t_pipe):.2f} obstacles/frame; "
-        f"ratio on frames with obstacles ({len(busy)}/{len(t_pipe)}) {busy_ratio:.2f}"
+        f"perception {width}x{height} (decode -> obstacle spheres), {per_frame:.2f} "
+        f"obstacles/frame, load average {os.getloadavg()[0]:.1f}:"
     )
+    print(
+        f"  wall {_ms(wall['perception'])} = {1e3 / mean_ms['perception']:5.1f} Hz; "
+        f"CPU {mean_cpu_ms['perception']:6.2f} ms/frame (all threads)"
+    )
+    for name in bares:
+        print(
+            f"  {name:12s} wall {mean_ms[name]:6.2f} ms, CPU {mean_cpu_ms[name]:6.2f} ms; "
+            f"perception / it: wall {mean_ms['perception'] / mean_ms[name]:.2f}, "
+            f"CPU {mean_cpu_ms['perception'] / mean_cpu_ms[name]:.2f} (goal <= 1.5)"
+        )
+    if stages:
+        _print_stages(perception, payloads, poses)
+
+
+def _print_stages(perception: StereoPerception, payloads, poses) -> None:
+    """CPU time per stage of the default depth source, then the obstacle stage."""
+    source = perception.source
+    t: dict[str, list[float]] = {}
+
+    def timed(name, f, *args):
+        c0 = time.process_time()
+        out = f(*args)
+        t.setdefault(name, []).append(time.process_time() - c0)
+        return out
+
+    for payload, (pos, R) in zip(payloads, poses, strict=True):
+        frame = decode(payload)
+        timed("noise estimate", noise_sigma, frame.left)
+        timed("prefilter", source._prefiltered, frame)
+        timed("main pass (prefilter, padded BM, gates)", source.disparity_fixed, frame)
+        timed("near pass", source.coarse_disparity_fixed, frame)
+        timed("depth source total", source.compute, frame)
+        timed("perception total", perception.process, frame, pos, R)
+    for name, v in t.items():
+        print(f"    {name:42s} CPU {1e3 * statistics.mean(v):6.2f} ms")
 
 
 def bench_accuracy(n: int) -> None:
@@ -118,7 +170,7 @@ def bench_accuracy(n: int) -> None:
             out = renderer.render(WORLD, pos, R, noise_seed=i)
             frame = StereoFrame(i, i, camera.intrinsics, out.left, out.right)
             t0 = time.perf_counter()
-            disparity = perception.disparity_fixed(frame).astype(np.float64) / 16.0
+            disparity = perception.source.disparity_fixed(frame).astype(np.float64) / 16.0
             times.append(time.perf_counter() - t0)
             obstacle = (out.depth_left_m >= 2.0) & (out.depth_left_m <= 4.0)
             valid = obstacle & (disparity > 0)
@@ -141,7 +193,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--frames", type=int, default=40, help="distinct frames per test")
     parser.add_argument("--repeats", type=int, default=3, help="passes over the frames")
     parser.add_argument("--only-perception", action="store_true", help="timing ratios only")
+    parser.add_argument("--stages", action="store_true", help="CPU time per stage")
+    parser.add_argument(
+        "--cv-threads",
+        type=int,
+        help="OpenCV threads (1: CPU times free of its thread pool's spinning, the ratio "
+        "that holds under load; default: OpenCV's own choice)",
+    )
     args = parser.parse_args(argv)
+    if args.cv_threads is not None:
+        cv2.setNumThreads(args.cv_threads)
     print(
         f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
         f"cv2 threads {cv2.getNumThreads()}, numba threads {numba.get_num_threads()}, "
@@ -149,8 +210,8 @@ def main(argv: list[str] | None = None) -> None:
     )
     if not args.only_perception:
         bench_renderer(args.frames * args.repeats)
-    bench_perception(320, 240, args.frames, args.repeats)
-    bench_perception(640, 480, args.frames, args.repeats)
+    bench_perception(320, 240, args.frames, args.repeats, args.stages)
+    bench_perception(640, 480, args.frames, args.repeats, args.stages)
     if not args.only_perception:
         bench_accuracy(args.frames)
 

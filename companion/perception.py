@@ -2,18 +2,11 @@
 
 Pipeline for one rectified frame (:meth:`StereoPerception.process`):
 
-1. Disparity with OpenCV ``StereoBM`` (SGBM was retired, see :class:`Matcher`), one
-   matcher object per image geometry, built once and reused. The pair is padded by the
-   disparity range on the left (and half a block on the other sides) so that every column is
-   searched: OpenCV computes nothing in the leftmost ``numDisparities`` columns of an unpadded
-   pair (64 px ≈ 10° at 320 px), although only what lies outside the right camera's view
-   (at 3 m the 0.2 m baseline hides ≈ 3.8°) is physically unmatchable. Left/right
-   consistency (``disp12MaxDiff``) and uniqueness refuse occluded and ambiguous pixels.
-   Both images are first smoothed by a Gaussian whose width follows the sensor noise
-   estimated in the frame, and a pixel on a near-horizontal edge (whose match depends on
-   perfect rectification) is refused. A coarse pass at a quarter of the resolution ranges
-   surfaces nearer than ``min_range_m`` (which the main pass would miss or alias to a larger
-   depth) down to ``near_range_m``, and fills the main pass's holes.
+1. Depth: a depth source (:mod:`companion.depth_source`: rectified pair in, disparity,
+   depth and validity out) — by default :class:`~companion.stereo_bm.PaddedStereoBM`:
+   OpenCV ``StereoBM`` on the pair padded so that every column is searched, gated by
+   left/right consistency, uniqueness, texture and edge checks, plus a quarter-resolution
+   pass for surfaces nearer than ``min_range_m`` (SGBM was retired, see :class:`Matcher`).
    The result is the **depth map** ``depth_m`` (NaN = unknown, see below).
 2. Obstacle pixels: valid disparity ``d ≥ f·b / threshold_m`` (depth below the threshold,
    Eq. 27, compared in disparity space so no per-pixel division).
@@ -42,11 +35,12 @@ compiled (or loaded from numba's cache) when the first :class:`StereoPerception`
 
 Unknown space: :class:`PerceptionResult` carries ``depth_m`` (float32, depth along the
 optical axis [m]) with NaN wherever the depth is not known: unmatched (textureless,
-occluded, inconsistent), outside the right camera's view, beyond ``max_range_m``, or nearer
-than even the coarse pass reaches. Unknown is never free: the known-space model of the safety
-envelope consumes this map; :class:`ValidityCounts` says how many pixels are unknown and
-why. Obstacles are built only from known depth; each says whether it was ``truncated`` by
-the image border (then its true extent may be larger than estimated).
+occluded, inconsistent), outside the right camera's view, an isolated far match, or nearer
+than even the coarse pass reaches; +inf where matched beyond ``max_range_m``. Unknown is
+never free: the known-space model of the safety envelope consumes this map;
+:class:`ValidityCounts` says how many pixels are unknown and why. Obstacles are built only
+from known depth; each says whether it was ``truncated`` by the image border (then its true
+extent may be larger than estimated).
 """
 
 from __future__ import annotations
@@ -62,10 +56,15 @@ import cv2
 import numba
 import numpy as np
 
+from companion.depth_source import DISP_SCALE as _DISP_SCALE
+from companion.depth_source import DepthMap, DepthSource, ValidityCounts
+from companion.stereo_bm import PaddedStereoBM
 from protocols.camera import StereoIntrinsics, points_ned_from_cam
-from protocols.stereo_frame import PixelEncoding, StereoFrame
+from protocols.stereo_frame import StereoFrame
 
 __all__ = [
+    "DepthMap",
+    "DepthSource",
     "Matcher",
     "Obstacle",
     "PerceptionConfig",
@@ -74,21 +73,8 @@ __all__ = [
     "ValidityCounts",
 ]
 
-_DISP_SCALE = 16  # OpenCV disparities are fixed point with 4 fractional bits
 _REFERENCE_WIDTH_PX = 320  # the paper's camera; block size scales from it
-_PREFILTER_BASE_PX = 1.0  # Gaussian prefilter sigma on a clean image [px]
-_NOISE_FLOOR = 3.0  # [grey levels] above which the prefilter grows
-_PREFILTER_PER_NOISE = 0.1  # Gaussian prefilter sigma [px] per grey level of noise above it
-_PREFILTER_MAX_PX = 2.0
 _MIN_SIDE_CAP_PX = 20.0  # the size gate never asks for more than a 20 px square (at 320 px)
-_EDGE_MARGIN_PX = 2  # matches this close to the right image's left edge are unknown [px]
-_NEAR_SCALE = 4  # the coarse pass runs at a quarter of the resolution
-_NEAR_BLOCK_PX = 5  # its block (20 px at full resolution)
-_NEAR_TEXTURE = 400  # its StereoBM texture threshold (sum of |x-Sobel| over the block)
-_NEAR_UNIQUENESS = 50  # its uniqueness margin [%]
-_NEAR_SPECKLE_PX = 10  # its speckle window [coarse px]
-_NEAR_HALO_PX = 41  # main-pass matches this close to a too-near surface are unknown [px]
-_NEAR_HALO = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_NEAR_HALO_PX, _NEAR_HALO_PX))
 _NO_EDGE = np.zeros((0, 2), np.int32)  # no contour samples (stride 1: the grid is every pixel)
 
 
@@ -142,7 +128,10 @@ class PerceptionConfig:
     texture_threshold : int
         StereoBM texture threshold (ignored by SGBM).
     speckle_window_px : int
-        OpenCV speckle filter region size [px].
+        OpenCV speckle filter: a region of similar disparity smaller than this [px, at
+        320 × 240; scaled with the image area] is refused. Sensor noise on a textureless
+        surface forms such regions of up to ~220 px with random (often too far) disparity;
+        200 px removed all of them in 30 frames of a textureless wall (100 px let 7 through).
     speckle_range_px : int
         OpenCV speckle filter disparity range [px].
     prefilter_sigma_px : float or None
@@ -179,6 +168,12 @@ class PerceptionConfig:
     cap_depth_m : float
         Depth of the nearest cap whose mean bearing gives the centre direction [m]
         (at least 3 % of the nearest range).
+    min_far_fraction : float
+        Smallest connected region of beyond-range matches, as a fraction of the image area,
+        whose pixels are reported +inf ("nothing nearer along this ray"); smaller ones are
+        unknown. Noise on a textureless wall yields patches of one-pixel disparity (up to
+        ~170 px at 320 × 240 over 60 frames): read as +inf, each would certify free space
+        through the wall. Sky and distant ground are far larger regions. 0 disables.
     max_points : int
         Interior samples per obstacle for the boundary fit (its outer contour is always used
         whole), which bounds the per-obstacle cost.
@@ -186,13 +181,13 @@ class PerceptionConfig:
 
     threshold_m: float = 4.0
     matcher: Matcher = Matcher.BM
-    min_range_m: float = 1.2
+    min_range_m: float = 1.5
     near_range_m: float = 0.4
     max_range_m: float = 20.0
     block_size_px: int | None = None
     uniqueness_ratio: int = 10
     texture_threshold: int = 10
-    speckle_window_px: int = 100
+    speckle_window_px: int = 200
     speckle_range_px: int = 3
     lr_max_diff_px: int = 1
     prefilter_sigma_px: float | None = None
@@ -207,6 +202,7 @@ class PerceptionConfig:
     safety_margin_m: float = 0.3
     max_points: int = 1500
     cap_depth_m: float = 0.1
+    min_far_fraction: float = 0.01
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "matcher", Matcher(self.matcher))
@@ -250,6 +246,8 @@ class PerceptionConfig:
             5 <= self.block_size_px <= 255 and self.block_size_px % 2 == 1
         ):
             raise ValueError(f"block_size_px must be odd in 5..255, got {self.block_size_px}")
+        if not (math.isfinite(self.min_far_fraction) and 0.0 <= self.min_far_fraction < 1.0):
+            raise ValueError(f"min_far_fraction must be in [0, 1), got {self.min_far_fraction!r}")
         if self.max_points < 16:
             raise ValueError(f"max_points must be >= 16, got {self.max_points}")
         if self.opening_px < 1:
@@ -344,32 +342,6 @@ class PerceptionResult:
     depth_m: np.ndarray
     counts: ValidityCounts
     blind_band_px: int = 0
-
-
-@dataclass(frozen=True)
-class ValidityCounts:
-    """Pixel counts of one frame's depth map; the four add up to the image area.
-
-    Attributes
-    ----------
-    n_valid : int
-        Pixels with a depth in ``[min_range_m, max_range_m]`` (roughly: the matcher's range).
-    n_unmatched : int
-        No match: textureless, occluded, inconsistent, or outside the right camera's view.
-    n_beyond_range : int
-        Matched farther than ``max_range_m`` (sky, distant ground): ``depth_m`` +inf, no
-        surface within range (NaN inside the blind band).
-    n_too_near : int
-        Of ``n_valid``: nearer than ``min_range_m``, ranged by the coarse pass only.
-    n_coarse : int
-        Of ``n_valid``: holes of the main pass within its range filled by the coarse pass.
-    """
-
-    n_valid: int
-    n_unmatched: int
-    n_beyond_range: int
-    n_too_near: int
-    n_coarse: int
 
 
 def _sample_stride(n_pixels: int, max_points: int) -> int:
@@ -528,46 +500,6 @@ def _fit_sphere(xs, ys, n_grid, disp, fx, fy, cx, cy, fb, cap_depth_m, max_half_
     return nearest_m, center_cam, max(radius_fit_m, math.sqrt(farthest_sq))
 
 
-@numba.njit(cache=True)
-def _merge_depth(disp, coarse, has_coarse, top, d_far, fb16, depth, too_near, far_from_col):
-    """Coarse pass into the main disparity (both int16, 1/16 px, negative = unmatched), in
-    place, and the depth map ``fb16 / disp``: NaN where unmatched; a match below ``d_far``
-    (farther than the range) is +inf from column ``far_from_col`` on (nothing nearer than
-    the range along that ray) and NaN left of it, where a far match cannot be told from a
-    false match into the band the right camera cannot see.
-
-    Returns (n_valid, n_unmatched, n_coarse, n_too_near); ``too_near`` (uint8) marks the
-    pixels the coarse pass ranged nearer than the main range (``> top``).
-    """
-    n_valid = 0
-    n_unmatched = 0
-    n_coarse = 0
-    n_too_near = 0
-    for y in range(disp.shape[0]):
-        for x in range(disp.shape[1]):
-            d = disp[y, x]
-            if has_coarse:
-                c = coarse[y, x]
-                if c > top and c > d:
-                    d = c
-                    too_near[y, x] = 1
-                    n_too_near += 1
-                elif d < 0 and c >= 0:
-                    d = c
-                    n_coarse += 1
-                disp[y, x] = d
-            if d >= d_far:
-                depth[y, x] = fb16 / d
-                n_valid += 1
-            elif d >= 0 and x >= far_from_col:
-                depth[y, x] = np.inf
-            else:
-                depth[y, x] = np.nan
-                if d < 0:
-                    n_unmatched += 1
-    return n_valid, n_unmatched, n_coarse, n_too_near
-
-
 @functools.cache
 def _warm_up() -> None:
     """Run every per-obstacle step once per process, on a tiny input with the argument types
@@ -596,208 +528,34 @@ def _warm_up() -> None:
             fill, 1, 0, 0, 2, 2, 1, edge, mask[1:3, 1:3].copy(), disp_px
         )
     _fit_sphere(2 * xs, 2 * ys, n_grid, disp_s, 1.0, 1.0, 0.0, 0.0, 1.0, 0.1, 1.0)
-    main = np.full((6, 8), -16, np.int16)[1:5, 2:6]  # a view, like the cropped matcher output
-    _merge_depth(
-        main,
-        main.copy(),
-        True,
-        16,
-        1,
-        16.0,
-        np.empty((4, 4), np.float32),
-        np.zeros((4, 4), np.uint8),
-        2,
-    )
-
-
-def _padded(image: np.ndarray, pad_x: int, pad_y: int) -> np.ndarray:
-    """``image`` with ``pad_x`` black columns on the left and ``pad_y`` replicated rows/columns
-    on the other sides.
-
-    OpenCV's matchers compute nothing in the leftmost ``numDisparities`` columns and the
-    half-block border; on the padded pair every real pixel is searched over the full range,
-    and a match into the black band (outside the right camera's view) has no texture to lock
-    on, fails the left/right check, or is refused by :meth:`StereoPerception.disparity_fixed`.
-    """
-    out = cv2.copyMakeBorder(image, pad_y, pad_y, pad_x, pad_y, cv2.BORDER_REPLICATE)
-    out[:, :pad_x] = 0
-    return out
-
-
-def noise_sigma(image: np.ndarray) -> float:
-    """Sensor noise standard deviation of a grey image [grey levels] (Immerkær 1996: the mean
-    absolute response to a Laplacian-difference mask that cancels smooth image structure)."""
-    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
-    # A central third of the rows is plenty for one number, at a third of the cost.
-    rows = image.shape[0]
-    response = cv2.filter2D(image[rows // 3 : 2 * rows // 3 + 2], cv2.CV_32F, kernel)[1:-1, 1:-1]
-    return float(math.sqrt(math.pi / 2.0) / 6.0 * cv2.mean(np.abs(response))[0])
-
-
-def _horizontal_edges(image: np.ndarray, block: int, ratio: float) -> np.ndarray:
-    """Pixels whose block has less than ``ratio`` times as much horizontal as vertical
-    gradient: near-horizontal edges, which only a perfect rectification matches right."""
-    dx, dy = cv2.spatialGradient(image)  # 3x3 Sobel, both directions in one pass
-    gx = cv2.convertScaleAbs(dx)
-    gy = cv2.convertScaleAbs(dy)
-    ax = cv2.blur(gx, (block, block))
-    ay = cv2.blur(gy, (block, block))
-    # ax < ratio·ay as ax / ratio < ay in uint8: where ax / ratio saturates, ay (<= 255)
-    # cannot exceed it, which is the right answer.
-    return cv2.compare(cv2.convertScaleAbs(ax, alpha=1.0 / ratio), ay, cv2.CMP_LT).view(bool)
-
-
-def _auto_block_size(width_px: int) -> int:
-    size = round(9 * width_px / _REFERENCE_WIDTH_PX)
-    return int(min(max(size | 1, 5), 255))
 
 
 class StereoPerception:
     """Stereo frames → obstacles with safety boundaries in NED.
 
-    Holds the OpenCV matcher(s), built once per image geometry and reused across frames;
-    otherwise stateless: :meth:`process` is a function of its arguments (no clock, no I/O).
+    Stateless apart from its depth source's reusable matchers: :meth:`process` is a
+    function of its arguments (no clock, no I/O).
 
     Parameters
     ----------
     config : PerceptionConfig, optional
         Detector settings.
+    source : DepthSource, optional
+        The matcher (:mod:`companion.depth_source` contract); by default
+        :class:`~companion.stereo_bm.PaddedStereoBM` with ``config``'s settings.
     """
 
-    def __init__(self, config: PerceptionConfig | None = None):
+    def __init__(self, config: PerceptionConfig | None = None, source: DepthSource | None = None):
         self.config = config if config is not None else PerceptionConfig()
-        self._matchers: dict[tuple[int, int, int], cv2.StereoMatcher] = {}
+        self.source: DepthSource = source if source is not None else PaddedStereoBM(self.config)
+        if not isinstance(self.source, DepthSource):
+            raise TypeError(
+                f"source must have compute(frame) -> DepthMap, got {type(self.source).__name__}"
+            )
         self._kernel = cv2.getStructuringElement(
             cv2.MORPH_RECT, (self.config.opening_px, self.config.opening_px)
         )
         _warm_up()
-
-    def num_disparities(self, intrinsics: StereoIntrinsics) -> int:
-        """Disparity search range [px]: ``f·b / min_range_m`` rounded up to a multiple of 16."""
-        d_max = intrinsics.focal_baseline_m_px / self.config.min_range_m
-        return int(16 * max(1, math.ceil(d_max / 16.0)))
-
-    def block_size(self, intrinsics: StereoIntrinsics) -> int:
-        """Matching block size [px] for this image width."""
-        return self.config.block_size_px or _auto_block_size(intrinsics.width_px)
-
-    def _matcher(self, intrinsics: StereoIntrinsics) -> tuple[cv2.StereoMatcher, int, int]:
-        cfg = self.config
-        n_disp = self.num_disparities(intrinsics)
-        block = self.block_size(intrinsics)
-        key = (intrinsics.width_px, n_disp, block)
-        matcher = self._matchers.get(key)
-        if matcher is None:
-            matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=block)
-            matcher.setTextureThreshold(cfg.texture_threshold)
-            matcher.setUniquenessRatio(cfg.uniqueness_ratio)
-            matcher.setSpeckleWindowSize(cfg.speckle_window_px)
-            matcher.setSpeckleRange(cfg.speckle_range_px)
-            matcher.setDisp12MaxDiff(cfg.lr_max_diff_px)
-            self._matchers[key] = matcher
-        return matcher, n_disp, block
-
-    def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
-        """Disparity of the frame's left image: int16, 1/16 px units, negative where unmatched.
-
-        The pair is padded before matching so that every column is searched (see
-        :func:`_padded`); a pixel whose match would lie left of the right image (outside the
-        right camera's view) is unmatched.
-        """
-        if frame.encoding is not PixelEncoding.MONO8:
-            raise ValueError(f"unsupported pixel encoding {frame.encoding!r}")
-        matcher, n_disp, block = self._matcher(frame.intrinsics)
-        height, width = frame.left.shape
-        left, right = self._prefiltered(frame)
-        # Half a block on each side; more on a frame shorter than a block (OpenCV refuses it).
-        pad_x, pad_y = n_disp, max(block // 2, (block + 2 - height) // 2)
-        out = matcher.compute(_padded(left, pad_x, pad_y), _padded(right, pad_x, pad_y))
-        disp = out[pad_y : pad_y + height, pad_x : pad_x + width]
-        if self.config.min_edge_ratio > 0.0:
-            # Aperture: along a near-horizontal edge a match is only as good as the
-            # rectification (a 2 px vertical error on a 5° edge shifts it by 23 px).
-            disp[_horizontal_edges(left, block, self.config.min_edge_ratio)] = -_DISP_SCALE
-        # The right camera sees column x - d only if x - d >= 0; a match whose right block
-        # reaches into the black band (x - d < half a block + _EDGE_MARGIN_PX) leans on it
-        # and is as likely wrong as right: unknown too.
-        margin = block // 2 + _EDGE_MARGIN_PX
-        n_band = min(n_disp + margin, width)
-        band = disp[:, :n_band]
-        limit = _DISP_SCALE * (np.arange(n_band, dtype=np.int16) - margin)
-        band[band > limit] = -_DISP_SCALE
-        return disp
-
-    def prefilter_sigma_px(self, frame: StereoFrame) -> tuple[float, float]:
-        """Gaussian prefilter sigmas (x, y) [px] for this frame: ``prefilter_sigma_px`` if
-        set, else from the left image's estimated sensor noise (:func:`noise_sigma`)."""
-        cfg = self.config
-        if cfg.prefilter_sigma_px is not None:
-            return cfg.prefilter_sigma_px, cfg.prefilter_sigma_px
-        noise = noise_sigma(frame.left)
-        extra = min(_PREFILTER_PER_NOISE * max(0.0, noise - _NOISE_FLOOR), _PREFILTER_MAX_PX)
-        return _PREFILTER_BASE_PX + extra, _PREFILTER_BASE_PX + extra
-
-    def _prefiltered(self, frame: StereoFrame) -> tuple[np.ndarray, np.ndarray]:
-        sx, sy = self.prefilter_sigma_px(frame)
-        if max(sx, sy) < 0.3:
-            return frame.left, frame.right
-        # Kernels of ±2 sigma: OpenCV's fixed-point path for uint8 (the tails carry < 5 %).
-        ksize = (2 * math.ceil(2.0 * sx) + 1, 2 * math.ceil(2.0 * sy) + 1)
-        return tuple(  # type: ignore[return-value]
-            cv2.GaussianBlur(im, ksize, sigmaX=sx, sigmaY=sy, borderType=cv2.BORDER_REPLICATE)
-            for im in (frame.left, frame.right)
-        )
-
-    def coarse_disparity_fixed(self, frame: StereoFrame) -> np.ndarray | None:
-        """Coarse pass: full-resolution int16 disparity (1/16 px, each coarse pixel repeated
-        over its 4 × 4 block), -16 where unmatched; ``None`` when disabled.
-
-        The pair is matched at a quarter of the resolution (disparities are a quarter too, so
-        a 48-disparity search reaches 4 × 48 px at full resolution at 1/16 of the cost) with
-        the same padding and left/right check, and strict texture and uniqueness gates (its
-        4 × 4 averaging makes faint texture and sky seams look matchable). It ranges what is
-        nearer than the main pass can (``min_range_m``) down to ``near_range_m``, and fills
-        the main pass's holes (faint texture it cannot lock on at full resolution).
-        """
-        cfg = self.config
-        if cfg.near_range_m <= 0.0:
-            return None
-        k = frame.intrinsics
-        height, width = frame.left.shape
-        w4, h4 = width // _NEAR_SCALE, height // _NEAR_SCALE
-        n_main = self.num_disparities(k)
-        d_max = k.focal_baseline_m_px / cfg.near_range_m / _NEAR_SCALE
-        n_disp = int(16 * max(1, math.ceil(d_max / 16.0)))
-        if w4 < 8 or h4 < 8 or _NEAR_SCALE * n_disp <= n_main:
-            return None
-        key = ("near", n_disp)
-        matcher = self._matchers.get(key)
-        if matcher is None:
-            matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=_NEAR_BLOCK_PX)
-            matcher.setTextureThreshold(_NEAR_TEXTURE)
-            matcher.setUniquenessRatio(_NEAR_UNIQUENESS)
-            matcher.setSpeckleWindowSize(_NEAR_SPECKLE_PX)
-            matcher.setSpeckleRange(1)
-            matcher.setDisp12MaxDiff(max(cfg.lr_max_diff_px, 0))
-            self._matchers[key] = matcher
-        pad_y = max(_NEAR_BLOCK_PX // 2, (_NEAR_BLOCK_PX + 2 - h4) // 2)
-        small = [
-            _padded(cv2.resize(im, (w4, h4), interpolation=cv2.INTER_AREA), n_disp, pad_y)
-            for im in (frame.left, frame.right)
-        ]
-        coarse = matcher.compute(small[0], small[1])[pad_y : pad_y + h4, n_disp : n_disp + w4]
-        band = coarse[:, : min(n_disp, w4)]
-        band[band > _DISP_SCALE * np.arange(band.shape[1], dtype=np.int16)] = -_DISP_SCALE
-        coarse = np.ascontiguousarray(coarse)
-        np.multiply(coarse, _NEAR_SCALE, out=coarse, where=coarse >= 0)
-        up = cv2.resize(
-            coarse, (_NEAR_SCALE * w4, _NEAR_SCALE * h4), interpolation=cv2.INTER_NEAREST
-        )
-        if up.shape == (height, width):
-            return up
-        out = np.full((height, width), -_DISP_SCALE, np.int16)
-        out[: _NEAR_SCALE * h4, : _NEAR_SCALE * w4] = up
-        return out
 
     def process(self, frame: StereoFrame, pos_ned_m, R_ned_from_frd) -> PerceptionResult:
         """Detect obstacles in ``frame`` and place their safety spheres in NED.
@@ -817,13 +575,11 @@ class StereoPerception:
         """
         cfg = self.config
         k = frame.intrinsics
-        disp = self.disparity_fixed(frame)
+        depth_map = self.source.compute(frame)
+        disp, depth_m, counts = depth_map.disparity_fixed, depth_map.depth_m, depth_map.counts
+        band_px = depth_map.blind_band_px
         height, width = disp.shape
         fb = k.focal_baseline_m_px
-        coarse = self.coarse_disparity_fixed(frame)
-        # columns the right camera cannot see at the nearest measured range
-        band_px = self.num_disparities(k) + (cfg.block_size_px or _auto_block_size(width)) // 2
-        depth_m, counts = self._merge(disp, coarse, fb, self.num_disparities(k), band_px)
         unknown_fraction = float(np.count_nonzero(np.isnan(depth_m))) / disp.size
 
         def result(obstacles: tuple[Obstacle, ...]) -> PerceptionResult:
@@ -934,55 +690,6 @@ class StereoPerception:
             )
         obstacles.sort(key=lambda o: (o.nearest_range_m, tuple(o.center_ned_m)))
         return result(tuple(obstacles))
-
-    def _merge(
-        self,
-        disp: np.ndarray,
-        coarse: np.ndarray | None,
-        fb: float,
-        n_disp: int,
-        band_px: int,
-    ) -> tuple[np.ndarray, ValidityCounts]:
-        """Merge the coarse pass into ``disp`` (in place) and make the depth map.
-
-        Holes of the main pass within its range take the coarse disparity; where the coarse
-        pass sees a surface nearer than the main range (the main pass missed it or aliased
-        it to a smaller disparity) it wins, and main-pass matches within ``_NEAR_HALO_PX``
-        of it are unknown (as likely aliased as right). One compiled pass over the pixels.
-        """
-        d_far = max(1, math.ceil(_DISP_SCALE * fb / self.config.max_range_m))
-        depth = np.empty(disp.shape, np.float32)
-        too_near = np.zeros(disp.shape, np.uint8)
-        has_coarse = coarse is not None
-        n_valid, n_unmatched, n_coarse, n_too_near = _merge_depth(
-            disp,
-            coarse if has_coarse else disp,
-            has_coarse,
-            _DISP_SCALE * (n_disp - 1),
-            d_far,
-            float(_DISP_SCALE * fb),
-            depth,
-            too_near,
-            band_px,
-        )
-        if n_too_near:
-            halo = cv2.dilate(too_near, _NEAR_HALO).view(bool) & (too_near == 0)
-            halo &= disp >= 0
-            n_halo = int(np.count_nonzero(halo))
-            if n_halo:
-                n_valid -= int(np.count_nonzero(halo & (disp >= d_far)))
-                n_unmatched += n_halo
-                disp[halo] = -_DISP_SCALE
-                depth[halo] = np.nan
-        depth.flags.writeable = False
-        counts = ValidityCounts(
-            n_valid=n_valid,
-            n_unmatched=n_unmatched,
-            n_beyond_range=disp.size - n_valid - n_unmatched,
-            n_too_near=n_too_near,
-            n_coarse=n_coarse,
-        )
-        return depth, counts
 
     def _boundary(
         self,

@@ -8,9 +8,10 @@ One row per sample of simulation time. Columns (NED/FRD, SI units, MAVLink 3-2-1
     nearest_obstacle, surface_distance_m, clearance_m,
     rotor1_n, rotor2_n, rotor3_n, rotor4_n
 
+``nearest_obstacle`` indexes ``World.obstacles`` (spheres, then boxes, then cylinders);
 ``surface_distance_m`` is the distance from the vehicle's centre to the nearest obstacle
-surface (negative inside); ``clearance_m`` subtracts the vehicle radius (a collision when
-< 0); both empty without obstacles. Verdicts read this file, never telemetry.
+surface of any shape (negative inside); ``clearance_m`` subtracts the vehicle radius (a
+collision when < 0); both empty without obstacles. Verdicts read this file, never telemetry.
 """
 
 from __future__ import annotations
@@ -18,8 +19,6 @@ from __future__ import annotations
 import csv
 import math
 from pathlib import Path
-
-import numpy as np
 
 from plant_sim.vehicle import VehicleState
 from plant_sim.world import World
@@ -56,18 +55,9 @@ COLUMNS = (
 
 
 def nearest_surface(world: World, pos_ned_m) -> tuple[int, float]:
-    """(index, distance [m]) of the nearest sphere surface; (-1, inf) without spheres."""
-    best, best_d = -1, math.inf
-    p = np.asarray(pos_ned_m, dtype=float)
-    for i, sphere in enumerate(world.spheres):
-        c = sphere.center_ned_m
-        d = (
-            math.sqrt((p[0] - c[0]) ** 2 + (p[1] - c[1]) ** 2 + (p[2] - c[2]) ** 2)
-            - sphere.radius_m
-        )
-        if d < best_d:
-            best, best_d = i, d
-    return best, best_d
+    """(index into ``world.obstacles``, distance [m]) of the nearest obstacle surface, of any
+    shape (spheres, boxes, cylinders; negative inside); (-1, inf) without obstacles."""
+    return world.nearest_obstacle(pos_ned_m)
 
 
 class TruthLogWriter:

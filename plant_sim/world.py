@@ -14,8 +14,6 @@ import enum
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 from protocols.config import vec3
 
 __all__ = ["Box", "Cylinder", "GroundPlane", "Material", "Sphere", "World", "paper_world"]
@@ -66,8 +64,10 @@ class Sphere:
 
     def surface_distance_m(self, point_ned_m) -> float:
         """Distance from ``point_ned_m`` to the sphere's surface [m] (negative inside)."""
-        d = np.asarray(point_ned_m, dtype=float) - np.asarray(self.center_ned_m)
-        return float(np.linalg.norm(d)) - self.radius_m
+        # Plain floats: the harness and the truth log call this every physics sample.
+        c = self.center_ned_m
+        dn, de, dd = (float(point_ned_m[i]) - c[i] for i in range(3))
+        return math.sqrt(dn * dn + de * de + dd * dd) - self.radius_m
 
 
 @dataclass(frozen=True)
@@ -100,10 +100,10 @@ class Box:
 
     def surface_distance_m(self, point_ned_m) -> float:
         """Distance from ``point_ned_m`` to the box's surface [m] (negative inside)."""
-        q = np.abs(np.asarray(point_ned_m, dtype=float) - np.asarray(self.center_ned_m))
-        q -= 0.5 * np.asarray(self.size_m)
-        outside = float(np.linalg.norm(np.maximum(q, 0.0)))
-        return outside + min(float(q.max()), 0.0)
+        c, size = self.center_ned_m, self.size_m
+        q = [abs(float(point_ned_m[i]) - c[i]) - 0.5 * size[i] for i in range(3)]
+        outside = math.sqrt(sum(max(v, 0.0) ** 2 for v in q))
+        return outside + min(max(q), 0.0)
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ class Cylinder:
 
     def surface_distance_m(self, point_ned_m) -> float:
         """Distance from ``point_ned_m`` to the cylinder's surface [m] (negative inside)."""
-        d = np.asarray(point_ned_m, dtype=float) - np.asarray(self.center_ned_m)
+        d = [float(point_ned_m[i]) - self.center_ned_m[i] for i in range(3)]
         radial = math.hypot(d[0], d[1]) - self.radius_m
         axial = abs(d[2]) - 0.5 * self.height_m
         outside = math.hypot(max(radial, 0.0), max(axial, 0.0))
@@ -206,7 +206,17 @@ class World:
     def surface_distance_m(self, point_ned_m) -> float:
         """Distance from ``point_ned_m`` to the nearest obstacle surface [m] (``inf`` if none;
         the ground is not an obstacle here)."""
-        return min((o.surface_distance_m(point_ned_m) for o in self.obstacles), default=math.inf)
+        return self.nearest_obstacle(point_ned_m)[1]
+
+    def nearest_obstacle(self, point_ned_m) -> tuple[int, float]:
+        """(index into :attr:`obstacles`, surface distance [m]) of the obstacle nearest to
+        ``point_ned_m``, whatever its shape (negative inside); (-1, inf) without obstacles."""
+        best, best_m = -1, math.inf
+        for i, obstacle in enumerate(self.obstacles):
+            d = obstacle.surface_distance_m(point_ned_m)
+            if d < best_m:
+                best, best_m = i, d
+        return best, best_m
 
 
 def paper_world() -> World:

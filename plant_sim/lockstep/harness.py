@@ -131,8 +131,8 @@ class KillOutcome:
 
 
 def nearest_surface_m(world: World, pos_ned_m: np.ndarray) -> float:
-    """Distance from ``pos_ned_m`` to the nearest obstacle surface (spheres, boxes,
-    cylinders) [m]; inf with none."""
+    """Distance from ``pos_ned_m`` to the nearest obstacle surface of any shape [m] (negative
+    inside); inf with none."""
     return world.surface_distance_m(pos_ned_m)
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
-from matplotlib.patches import Circle
+from matplotlib.patches import Circle, Rectangle
 
 from plant_sim.lockstep.history import History
 from plant_sim.world import World
@@ -48,17 +48,15 @@ def write_figures(
     top.plot(east, north, "b-", label="vehicle")
     top.plot(east[0], north[0], "go", label="start")
     top.plot(goal_ned_m[1], goal_ned_m[0], "r*", ms=12, label="goal")
-    for s in world.spheres:
-        n, e, _ = s.center_ned_m
-        top.add_patch(Circle((e, n), s.radius_m, color="0.4", alpha=0.6))
+    for patch in _obstacle_patches(world, top_view=True):
+        top.add_patch(patch)
     top.set(xlabel="east [m]", ylabel="north [m]", title="Fig. 6 trajectory (top view)")
     top.set_aspect("equal", adjustable="datalim")
     top.legend(loc="best", fontsize=8)
     top.grid(True, alpha=0.3)
     side.plot(north, -down, "b-")
-    for s in world.spheres:
-        n, _, d = s.center_ned_m
-        side.add_patch(Circle((n, -d), s.radius_m, color="0.4", alpha=0.6))
+    for patch in _obstacle_patches(world, top_view=False):
+        side.add_patch(patch)
     side.set(xlabel="north [m]", ylabel="altitude [m]", title="side view")
     side.set_aspect("equal", adjustable="datalim")
     side.grid(True, alpha=0.3)
@@ -132,3 +130,28 @@ def write_figures(
     ax.grid(True, alpha=0.3)
     save(fig, "fig11_avoid_flag.png")
     return paths
+
+
+def _obstacle_patches(world: World, top_view: bool) -> list:
+    """Every obstacle's outline in the top view (x east, y north) or the side view
+    (x north, y altitude): spheres as circles, boxes as rectangles, vertical cylinders as
+    circles from above and rectangles from the side."""
+    style = {"color": "0.4", "alpha": 0.6}
+    patches = []
+    for s in world.spheres:
+        n, e, d = s.center_ned_m
+        patches.append(Circle((e, n) if top_view else (n, -d), s.radius_m, **style))
+    for b in world.boxes:
+        (n, e, d), (sn, se, sd) = b.center_ned_m, b.size_m
+        if top_view:
+            patches.append(Rectangle((e - se / 2, n - sn / 2), se, sn, **style))
+        else:
+            patches.append(Rectangle((n - sn / 2, -d - sd / 2), sn, sd, **style))
+    for c in world.cylinders:
+        n, e, d = c.center_ned_m
+        if top_view:
+            patches.append(Circle((e, n), c.radius_m, **style))
+        else:
+            r, h = c.radius_m, c.height_m
+            patches.append(Rectangle((n - r, -d - h / 2), 2 * r, h, **style))
+    return patches

@@ -19,9 +19,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plant_sim.world import GroundPlane, Sphere, World, paper_world
+from plant_sim.world import Box, GroundPlane, Material, Sphere, World, paper_world
 
-__all__ = ["FAMILIES", "Scene", "family_scene", "mixed_scene", "paper_scene", "random_scene"]
+__all__ = [
+    "FAMILIES",
+    "Scene",
+    "family_scene",
+    "mixed_scene",
+    "paper_scene",
+    "random_scene",
+    "wall_scene",
+]
 
 
 @dataclass(frozen=True)
@@ -57,6 +65,19 @@ def paper_scene() -> Scene:
         start_ned_m=(20.0, 0.0, -7.0),
         goal_ned_m=(0.0, 0.0, -7.0),
         world=paper_world(),
+    )
+
+
+def wall_scene(start_north_m: float = 14.0) -> Scene:
+    """The paper's path blocked by a textureless wall (issue 14): 30 m wide, from the ground
+    to 14 m up, its face at north 10.1 m, wider and taller than the view from anywhere on
+    the path. Nothing on it can be matched; the only safe outcome is a stop before it."""
+    wall = Box((10.0, 0.0, -7.0), (0.2, 30.0, 14.0), material=Material.TEXTURELESS)
+    return Scene(
+        name="wall",
+        start_ned_m=(start_north_m, 0.0, -7.0),
+        goal_ned_m=(0.0, 0.0, -7.0),
+        world=World(boxes=(wall,), ground=GroundPlane(0.0)),
     )
 
 

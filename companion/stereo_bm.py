@@ -1,0 +1,374 @@
+"""The default depth source: OpenCV ``StereoBM`` on the padded pair, gated, plus a coarse
+near pass (fulfils :mod:`companion.depth_source`'s contract).
+
+1. Both images are smoothed by a Gaussian whose width follows the sensor noise estimated in
+   the frame (faint texture lifted above the noise).
+2. The main pass: ``StereoBM`` searching down to ``min_range_m``, on the pair padded by the
+   disparity range on the left (and half a block on the other sides) so that every column
+   is searched: OpenCV computes nothing in the leftmost ``numDisparities`` columns of an
+   unpadded pair, although only what lies outside the right camera's view (at 3 m the
+   0.2 m baseline hides ≈ 3.8°) is physically unmatchable. Left/right consistency
+   (``disp12MaxDiff``) and uniqueness refuse occluded and ambiguous pixels; a pixel on a
+   near-horizontal edge (whose match depends on perfect rectification) and a match leaning
+   on the black padding are refused.
+3. A coarse pass at a quarter of the resolution ranges surfaces nearer than ``min_range_m``
+   (which the main pass would miss or alias to a larger depth) down to ``near_range_m``,
+   and fills the main pass's holes; main-pass matches around a too-near surface are unknown.
+4. Depth by Eq. 27 in one compiled pass; a small island of beyond-range matches (noise on a
+   textureless wall) is unknown, not "+inf, nothing nearer".
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import TYPE_CHECKING
+
+import cv2
+import numba
+import numpy as np
+
+from companion.depth_source import DISP_SCALE as _DISP_SCALE
+from companion.depth_source import DepthMap, ValidityCounts, drop_small_far_regions
+from protocols.camera import StereoIntrinsics
+from protocols.stereo_frame import PixelEncoding, StereoFrame
+
+if TYPE_CHECKING:
+    from companion.perception import PerceptionConfig
+
+__all__ = ["PaddedStereoBM", "noise_sigma", "speckle_window_px"]
+
+_REFERENCE_WIDTH_PX = 320  # the paper's camera; block size scales from it
+_PREFILTER_BASE_PX = 1.0  # Gaussian prefilter sigma on a clean image [px]
+_NOISE_FLOOR = 3.0  # [grey levels] above which the prefilter grows
+_PREFILTER_PER_NOISE = 0.1  # Gaussian prefilter sigma [px] per grey level of noise above it
+_PREFILTER_MAX_PX = 2.0
+_EDGE_MARGIN_PX = 2  # matches this close to the right image's left edge are unknown [px]
+_NEAR_SCALE = 4  # the coarse pass runs at a quarter of the resolution
+_NEAR_BLOCK_PX = 5  # its block (20 px at full resolution)
+_NEAR_TEXTURE = 400  # its StereoBM texture threshold (sum of |x-Sobel| over the block)
+_NEAR_UNIQUENESS = 50  # its uniqueness margin [%]
+_NEAR_SPECKLE_PX = 10  # its speckle window [coarse px]
+_NEAR_HALO_PX = 41  # main-pass matches this close to a too-near surface are unknown [px]
+_NEAR_HALO = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_NEAR_HALO_PX, _NEAR_HALO_PX))
+
+
+def speckle_window_px(window_at_reference_px: int, width_px: int) -> int:
+    """OpenCV speckle window [px] for an image ``width_px`` wide: the configured window (at
+    the 320 px reference) scaled with the image area (a noise speckle covers a fixed part
+    of the field of view)."""
+    return round(window_at_reference_px * (width_px / _REFERENCE_WIDTH_PX) ** 2)
+
+
+def _padded(image: np.ndarray, pad_x: int, pad_y: int) -> np.ndarray:
+    """``image`` with ``pad_x`` black columns on the left and ``pad_y`` replicated rows/columns
+    on the other sides.
+
+    OpenCV's matchers compute nothing in the leftmost ``numDisparities`` columns and the
+    half-block border; on the padded pair every real pixel is searched over the full range,
+    and a match into the black band (outside the right camera's view) has no texture to lock
+    on, fails the left/right check, or is refused by :meth:`PaddedStereoBM.disparity_fixed`.
+    """
+    out = cv2.copyMakeBorder(image, pad_y, pad_y, pad_x, pad_y, cv2.BORDER_REPLICATE)
+    out[:, :pad_x] = 0
+    return out
+
+
+def noise_sigma(image: np.ndarray) -> float:
+    """Sensor noise standard deviation of a grey image [grey levels] (Immerkær 1996: the mean
+    absolute response to a Laplacian-difference mask that cancels smooth image structure)."""
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    # A central third of the rows is plenty for one number, at a third of the cost.
+    rows = image.shape[0]
+    response = cv2.filter2D(image[rows // 3 : 2 * rows // 3 + 2], cv2.CV_32F, kernel)[1:-1, 1:-1]
+    return float(math.sqrt(math.pi / 2.0) / 6.0 * cv2.mean(np.abs(response))[0])
+
+
+def _horizontal_edges(image: np.ndarray, block: int, ratio: float) -> np.ndarray:
+    """Pixels whose block has less than ``ratio`` times as much horizontal as vertical
+    gradient: near-horizontal edges, which only a perfect rectification matches right."""
+    dx, dy = cv2.spatialGradient(image)  # 3x3 Sobel, both directions in one pass
+    gx = cv2.convertScaleAbs(dx)
+    gy = cv2.convertScaleAbs(dy)
+    ax = cv2.blur(gx, (block, block))
+    ay = cv2.blur(gy, (block, block))
+    # ax < ratio·ay as ax / ratio < ay in uint8: where ax / ratio saturates, ay (<= 255)
+    # cannot exceed it, which is the right answer.
+    return cv2.compare(cv2.convertScaleAbs(ax, alpha=1.0 / ratio), ay, cv2.CMP_LT).view(bool)
+
+
+def _auto_block_size(width_px: int) -> int:
+    size = round(9 * width_px / _REFERENCE_WIDTH_PX)
+    return int(min(max(size | 1, 5), 255))
+
+
+@numba.njit(cache=True)
+def _merge_depth(disp, coarse, has_coarse, top, d_far, fb16, depth, too_near, far_from_col):
+    """Coarse pass into the main disparity (both int16, 1/16 px, negative = unmatched), in
+    place, and the depth map ``fb16 / disp``: NaN where unmatched; a match below ``d_far``
+    (farther than the range) is +inf from column ``far_from_col`` on (nothing nearer than
+    the range along that ray) and NaN left of it, where a far match cannot be told from a
+    false match into the band the right camera cannot see.
+
+    Returns (n_valid, n_unmatched, n_coarse, n_too_near); ``too_near`` (uint8) marks the
+    pixels the coarse pass ranged nearer than the main range (``> top``).
+    """
+    n_valid = 0
+    n_unmatched = 0
+    n_coarse = 0
+    n_too_near = 0
+    for y in range(disp.shape[0]):
+        for x in range(disp.shape[1]):
+            d = disp[y, x]
+            if has_coarse:
+                c = coarse[y, x]
+                if c > top and c > d:
+                    d = c
+                    too_near[y, x] = 1
+                    n_too_near += 1
+                elif d < 0 and c >= 0:
+                    d = c
+                    if d >= d_far:  # counted only where it gives a depth (n_valid)
+                        n_coarse += 1
+                disp[y, x] = d
+            if d >= d_far:
+                depth[y, x] = fb16 / d
+                n_valid += 1
+            elif d >= 0 and x >= far_from_col:
+                depth[y, x] = np.inf
+            else:
+                depth[y, x] = np.nan
+                if d < 0:
+                    n_unmatched += 1
+    return n_valid, n_unmatched, n_coarse, n_too_near
+
+
+@functools.cache
+def _warm_up() -> None:
+    """Compile (or load from numba's cache) the merge and far-region kernels once per
+    process, with the argument types :meth:`PaddedStereoBM.compute` uses."""
+    far = np.full((3, 3), np.inf, np.float32)
+    far[1, 1] = np.nan
+    drop_small_far_regions(far, 100)
+    main = np.full((6, 8), -16, np.int16)[1:5, 2:6]
+    _merge_depth(
+        main,
+        main.copy(),
+        True,
+        16,
+        1,
+        16.0,
+        np.empty((4, 4), np.float32),
+        np.zeros((4, 4), np.uint8),
+        2,
+    )
+
+
+class PaddedStereoBM:
+    """Padded, gated StereoBM with a quarter-resolution near pass (module docstring).
+
+    Holds the OpenCV matchers, built once per image geometry and reused; otherwise
+    :meth:`compute` is a function of the frame.
+
+    Parameters
+    ----------
+    config : PerceptionConfig
+        The matcher settings (range, block, gates) of the perception config.
+    """
+
+    def __init__(self, config: PerceptionConfig):
+        self.config = config
+        self._matchers: dict[tuple, cv2.StereoMatcher] = {}
+        _warm_up()
+
+    def compute(self, frame: StereoFrame) -> DepthMap:
+        """The frame's depth map (:mod:`companion.depth_source` contract)."""
+        k = frame.intrinsics
+        disp = self.disparity_fixed(frame)
+        coarse = self.coarse_disparity_fixed(frame)
+        n_disp = self.num_disparities(k)
+        # columns the right camera cannot see at the nearest range of the main pass
+        band_px = n_disp + self.block_size(k) // 2
+        depth_m, counts = self._merge(disp, coarse, k.focal_baseline_m_px, n_disp, band_px)
+        return DepthMap(disp, depth_m, counts, band_px)
+
+    def num_disparities(self, intrinsics: StereoIntrinsics) -> int:
+        """Disparity search range [px]: ``f·b / min_range_m`` rounded up to a multiple of 16."""
+        d_max = intrinsics.focal_baseline_m_px / self.config.min_range_m
+        return int(16 * max(1, math.ceil(d_max / 16.0)))
+
+    def block_size(self, intrinsics: StereoIntrinsics) -> int:
+        """Matching block size [px] for this image width."""
+        return self.config.block_size_px or _auto_block_size(intrinsics.width_px)
+
+    def _matcher(self, intrinsics: StereoIntrinsics) -> tuple[cv2.StereoMatcher, int, int]:
+        cfg = self.config
+        n_disp = self.num_disparities(intrinsics)
+        block = self.block_size(intrinsics)
+        key = (intrinsics.width_px, n_disp, block)
+        width = intrinsics.width_px
+        matcher = self._matchers.get(key)
+        if matcher is None:
+            matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=block)
+            matcher.setTextureThreshold(cfg.texture_threshold)
+            matcher.setUniquenessRatio(cfg.uniqueness_ratio)
+            matcher.setSpeckleWindowSize(speckle_window_px(cfg.speckle_window_px, width))
+            matcher.setSpeckleRange(cfg.speckle_range_px)
+            matcher.setDisp12MaxDiff(cfg.lr_max_diff_px)
+            self._matchers[key] = matcher
+        return matcher, n_disp, block
+
+    def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
+        """Disparity of the frame's left image: int16, 1/16 px units, negative where unmatched.
+
+        The pair is padded before matching so that every column is searched (see
+        :func:`_padded`); a pixel whose match would lie left of the right image (outside the
+        right camera's view) is unmatched.
+        """
+        if frame.encoding is not PixelEncoding.MONO8:
+            raise ValueError(f"unsupported pixel encoding {frame.encoding!r}")
+        matcher, n_disp, block = self._matcher(frame.intrinsics)
+        height, width = frame.left.shape
+        left, right = self._prefiltered(frame)
+        # Half a block on each side; more on a frame shorter than a block (OpenCV refuses it).
+        pad_x, pad_y = n_disp, max(block // 2, (block + 2 - height) // 2)
+        out = matcher.compute(_padded(left, pad_x, pad_y), _padded(right, pad_x, pad_y))
+        disp = out[pad_y : pad_y + height, pad_x : pad_x + width]
+        if self.config.min_edge_ratio > 0.0:
+            # Aperture: along a near-horizontal edge a match is only as good as the
+            # rectification (a 2 px vertical error on a 5° edge shifts it by 23 px).
+            disp[_horizontal_edges(left, block, self.config.min_edge_ratio)] = -_DISP_SCALE
+        # The right camera sees column x - d only if x - d >= 0; a match whose right block
+        # reaches into the black band (x - d < half a block + _EDGE_MARGIN_PX) leans on it
+        # and is as likely wrong as right: unknown too.
+        margin = block // 2 + _EDGE_MARGIN_PX
+        n_band = min(n_disp + margin, width)
+        band = disp[:, :n_band]
+        limit = _DISP_SCALE * (np.arange(n_band, dtype=np.int16) - margin)
+        band[band > limit] = -_DISP_SCALE
+        return disp
+
+    def prefilter_sigma_px(self, frame: StereoFrame) -> tuple[float, float]:
+        """Gaussian prefilter sigmas (x, y) [px] for this frame: ``prefilter_sigma_px`` if
+        set, else from the left image's estimated sensor noise (:func:`noise_sigma`)."""
+        cfg = self.config
+        if cfg.prefilter_sigma_px is not None:
+            return cfg.prefilter_sigma_px, cfg.prefilter_sigma_px
+        noise = noise_sigma(frame.left)
+        extra = min(_PREFILTER_PER_NOISE * max(0.0, noise - _NOISE_FLOOR), _PREFILTER_MAX_PX)
+        return _PREFILTER_BASE_PX + extra, _PREFILTER_BASE_PX + extra
+
+    def _prefiltered(self, frame: StereoFrame) -> tuple[np.ndarray, np.ndarray]:
+        sx, sy = self.prefilter_sigma_px(frame)
+        if max(sx, sy) < 0.3:
+            return frame.left, frame.right
+        # Kernels of ±2 sigma: OpenCV's fixed-point path for uint8 (the tails carry < 5 %).
+        ksize = (2 * math.ceil(2.0 * sx) + 1, 2 * math.ceil(2.0 * sy) + 1)
+        return tuple(  # type: ignore[return-value]
+            cv2.GaussianBlur(im, ksize, sigmaX=sx, sigmaY=sy, borderType=cv2.BORDER_REPLICATE)
+            for im in (frame.left, frame.right)
+        )
+
+    def coarse_disparity_fixed(self, frame: StereoFrame) -> np.ndarray | None:
+        """Coarse pass: full-resolution int16 disparity (1/16 px, each coarse pixel repeated
+        over its 4 × 4 block), -16 where unmatched; ``None`` when disabled.
+
+        The pair is matched at a quarter of the resolution (disparities are a quarter too, so
+        a 48-disparity search reaches 4 × 48 px at full resolution at 1/16 of the cost) with
+        the same padding and left/right check, and strict texture and uniqueness gates (its
+        4 × 4 averaging makes faint texture and sky seams look matchable). It ranges what is
+        nearer than the main pass can (``min_range_m``) down to ``near_range_m``, and fills
+        the main pass's holes (faint texture it cannot lock on at full resolution).
+        """
+        cfg = self.config
+        if cfg.near_range_m <= 0.0:
+            return None
+        k = frame.intrinsics
+        height, width = frame.left.shape
+        w4, h4 = width // _NEAR_SCALE, height // _NEAR_SCALE
+        n_main = self.num_disparities(k)
+        d_max = k.focal_baseline_m_px / cfg.near_range_m / _NEAR_SCALE
+        n_disp = int(16 * max(1, math.ceil(d_max / 16.0)))
+        if w4 < 8 or h4 < 8 or _NEAR_SCALE * n_disp <= n_main:
+            return None
+        key = ("near", n_disp)
+        matcher = self._matchers.get(key)
+        if matcher is None:
+            matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=_NEAR_BLOCK_PX)
+            matcher.setTextureThreshold(_NEAR_TEXTURE)
+            matcher.setUniquenessRatio(_NEAR_UNIQUENESS)
+            matcher.setSpeckleWindowSize(_NEAR_SPECKLE_PX)
+            matcher.setSpeckleRange(1)
+            matcher.setDisp12MaxDiff(max(cfg.lr_max_diff_px, 0))
+            self._matchers[key] = matcher
+        pad_y = max(_NEAR_BLOCK_PX // 2, (_NEAR_BLOCK_PX + 2 - h4) // 2)
+        small = [
+            _padded(cv2.resize(im, (w4, h4), interpolation=cv2.INTER_AREA), n_disp, pad_y)
+            for im in (frame.left, frame.right)
+        ]
+        coarse = matcher.compute(small[0], small[1])[pad_y : pad_y + h4, n_disp : n_disp + w4]
+        band = coarse[:, : min(n_disp, w4)]
+        band[band > _DISP_SCALE * np.arange(band.shape[1], dtype=np.int16)] = -_DISP_SCALE
+        coarse = np.ascontiguousarray(coarse)
+        np.multiply(coarse, _NEAR_SCALE, out=coarse, where=coarse >= 0)
+        up = cv2.resize(
+            coarse, (_NEAR_SCALE * w4, _NEAR_SCALE * h4), interpolation=cv2.INTER_NEAREST
+        )
+        if up.shape == (height, width):
+            return up
+        out = np.full((height, width), -_DISP_SCALE, np.int16)
+        out[: _NEAR_SCALE * h4, : _NEAR_SCALE * w4] = up
+        return out
+
+    def _merge(
+        self,
+        disp: np.ndarray,
+        coarse: np.ndarray | None,
+        fb: float,
+        n_disp: int,
+        band_px: int,
+    ) -> tuple[np.ndarray, ValidityCounts]:
+        """Merge the coarse pass into ``disp`` (in place) and make the depth map.
+
+        Holes of the main pass within its range take the coarse disparity; where the coarse
+        pass sees a surface nearer than the main range (the main pass missed it or aliased
+        it to a smaller disparity) it wins, and main-pass matches within ``_NEAR_HALO_PX``
+        of it are unknown (as likely aliased as right). One compiled pass over the pixels.
+        """
+        d_far = max(1, math.ceil(_DISP_SCALE * fb / self.config.max_range_m))
+        depth = np.empty(disp.shape, np.float32)
+        too_near = np.zeros(disp.shape, np.uint8)
+        has_coarse = coarse is not None
+        n_valid, n_unmatched, n_coarse, n_too_near = _merge_depth(
+            disp,
+            coarse if has_coarse else disp,
+            has_coarse,
+            _DISP_SCALE * (n_disp - 1),
+            d_far,
+            float(_DISP_SCALE * fb),
+            depth,
+            too_near,
+            band_px,
+        )
+        if n_too_near:
+            halo = cv2.dilate(too_near, _NEAR_HALO).view(bool) & (too_near == 0)
+            halo &= disp >= 0
+            n_halo = int(np.count_nonzero(halo))
+            if n_halo:
+                n_valid -= int(np.count_nonzero(halo & (disp >= d_far)))
+                n_unmatched += n_halo
+                disp[halo] = -_DISP_SCALE
+                depth[halo] = np.nan
+        # A small island of beyond-range matches is noise (a textureless wall), not sky.
+        n_unmatched += drop_small_far_regions(
+            depth, math.ceil(self.config.min_far_fraction * disp.size)
+        )
+        depth.flags.writeable = False
+        counts = ValidityCounts(
+            n_valid=n_valid,
+            n_unmatched=n_unmatched,
+            n_beyond_range=disp.size - n_valid - n_unmatched,
+            n_too_near=n_too_near,
+            n_coarse=n_coarse,
+        )
+        return depth, counts

@@ -1,0 +1,154 @@
+"""Conformance of every depth source to companion.depth_source's contract (issue 11 item 5).
+
+A new matcher is added to ``SOURCES``; every test here then runs against it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from companion.bare_bm import BareStereoBM
+from companion.depth_source import DISP_SCALE, DepthMap, DepthSource
+from companion.perception import PerceptionConfig, StereoPerception
+from companion.stereo_bm import PaddedStereoBM
+from plant_sim.stereo_camera import StereoCameraRenderer
+from plant_sim.world import Box, GroundPlane, Material, Sphere, World
+from protocols.camera import CameraModel
+from protocols.stereo_frame import StereoFrame
+
+CAMERA = CameraModel()
+LEVEL = np.eye(3)
+POS = np.array([0.0, 0.0, -7.0])
+
+SOURCES = {
+    "padded_bm": lambda: PaddedStereoBM(PerceptionConfig()),
+    "bare_bm": lambda: BareStereoBM(PerceptionConfig()),
+}
+
+
+@pytest.fixture(scope="module", params=sorted(SOURCES))
+def source(request) -> DepthSource:
+    return SOURCES[request.param]()
+
+
+@pytest.fixture(scope="module")
+def renderer() -> StereoCameraRenderer:
+    return StereoCameraRenderer(CAMERA)
+
+
+def _frame(renderer, world, pos=POS, R=LEVEL, seed=0):
+    out = renderer.render(world, pos, R, noise_seed=seed)
+    return StereoFrame(seed, seed, CAMERA.intrinsics, out.left, out.right), out.depth_left_m
+
+
+def check_contract(frame: StereoFrame, dm: DepthMap, max_range_m: float) -> None:
+    """The contract's invariants that hold for any frame (companion.depth_source)."""
+    shape = frame.left.shape
+    assert isinstance(dm, DepthMap)
+    assert dm.disparity_fixed.shape == shape and dm.disparity_fixed.dtype == np.int16
+    assert dm.depth_m.shape == shape and dm.depth_m.dtype == np.float32
+    assert not dm.depth_m.flags.writeable
+    fb = frame.intrinsics.focal_baseline_m_px
+    d_far = max(1, math.ceil(DISP_SCALE * fb / max_range_m))
+    disp, depth = dm.disparity_fixed, dm.depth_m
+    finite = np.isfinite(depth)
+    np.testing.assert_array_equal(finite, disp >= d_far, err_msg="finite <=> within range")
+    np.testing.assert_allclose(
+        depth[finite], DISP_SCALE * fb / disp[finite].astype(np.float64), rtol=1e-6
+    )
+    far = np.isinf(depth)
+    assert np.all(depth[far] > 0)
+    assert np.all((disp[far] >= 0) & (disp[far] < d_far)), "+inf only for a far match"
+    assert not far[:, : dm.blind_band_px].any(), "no +inf in the blind band"
+    c = dm.counts
+    assert c.n_valid == np.count_nonzero(finite)
+    assert c.n_valid + c.n_unmatched + c.n_beyond_range == depth.size
+    assert c.n_beyond_range >= np.count_nonzero(far)
+    assert 0 <= c.n_too_near <= c.n_valid and 0 <= c.n_coarse <= c.n_valid
+    assert dm.blind_band_px >= 0
+
+
+def test_is_a_depth_source(source):
+    assert isinstance(source, DepthSource)
+    perception = StereoPerception(source=source)  # plugs into the pipeline as it is
+    assert perception.source is source
+
+
+def test_textured_plane_is_ranged_by_eq27(renderer, source):
+    """A textured wall 3 m ahead filling the view: the contract holds, and right of the
+    blind band >= 80 % of the pixels are ranged with a median error below 1 %."""
+    wall = Box((3.1, 0.0, -7.0), (0.2, 40.0, 40.0))
+    frame, truth = _frame(renderer, World(boxes=(wall,), ground=None))
+    dm = source.compute(frame)
+    check_contract(frame, dm, PerceptionConfig().max_range_m)
+    seen = np.zeros(truth.shape, bool)
+    seen[8:-8, dm.blind_band_px : -8] = True  # OpenCV leaves half a block at the border
+    ranged = seen & np.isfinite(dm.depth_m)
+    assert ranged.sum() >= 0.8 * seen.sum(), ranged.sum() / seen.sum()
+    rel = np.abs(dm.depth_m[ranged] - truth[ranged]) / truth[ranged]
+    assert np.median(rel) < 0.01, np.median(rel)
+    assert np.percentile(rel, 99) < 0.1, np.percentile(rel, 99)
+
+
+def test_what_the_right_camera_cannot_see_is_never_finite(renderer, source):
+    """A wall-sized sphere 2.5 m ahead: where its surface lies left of the right image
+    (true disparity > column), nothing can be measured."""
+    world = World(spheres=(Sphere((10.0, 0.0, -7.0), 7.5),), ground=None)
+    frame, truth = _frame(renderer, world)
+    dm = source.compute(frame)
+    check_contract(frame, dm, PerceptionConfig().max_range_m)
+    fb = CAMERA.intrinsics.focal_baseline_m_px
+    hidden = fb / truth > np.arange(CAMERA.width_px)[None, :]
+    assert hidden.sum() > 1000
+    assert not np.isfinite(dm.depth_m[hidden]).any()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_textureless_wall_certifies_no_free_space(renderer, source, seed):
+    """A textureless wall filling the view: (almost) nothing is ranged, and no pixel claims
+    "nothing nearer than max range" (+inf) through it, whatever the sensor noise does."""
+    wall = Box((10.0, 0.0, -7.0), (0.2, 30.0, 14.0), material=Material.TEXTURELESS)
+    world = World(boxes=(wall,), ground=GroundPlane(0.0))
+    pos = np.array([11.0 + 0.9 * seed, 0.0, -7.0])
+    R = np.diag([-1.0, -1.0, 1.0])  # facing south, towards the wall
+    frame, truth = _frame(renderer, world, pos, R, seed=seed)
+    assert np.all(np.isfinite(truth))  # the wall fills the view
+    dm = source.compute(frame)
+    check_contract(frame, dm, PerceptionConfig().max_range_m)
+    assert not np.isinf(dm.depth_m).any()
+    known = np.isfinite(dm.depth_m)
+    assert known.mean() < 0.05
+    assert np.all(dm.depth_m[known] <= 1.1 * truth[known])
+
+
+def test_sky_is_far_and_ground_is_ranged(renderer, source):
+    """Ground and sky: ranged ground within range, +inf (known free) for matched sky and far
+    ground outside the blind band, never a finite depth beyond max range."""
+    frame, truth = _frame(renderer, World(ground=GroundPlane(0.0)), np.array([0.0, 0.0, -2.0]))
+    dm = source.compute(frame)
+    check_contract(frame, dm, PerceptionConfig().max_range_m)
+    assert np.isinf(dm.depth_m).mean() > 0.03  # matched sky (its faint clouds)
+    near_ground = np.isfinite(truth) & (truth < 10.0)
+    ranged = near_ground & np.isfinite(dm.depth_m)
+    assert ranged.sum() > 0.5 * near_ground[:, dm.blind_band_px :].sum()
+
+
+def test_deterministic(renderer, source):
+    frame, _ = _frame(renderer, World(spheres=(Sphere((4.5, 0.0, -7.0), 1.5),)))
+    a, b = source.compute(frame), source.compute(frame)
+    np.testing.assert_array_equal(a.disparity_fixed, b.disparity_fixed)
+    np.testing.assert_array_equal(a.depth_m, b.depth_m)
+    assert a.counts == b.counts and a.blind_band_px == b.blind_band_px
+
+
+@pytest.mark.parametrize("size", [(1, 1), (8, 4), (33, 200), (321, 17)])
+def test_any_frame_size_gives_a_depth_map(source, size):
+    width, height = size
+    k = CameraModel(width_px=width, height_px=height).intrinsics
+    rng = np.random.default_rng(width * 1000 + height)
+    image = rng.integers(0, 256, (height, width), dtype=np.uint8)
+    frame = StereoFrame(0, 0, k, image, image)
+    check_contract(frame, source.compute(frame), PerceptionConfig().max_range_m)
