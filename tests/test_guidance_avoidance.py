@@ -286,6 +286,35 @@ def test_avoidance_continues_while_the_goal_is_behind_the_obstacle():
     assert out.mode is Mode.AVOID and out.reason is Reason.GOAL_BLOCKED
 
 
+def test_avoidance_continues_while_the_goal_path_crosses_another_piece_of_the_obstacle():
+    """Map pieces of one obstacle are one obstacle: the active piece is passed (velocity out
+    of its cone, goal path clear of it), but the goal path crosses a piece touching it, so
+    the avoidance goes on instead of releasing and restarting (Fig. 11's flag chattered in
+    the §6 flight when the decision looked at the active piece alone)."""
+    bare = GuidanceConfig(**ONE_SHOT, exit_margin_rad=0.0, min_clear_time_s=0.0)
+    near = BoundarySphere(center_ned_m=(12.0, 0.5, -7.0), radius_m=1.5)
+    far = BoundarySphere(center_ned_m=(9.5, -0.5, -7.0), radius_m=1.5)
+    assert np.linalg.norm(np.subtract(near.center_ned_m, far.center_ned_m)) < 3.0  # touching
+    pieces = [near, far]
+    state, out = _step(GuidanceState(), 0.0, [16.0, 0.5, -7.0], [-2.0, 0.0, 0.0], GOAL_NED_M,
+                       pieces, bare)  # fmt: skip
+    assert out.mode is Mode.AVOID and out.active_obstacle.sphere.center_ned_m[0] == 12.0
+    beside = np.array([12.0, -2.3, -7.0])
+    vel = np.array([-2.0, 0.2, 0.0])
+    for piece in pieces:  # the velocity is in neither cone
+        assert (
+            _angle(vel, np.subtract(piece.center_ned_m, beside))
+            > collision_cone(beside, piece).half_angle_rad
+        )
+    state, out = _step(state, DT_S, beside, vel, GOAL_NED_M, pieces, bare)
+    assert out.mode is Mode.AVOID and out.reason is Reason.GOAL_BLOCKED
+    # once the goal path is clear of every piece, both are cleared together
+    past = np.array([8.0, -2.6, -7.0])
+    state, out = _step(state, 2 * DT_S, past, [-2.0, 0.3, 0.0], GOAL_NED_M, pieces, bare)
+    assert out.mode is Mode.NAVIGATE
+    assert len(state.cleared_ids) == 2
+
+
 def test_hovering_vehicle_does_not_start_into_the_obstacle():
     _, out = _step(GuidanceState(), 0.0, START_NED_M, [0.0, 0.0, 0.0], GOAL_NED_M, [INFLATED])
     assert out.mode is Mode.AVOID

@@ -425,21 +425,45 @@ def _keep_active(state, f: _Frame, threats: list[int], d: _Decision, cfg):
         return kept, kept_reason
     cone = f.cones[kept]
     behind = not f.has_ref or float(f.ref @ cone.axis_ned) <= 0.0
-    if f.goal_blocked(kept):
+    obstacle = _same_obstacle(f.tracks, kept)
+    if any(f.goal_blocked(i) for i in obstacle):
         kept_reason = Reason.GOAL_BLOCKED
     elif behind:
-        d.cleared.add(f.tracks[kept].track_id)
+        d.cleared.update(f.tracks[i].track_id for i in obstacle)
         kept = None
     elif contains_direction(cone, f.ref, margin_rad=cfg.exit_margin_rad):
         kept_reason = Reason.HYSTERESIS
     else:
         since = f.time_s if state.clear_since_s is None else state.clear_since_s
         if f.time_s - since >= cfg.min_clear_time_s:
-            d.cleared.add(f.tracks[kept].track_id)
+            d.cleared.update(f.tracks[i].track_id for i in obstacle)
             kept = None
         else:
             kept_reason, d.clear_since = Reason.HYSTERESIS, since
     return kept, kept_reason
+
+
+def _same_obstacle(tracks, seed: int) -> list[int]:
+    """Indices of the spheres touching ``seed``'s, transitively: one obstacle's map pieces.
+
+    The active obstacle is kept while the straight path to the goal crosses any of its
+    pieces, and passing it clears all of them at once. Deciding on the active piece alone
+    released the avoidance while the goal path still crossed a neighbouring piece; the
+    velocity, turning back to the goal, entered that piece's cone and the avoidance
+    restarted (the flag of Fig. 11 chattered).
+    """
+    group, frontier = {seed}, [seed]
+    while frontier:
+        a = tracks[frontier.pop()].sphere
+        for j, t in enumerate(tracks):
+            if j in group:
+                continue
+            b = t.sphere
+            gap = norm3(np.asarray(a.center_ned_m) - np.asarray(b.center_ned_m))
+            if gap <= float(a.radius_m) + float(b.radius_m):
+                group.add(j)
+                frontier.append(j)
+    return sorted(group)
 
 
 def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
