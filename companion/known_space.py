@@ -32,13 +32,18 @@ block is matched):
   unmatched pixel whose column above it (to the top of the image) is unmatched too, which
   lies outside the matcher's blind band and whose ray points no lower than
   ``sky_min_elevation_deg`` below the horizon, is taken as open sky: FREE up to
-  ``max_range_m``, but only where still UNKNOWN (it never clears OCCUPIED). Without this a
-  stereo camera could never certify the space at its own altitude (the sky above the
-  horizon is textureless and never matches), and the vehicle could not fly level. The
-  column rule keeps the exception away from textureless obstacles in front of the sky:
-  their outline is matched at a finite depth, and every pixel below a matched pixel in
-  its column stays UNKNOWN. Named limitation: a textureless obstacle that fills the top
-  of the image with no matched edge is mistaken for sky.
+  ``max_range_m`` and no farther out (horizontally) than the point of the column's
+  topmost matched pixel, but only where still UNKNOWN (it never clears OCCUPIED). Without
+  this a stereo camera could never certify the space at its own altitude (the sky above
+  the horizon is textureless and never matches), and the vehicle could not fly level.
+  The column rule keeps the exception away from textureless obstacles in front of the
+  sky: their outline is matched at a finite depth, and every pixel below a matched pixel
+  in its column stays UNKNOWN. The reach rule keeps it away from a textureless obstacle
+  taller than the view: whatever stands in the unmatched part of a column stands on, or
+  beyond, the last surface matched below it (the ground in front of a wall), so the sky
+  is free only up to there, and a column with no matched pixel at all (the wall fills
+  it) has no sky. Named limitation: a textureless obstacle hanging in front of far,
+  matched ground, with no matched edge, is mistaken for sky.
 * **The vehicle itself**: OCCUPIED voxels centred within ``ego_clear_radius_m`` of the
   vehicle become FREE (the vehicle is there). UNKNOWN is never made FREE around the
   vehicle: a bubble that moved with it would let it creep into unseen space, one bubble
@@ -329,21 +334,36 @@ def _integrate_depth(
     n_rays = 0
     new_hits = np.empty((((width // stride) * (height // stride)), 3), np.int64)
     n_new = 0
-    # first matched row of every column (0 in the blind band: never sky)
+    # first matched row of every column (0 in the blind band: never sky) and the
+    # horizontal distance of its point: how far the column's sky may be free
     first_matched = np.empty(width, np.int64)
+    sky_reach = np.zeros(width)
     for u in range(width):
         first_matched[u] = height
         if u < blind_band_px:
             first_matched[u] = 0
             continue
         for v in range(height):
-            if not math.isnan(depth[v, u]):
+            d = depth[v, u]
+            if not math.isnan(d):
                 first_matched[u] = v
+                if d > 0.0 and math.isinf(d):
+                    sky_reach[u] = np.inf
+                elif d > 0.0:
+                    cx_m = d * (u - cx) / fx
+                    cy_m = d * (v - cy) / fy
+                    n_m = R_ned_from_cam[0, 0] * cx_m + R_ned_from_cam[0, 1] * cy_m
+                    e_m = R_ned_from_cam[1, 0] * cx_m + R_ned_from_cam[1, 1] * cy_m
+                    n_m += R_ned_from_cam[0, 2] * d
+                    e_m += R_ned_from_cam[1, 2] * d
+                    sky_reach[u] = math.sqrt(n_m * n_m + e_m * e_m)
                 break
     for bu in range(0, width - stride + 1, stride):
         sky_rows = height
+        reach = np.inf
         for u in range(bu, bu + stride):
             sky_rows = min(sky_rows, first_matched[u])
+            reach = min(reach, sky_reach[u])
         xn = (bu + 0.5 * (stride - 1) - cx) / fx
         for bv in range(0, height - stride + 1, stride):
             n_matched = 0
@@ -368,9 +388,16 @@ def _integrate_depth(
                 # open sky: the whole block above its columns' first matched pixels, not
                 # too far below the horizon (NED z down: elevation sine = -dz)
                 if n_matched == 0 and bv + stride <= sky_rows and -dz >= sky_min_sin_elev:
-                    _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
-                              dx, dy, dz, max_range, False)  # fmt: skip
-                    n_rays += 1
+                    # ... and no farther out than the column's topmost matched point (a
+                    # textureless wall stands behind the last ground seen before it)
+                    horizontal = math.sqrt(dx * dx + dy * dy)
+                    length = max_range
+                    if horizontal * max_range > reach - hit_clear:
+                        length = (reach - hit_clear) / horizontal
+                    if length > 0.0:
+                        _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
+                                  dx, dy, dz, length, False)  # fmt: skip
+                        n_rays += 1
                 continue
             if d <= 0.0:
                 continue

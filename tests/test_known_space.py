@@ -122,7 +122,9 @@ def test_open_sky_rule_only_above_the_horizon_and_outside_the_blind_band():
     space = KnownSpace(cfg)
     pos = np.array([0.0, 0.0, -7.0])
     nan = np.full((K.height_px, K.width_px), np.nan, np.float32)
-    space.integrate(nan, K, pos, LEVEL_NORTH, blind_band_px=70)  # level: half is sky
+    far_ground = nan.copy()
+    far_ground[-4:, :] = 50.0  # matched far below the horizon: the sky reaches that far
+    space.integrate(far_ground, K, pos, LEVEL_NORTH, blind_band_px=70)  # level: half is sky
     up = np.array([math.cos(math.radians(8)), 0.0, -math.sin(math.radians(8))])
     assert space.free_distance_m(pos, up, 0.0, 20.0) >= cfg.max_range_m - VOXEL_M
     down = np.array([math.cos(math.radians(12)), 0.0, math.sin(math.radians(12))])
@@ -136,6 +138,24 @@ def test_open_sky_rule_only_above_the_horizon_and_outside_the_blind_band():
     masked[0, :] = 50.0  # a far matched row at the top: the rows below are not sky
     space3.integrate(masked, K, pos, LEVEL_NORTH, blind_band_px=70)
     assert space3.free_distance_m(pos, up, 0.0, 20.0) < 2.0
+
+
+def test_open_sky_reaches_no_farther_than_the_columns_topmost_matched_point():
+    """A textureless wall taller than the view is not sky: the sky above the last matched
+    ground ends there, and a column with nothing matched has no sky at all."""
+    pos = np.array([0.0, 0.0, -7.0])
+    up = np.array([math.cos(math.radians(2)), 0.0, -math.sin(math.radians(2))])
+    nan = np.full((K.height_px, K.width_px), np.nan, np.float32)
+    nothing = KnownSpace()
+    nothing.integrate(nan, K, pos, LEVEL_NORTH)  # the wall fills the view
+    assert nothing.free_distance_m(pos, up, 0.0, 20.0) < 2.0
+    near_ground = nan.copy()
+    near_ground[-4:, :] = 4.0  # the foot of a wall: ground matched 4 m ahead (depth)
+    wall = KnownSpace()
+    wall.integrate(near_ground, K, pos, LEVEL_NORTH)
+    # the bottom rows look 18° down: the matched ground lies ~4 m ahead horizontally
+    reach = wall.free_distance_m(pos, up, 0.0, 20.0)
+    assert 2.0 < reach <= 4.0, reach
 
 
 def test_occupied_persists_until_seen_free_again():

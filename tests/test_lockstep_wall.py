@@ -4,8 +4,6 @@ vehicle must stop at least 0.5 m before it, at the paper's speed and at the fast
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -36,25 +34,8 @@ def _assert_safe_stop(result):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("profile_name", ["paper", "fast"])
-def test_stop_before_a_textureless_wall_without_the_sky_exception(profile_name):
-    """Perception reports the wall unknown (no depth, no far claim through it), the
-    envelope never flies into unknown space: the vehicle stops short of the wall. Run with
-    known space's open-sky exception off (sky_min_elevation_deg 90°): see the next test."""
-    no_sky = dataclasses.replace(KnownSpaceConfig(), sky_min_elevation_deg=90.0)
-    _assert_safe_stop(_run(profile_name, no_sky, 8.0))
-
-
-@pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "companion.known_space's open-sky exception (issue 13) takes an unmatched column "
-        "with no matched pixel above it for sky and writes it FREE to max_range_m; a "
-        "textureless wall taller than the view is such a column (its named limitation): "
-        "free distance jumps from 1.0 m to 8.0 m at t = 5.2 s and the vehicle flies into "
-        "the wall (min surface distance 0.22 m at the paper's profile)"
-    ),
-)
-def test_stop_before_a_textureless_wall():
-    """The same wall with the default configuration (the issue's acceptance test)."""
-    _assert_safe_stop(_run("paper", KnownSpaceConfig(), 10.0))
+def test_stop_before_a_textureless_wall(profile_name):
+    """Perception reports the wall unknown (no depth, no far claim through it), known space
+    takes no sky through it (no ground is matched in its columns), the envelope never flies
+    into unknown space: the vehicle stops short of the wall. Default configuration."""
+    _assert_safe_stop(_run(profile_name, KnownSpaceConfig(), 8.0))
