@@ -286,8 +286,14 @@ def test_frames_stop_hold_within_half_a_second_then_resume(rig):
 
     with (rig.tmp / "run0" / "truth.csv").open() as fh:
         rows = list(csv.DictReader(fh))
-    brake_t = min(float(r["time_s"]) for r in rows if r["mode"] == "BRAKE")
-    assert 0.0 < brake_t - last_capture_s <= 0.5, (brake_t, last_capture_s, rig.logs())
+    # (the first BRAKE after the pause: a loaded machine may stall frames for 0.3 s earlier
+    # too, and the companion rightly holds then as well)
+    brake_t = min(
+        float(r["time_s"])
+        for r in rows
+        if r["mode"] == "BRAKE" and float(r["time_s"]) > last_capture_s
+    )
+    assert brake_t - last_capture_s <= 0.5, (brake_t, last_capture_s, rig.logs())
     after = [r["mode"] for r in rows if float(r["time_s"]) > brake_t]
     assert after[-1] == "GUIDED"  # resumed
     assert min(v for v in truth["surface_distance_m"]) > 0.25
