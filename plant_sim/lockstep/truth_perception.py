@@ -8,7 +8,8 @@ disparity map comes from the left eye's true depth (:meth:`StereoCameraRenderer.
 <plant_sim.stereo_camera.StereoCameraRenderer.render_depth>`, the exact ray-cast geometry)
 as ``round(16 · f·b / depth)`` instead of OpenCV's block matchers. Everything downstream —
 obstacle pixels, blobs, boundary spheres, the depth map the known-space model folds in —
-is the companion's own code, unchanged.
+is the companion's own code, unchanged: :class:`TruthDepthSource` is a depth source of
+:mod:`companion.depth_source`'s contract, plugged into the companion's perception.
 
 What a perfect stereo matcher still cannot do, this does not do either: a pixel whose
 match would lie left of the right image (``x − d < 0``: outside the right camera's view)
@@ -23,10 +24,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from companion.depth_source import DepthMap, depth_from_disparity
 from companion.perception import PerceptionConfig, StereoPerception
 from protocols.stereo_frame import StereoFrame
 
-__all__ = ["TruthPerception", "truth_disparity_fixed"]
+__all__ = ["TruthDepthSource", "TruthPerception", "truth_disparity_fixed"]
 
 _DISP_SCALE = 16  # OpenCV's fixed-point disparity: 1/16 px
 _INT16_MAX = np.iinfo(np.int16).max
@@ -63,26 +65,28 @@ def truth_disparity_fixed(depth_m: np.ndarray, focal_baseline_m_px: float) -> np
     return disp16
 
 
-class TruthPerception(StereoPerception):
-    """:class:`~companion.perception.StereoPerception` on true disparities (module docstring).
+class TruthDepthSource:
+    """A depth source (:mod:`companion.depth_source` contract) that returns the renderer's
+    true depth of each frame instead of matching the pair.
 
     Parameters
     ----------
-    config : PerceptionConfig, optional
-        The companion's detector settings (threshold, blob and sphere parameters); the
-        matcher's settings are unused.
+    config : PerceptionConfig
+        Uses ``max_range_m`` (beyond it a surface is "+inf, nothing nearer", as the matcher
+        reports it).
     """
 
-    def __init__(self, config: PerceptionConfig | None = None) -> None:
-        super().__init__(config)
+    def __init__(self, config: PerceptionConfig) -> None:
+        self.config = config
         self._truth: tuple[int, np.ndarray] | None = None
 
     def provide(self, sequence: int, depth_left_m: np.ndarray) -> None:
         """The true depth of the left image of frame ``sequence`` (next to be processed)."""
         self._truth = (int(sequence), depth_left_m)
 
-    def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
-        """True disparity of ``frame`` (int16, 1/16 px, -16 where a perfect matcher fails)."""
+    def compute(self, frame: StereoFrame) -> DepthMap:
+        """The contract's depth map of the true disparity (no blind band: a perfect matcher
+        tells every column it can see from one it cannot)."""
         if self._truth is None or self._truth[0] != frame.sequence:
             have = None if self._truth is None else self._truth[0]
             raise RuntimeError(
@@ -93,8 +97,27 @@ class TruthPerception(StereoPerception):
         k = frame.intrinsics
         if depth.shape != (k.height_px, k.width_px):
             raise ValueError(f"true depth shape {depth.shape} != frame {(k.height_px, k.width_px)}")
-        return truth_disparity_fixed(depth, k.focal_baseline_m_px)
+        disparity = truth_disparity_fixed(depth, k.focal_baseline_m_px)
+        return depth_from_disparity(
+            disparity, k.focal_baseline_m_px, self.config.max_range_m, blind_band_px=0
+        )
 
-    def coarse_disparity_fixed(self, frame: StereoFrame) -> None:
-        """No coarse pass: the true disparity ranges every distance already."""
-        return None
+
+class TruthPerception(StereoPerception):
+    """:class:`~companion.perception.StereoPerception` on true disparities (module docstring):
+    the companion's perception with :class:`TruthDepthSource` as its depth source.
+
+    Parameters
+    ----------
+    config : PerceptionConfig, optional
+        The companion's detector settings (threshold, blob and sphere parameters); the
+        matcher's settings are unused.
+    """
+
+    def __init__(self, config: PerceptionConfig | None = None) -> None:
+        self.truth_source = TruthDepthSource(PerceptionConfig() if config is None else config)
+        super().__init__(self.truth_source.config, source=self.truth_source)
+
+    def provide(self, sequence: int, depth_left_m: np.ndarray) -> None:
+        """The true depth of the left image of frame ``sequence`` (next to be processed)."""
+        self.truth_source.provide(sequence, depth_left_m)
