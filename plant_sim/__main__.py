@@ -72,6 +72,22 @@ def build_parser() -> argparse.ArgumentParser:
         listen_default=f"default {DEFAULT_ENDPOINT}",
         connect_help="router or companion",
     )
+    _add_simulation_arguments(p)
+    _add_signing_and_log_arguments(p)
+    _add_camera_only_arguments(p)
+    p.add_argument(
+        "--ready-file",
+        type=Path,
+        help="also write the readiness line to this file (removed at exit): a healthcheck",
+    )
+    p.add_argument(
+        "--log-file", type=Path, help="also copy stdout and stderr to this file (appended)"
+    )
+    return p
+
+
+def _add_simulation_arguments(p: argparse.ArgumentParser) -> None:
+    """Camera, vehicle id, pace, duration, start state and autopilot flavour."""
     p.add_argument("--no-camera", action="store_true", help="do not render or publish frames")
     p.add_argument("--camera-rate-hz", type=float, help="override the scenario's camera rate")
     p.add_argument("--vehicle-id", help="override the scenario's vehicle id (Zenoh keys)")
@@ -97,6 +113,10 @@ def build_parser() -> argparse.ArgumentParser:
         "main/sub modes, OFFBOARD only after a > 2 Hz setpoint stream, offboard-loss "
         "failsafe after COM_OF_LOSS_T (1 s) to Hold, NAV_TAKEOFF in AMSL",
     )
+
+
+def _add_signing_and_log_arguments(p: argparse.ArgumentParser) -> None:
+    """MAVLink signing, the run's logs and rates, the log level."""
     add_signing_arguments(p)
     p.add_argument(
         "--signing-state",
@@ -121,6 +141,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--truth-rate-hz", type=float, default=50.0, help="truth-log rows per sim second"
     )
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+
+
+def _add_camera_only_arguments(p: argparse.ArgumentParser) -> None:
+    """Camera-only mode: render from an external autopilot's pose."""
     cam = p.add_argument_group(
         "camera-only mode",
         "follow an external MAVLink autopilot (ArduPilot/PX4 SITL, a HIL rig): no physics, "
@@ -153,15 +177,6 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help="the autopilot's system id (default 0: the first autopilot heard)",
     )
-    p.add_argument(
-        "--ready-file",
-        type=Path,
-        help="also write the readiness line to this file (removed at exit): a healthcheck",
-    )
-    p.add_argument(
-        "--log-file", type=Path, help="also copy stdout and stderr to this file (appended)"
-    )
-    return p
 
 
 def _camera_only_config(args: argparse.Namespace, scenario):
