@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import logging
 import math
 import os
 import sys
@@ -311,19 +310,11 @@ def run(config, ready_file: Path | None = None) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point (``plant-sim``)."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    from protocols.logfile import LogFileError, start_log_file
+    from protocols.logfile import start_logging
 
     args = build_parser().parse_args(argv)
-    try:
-        start_log_file(args.log_file)
-    except LogFileError as exc:
-        print(f"plant-sim: {exc}", file=sys.stderr)
+    if not start_logging("plant-sim", args.log_file, args.log_level):
         return 2
-    logging.basicConfig(
-        level=getattr(logging, args.log_level),
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
-    )
     try:
         config = config_from_args(args)
     except (ValueError, OSError) as exc:

@@ -250,13 +250,9 @@ class PlantService:
 
     def readiness_line(self) -> str:
         """``PLANT_SIM READY mavlink=URL[,URL] zenoh=ENDPOINTS|off key=KEY speedup=N``."""
-        zenoh_desc = "off"
-        key = "-"
+        zenoh_desc, key = "off", "-"
         if self.publisher is not None:
-            z = self.config.zenoh
-            eps = [f"listen:{e}" for e in z.listen] + [f"connect:{e}" for e in z.connect]
-            zenoh_desc = ",".join(eps) if eps else "config"
-            key = self.publisher.key
+            zenoh_desc, key = self.config.zenoh.describe(), self.publisher.key
         return (
             f"PLANT_SIM READY mavlink={','.join(self.link.bound_urls)} zenoh={zenoh_desc} "
             f"key={key} speedup={self.config.speedup:g}"
