@@ -151,26 +151,9 @@ def _run(width, height, rate_hz, seconds, extra_args=()):
             )
             pub = session.declare_publisher(stereo_key("sim1"))
             child.wait_line(r"COMPANION EVENT phase", 15)
-            period = 1.0 / rate_hz
-            # warm-up second, then the measured window
-            published = []
-            t_next = time.monotonic()
-            t_end = t_next + 1.0 + seconds
-            cpu0 = None
-            seq = 0
-            while time.monotonic() < t_end:
-                if cpu0 is None and time.monotonic() > t_end - seconds:
-                    cpu0, w0, n0 = _proc_cpu_s(child.proc.pid), time.monotonic(), len(statuses)
-                    mark = len(published)
-                r = renders[seq % len(renders)]
-                cap = time.monotonic_ns()
-                frame = stereo_frame.StereoFrame(seq, cap, intr, r.left, r.right)
-                pub.put(stereo_frame.encode(frame))
-                published.append(cap)
-                seq += 1
-                t_next += period
-                time.sleep(max(0.0, t_next - time.monotonic()))
-            cpu = (_proc_cpu_s(child.proc.pid) - cpu0) / (time.monotonic() - w0)
+            published, mark, n0, cpu = _publish(
+                pub, child, intr, renders, rate_hz, seconds, statuses
+            )
             rss = _rss_mb(child.proc.pid)
             time.sleep(0.3)
             processed = len(statuses) - n0
@@ -182,13 +165,41 @@ def _run(width, height, rate_hz, seconds, extra_args=()):
         ap.thread.join(timeout=2)
         ap.sock.close()
         child.close()
-    caps_ms = {c // 1_000_000: c for c in published[mark:]}
-    lat = [
-        (recv - caps_ms[ms]) * 1e-6
-        for ms, recv in ap.receipts
-        if ms in caps_ms  # setpoints caused by a frame carry its capture millisecond
-    ]
-    n_pub = len(published) - mark
+    return _summary(width, height, rate_hz, published[mark:], ap.receipts, processed, cpu, rss)
+
+
+def _publish(pub, child, intr, renders, rate_hz, seconds, statuses):
+    """Publish frames at ``rate_hz`` for a warm-up second and then ``seconds``, stamped with
+    this host's monotonic clock; returns (capture stamps, index of the first measured one,
+    statuses before the measured window, the companion's CPU use in cores over it)."""
+    period = 1.0 / rate_hz
+    published = []
+    t_next = time.monotonic()
+    t_end = t_next + 1.0 + seconds
+    cpu0 = None
+    seq = 0
+    while time.monotonic() < t_end:
+        if cpu0 is None and time.monotonic() > t_end - seconds:
+            cpu0, w0, n0 = _proc_cpu_s(child.proc.pid), time.monotonic(), len(statuses)
+            mark = len(published)
+        r = renders[seq % len(renders)]
+        cap = time.monotonic_ns()
+        frame = stereo_frame.StereoFrame(seq, cap, intr, r.left, r.right)
+        pub.put(stereo_frame.encode(frame))
+        published.append(cap)
+        seq += 1
+        t_next += period
+        time.sleep(max(0.0, t_next - time.monotonic()))
+    cpu = (_proc_cpu_s(child.proc.pid) - cpu0) / (time.monotonic() - w0)
+    return published, mark, n0, cpu
+
+
+def _summary(width, height, rate_hz, measured, receipts, processed, cpu, rss):
+    """Latency from capture to setpoint on the wire (setpoints caused by a frame carry its
+    capture millisecond), throughput, CPU and memory of one run."""
+    caps_ms = {c // 1_000_000: c for c in measured}
+    lat = [(recv - caps_ms[ms]) * 1e-6 for ms, recv in receipts if ms in caps_ms]
+    n_pub = len(measured)
     return {
         "size": f"{width}x{height}",
         "rate_hz": rate_hz,

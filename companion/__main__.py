@@ -18,7 +18,6 @@ rather than steer a vehicle that is not flying).
 from __future__ import annotations
 
 import json
-import logging
 import os
 import sys
 from collections.abc import Sequence
@@ -54,19 +53,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point (``companion``)."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from companion.config import ConfigError, build_parser, config_from_args
-    from protocols.logfile import LogFileError, start_log_file
+    from protocols.logfile import start_logging
 
     args = build_parser().parse_args(argv)
-    try:
-        start_log_file(args.log_file)
-    except LogFileError as exc:
-        print(f"companion: {exc}", file=sys.stderr)
+    if not start_logging("companion", args.log_file, args.log_level):
         return 2
-    logging.basicConfig(
-        level=getattr(logging, args.log_level),
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
-    )
     try:
         config = config_from_args(args)
     except ConfigError as exc:

@@ -432,8 +432,9 @@ def _integrate_depth(
 
 
 @numba.njit(cache=True)
-def _mark_ball(grid, origin, voxel, px, py, pz, radius, clear_occupied):
-    """FREE for voxels centred within ``radius`` of (px, py, pz)."""
+def _mark_ball(grid, origin, voxel, px, py, pz, radius, free_unknown, clear_occupied):
+    """FREE for voxels centred within ``radius`` of (px, py, pz): UNKNOWN ones if
+    ``free_unknown``, OCCUPIED or TENTATIVE ones if ``clear_occupied``."""
     inv = 1.0 / voxel
     r_vox = math.ceil(radius * inv) + 1
     ci = math.floor(px * inv) - origin[0]
@@ -448,27 +449,8 @@ def _mark_ball(grid, origin, voxel, px, py, pz, radius, clear_occupied):
                 zc = (k + origin[2] + 0.5) * voxel - pz
                 if xc * xc + yc * yc + zc * zc <= r2:
                     cur = grid[i, j, k]
-                    if cur == 0 or (clear_occupied and cur >= 2):
+                    if (free_unknown and cur == 0) or (clear_occupied and cur >= 2):
                         grid[i, j, k] = 1
-
-
-@numba.njit(cache=True)
-def _clear_occupied_ball(grid, origin, voxel, px, py, pz, radius):
-    """OCCUPIED or TENTATIVE → FREE for voxels centred within ``radius`` of (px, py, pz)."""
-    inv = 1.0 / voxel
-    r_vox = math.ceil(radius * inv) + 1
-    ci = math.floor(px * inv) - origin[0]
-    cj = math.floor(py * inv) - origin[1]
-    ck = math.floor(pz * inv) - origin[2]
-    r2 = radius * radius
-    for i in range(max(ci - r_vox, 0), min(ci + r_vox + 1, grid.shape[0])):
-        xc = (i + origin[0] + 0.5) * voxel - px
-        for j in range(max(cj - r_vox, 0), min(cj + r_vox + 1, grid.shape[1])):
-            yc = (j + origin[1] + 0.5) * voxel - py
-            for k in range(max(ck - r_vox, 0), min(ck + r_vox + 1, grid.shape[2])):
-                zc = (k + origin[2] + 0.5) * voxel - pz
-                if xc * xc + yc * yc + zc * zc <= r2 and grid[i, j, k] >= 2:
-                    grid[i, j, k] = 1
 
 
 @numba.njit(cache=True)
@@ -681,9 +663,8 @@ def _warm_up() -> None:
         grid, origin, 0.2, depth, 2, 1, 2.0, 2.0, 1.5, 1.5, np.full(3, 0.8),
         np.eye(3), 1.0, 0.1, -0.1, 0,
     )  # fmt: skip
-    _mark_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3, True)
+    _mark_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3, True, True)
     _free_distance(grid, origin, 0.2, 0.8, 0.8, 0.8, 1.0, 0.0, 0.0, 0.1, 0.1, 0.5, 0.1, 0.2)
-    _clear_occupied_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3)
     grid[4, 4, 4] = OCCUPIED
     _pieces(grid, origin, 2, 0.2, 0.8, 0.8, 0.8, 0.5, 0.8, 0.8, 0.8)
     _unseen_runs(grid, origin, 0.2, np.full((1, 3), 0.8), 0.0, 0.0, 0.0, 0.5)
@@ -758,7 +739,9 @@ class KnownSpace:
         R = np.asarray(R_ned_from_frd, dtype=float)
         self._centre_on(pos)
         if not self._started:
-            _mark_ball(self.grid, self.origin_vox, c.voxel_m, *pos, c.start_free_radius_m, False)
+            _mark_ball(
+                self.grid, self.origin_vox, c.voxel_m, *pos, c.start_free_radius_m, True, False
+            )
             self._started = True
         cam_ned = pos + R @ eye_offset_frd_m(intrinsics.baseline_m, "left")
         R_ned_from_cam = np.ascontiguousarray(R @ R_FRD_FROM_CAM)
@@ -791,7 +774,7 @@ class KnownSpace:
         pos = np.asarray(pos_ned_m, dtype=float)
         self._centre_on(pos)
         self._started = True
-        _clear_occupied_ball(self.grid, self.origin_vox, c.voxel_m, *pos, c.ego_clear_radius_m)
+        _mark_ball(self.grid, self.origin_vox, c.voxel_m, *pos, c.ego_clear_radius_m, False, True)
 
     # -- queries ---------------------------------------------------------------------------
 

@@ -573,30 +573,52 @@ class StereoPerception:
         -------
         PerceptionResult
         """
-        cfg = self.config
         k = frame.intrinsics
         depth_map = self.source.compute(frame)
-        disp, depth_m, counts = depth_map.disparity_fixed, depth_map.depth_m, depth_map.counts
-        band_px = depth_map.blind_band_px
-        height, width = disp.shape
-        fb = k.focal_baseline_m_px
+        disp, depth_m = depth_map.disparity_fixed, depth_map.depth_m
         unknown_fraction = float(np.count_nonzero(np.isnan(depth_m))) / disp.size
-
-        def result(obstacles: tuple[Obstacle, ...]) -> PerceptionResult:
-            return PerceptionResult(
-                frame.sequence,
-                frame.capture_ns,
-                obstacles,
-                unknown_fraction,
-                depth_m,
-                counts,
-                band_px,
+        obstacles: tuple[Obstacle, ...] = ()
+        blobs = self._near_blobs(disp, k.focal_baseline_m_px)
+        if blobs is not None:
+            regions, fill, near_half, disp_px = self._grow_regions(disp, k, *blobs)
+            obstacles = tuple(
+                sorted(
+                    (
+                        self._region_obstacle(
+                            region,
+                            disp.shape,
+                            fill,
+                            near_half,
+                            disp_px,
+                            k,
+                            pos_ned_m,
+                            R_ned_from_frd,
+                        )
+                        for region in regions
+                    ),
+                    key=lambda o: (o.nearest_range_m, tuple(o.center_ned_m)),
+                )
             )
+        return PerceptionResult(
+            frame.sequence,
+            frame.capture_ns,
+            obstacles,
+            unknown_fraction,
+            depth_m,
+            depth_map.counts,
+            depth_map.blind_band_px,
+        )
 
+    def _near_blobs(self, disp: np.ndarray, fb: float):
+        """Blobs of pixels nearer than the threshold, on a 2x subsampled mask: (the mask,
+        labels within its bounding box, their stats, the box's corner, the blobs kept,
+        largest first); None when there is none."""
+        cfg = self.config
+        height, width = disp.shape
         # Integer disparities: d >= x  <=>  d >= ceil(x), compared in int16 (no float copy).
         near = (disp >= math.ceil(_DISP_SCALE * fb / cfg.threshold_m)).view(np.uint8)
         if cv2.countNonZero(near) == 0:  # the common empty frame: nothing to open or label
-            return result(())
+            return None
         if cfg.opening_px > 1:
             near = cv2.morphologyEx(near, cv2.MORPH_OPEN, self._kernel)
         # Blobs on a 2x subsampled mask: 4x cheaper labelling; areas count 4 pixels each.
@@ -605,18 +627,27 @@ class StereoPerception:
         # stats are shifted back to the half-resolution image, labels stay box-relative.
         bx, by, bw, bh = cv2.boundingRect(near_half)
         if bw == 0:
-            return result(())
+            return None
         n_labels, labels, stats, _ = cv2.connectedComponentsWithStats(
             near_half[by : by + bh, bx : bx + bw], connectivity=8
         )
         min_area = max(1, math.ceil(cfg.min_blob_fraction * width * height / 4.0))
         blobs = [i for i in range(1, n_labels) if stats[i, cv2.CC_STAT_AREA] >= min_area]
         if not blobs:
-            return result(())
+            return None
+        # Largest blob first, so the obstacle numbering is deterministic and meaningful.
+        blobs.sort(key=lambda i: (-stats[i, cv2.CC_STAT_AREA], i))
+        return near_half, labels, stats, (bx, by), blobs
 
-        # Depth-continuous flood fill from each blob out to threshold + extent margin, on
-        # the same 2x subsampled grid as the blobs: a quarter of the pixels to convert and
-        # fill, and the sphere fit samples at most ``max_points`` of them anyway.
+    def _grow_regions(self, disp, k: StereoIntrinsics, near_half, labels, stats, box, blobs):
+        """Depth-continuous flood fill from each blob out to threshold + extent margin, on
+        the same 2x subsampled grid as the blobs (a quarter of the pixels to convert and
+        fill; the sphere fit samples at most ``max_points`` of them anyway). Returns the
+        regions (fill value, rect, area), the fill mask, the mask and the disparities [px]."""
+        cfg = self.config
+        fb = k.focal_baseline_m_px
+        width = disp.shape[1]
+        bx, by = box
         d_far = fb / (cfg.threshold_m + cfg.extent_margin_m)
         disp_half = disp[::2, ::2]
         disp_px = disp_half.astype(np.float32)
@@ -626,16 +657,17 @@ class StereoPerception:
         h_half, w_half = disp_px.shape
         fill = np.zeros((h_half + 2, w_half + 2), np.uint8)
         step_px = cfg.continuity_rel * fb / cfg.threshold_m
-        b_m = k.baseline_m
         regions: list[tuple[int, tuple[int, int, int, int], int]] = []
-        seed_x, seed_y = _blob_seeds(labels, disp_half[by : by + bh, bx : bx + bw], n_labels)
-        # Largest blob first, so the obstacle numbering is deterministic and meaningful.
-        for label in sorted(blobs, key=lambda i: (-stats[i, cv2.CC_STAT_AREA], i)):
+        bh, bw = labels.shape
+        seed_x, seed_y = _blob_seeds(labels, disp_half[by : by + bh, bx : bx + bw], len(stats))
+        for label in blobs:
             seed = (int(bx + seed_x[label]), int(by + seed_y[label]))  # nearest blob pixel
             # A square of side s at the blob's depth spans s·d/b pixels (d = f·b/z).
             # Capped: a near surface's coverage is patchy, mismatch clusters stay small.
             side_px = min(
-                cfg.min_obstacle_size_m * disp_half[seed[1], seed[0]] / (_DISP_SCALE * b_m),
+                cfg.min_obstacle_size_m
+                * disp_half[seed[1], seed[0]]
+                / (_DISP_SCALE * k.baseline_m),
                 _MIN_SIDE_CAP_PX * width / _REFERENCE_WIDTH_PX,
             )
             if 4 * stats[label, cv2.CC_STAT_AREA] < side_px * side_px:
@@ -647,8 +679,7 @@ class StereoPerception:
             area, _, _, rect = cv2.floodFill(
                 disp_px, fill, seed, 0, loDiff=step_px, upDiff=step_px, flags=flags
             )
-            blob_area = int(stats[label, cv2.CC_STAT_AREA])
-            if 2 * area < blob_area:
+            if 2 * area < int(stats[label, cv2.CC_STAT_AREA]):
                 # The nearest pixel was a lone wrong match (no depth-continuous neighbours):
                 # fill again from the blob's pixel of median disparity.
                 x, y, w, h = (int(v) for v in stats[label, :4])
@@ -661,35 +692,43 @@ class StereoPerception:
                         disp_px, fill, seed, 0, loDiff=step_px, upDiff=step_px, flags=flags
                     )
             regions.append((value, rect, int(area)))
+        return regions, fill, near_half, disp_px
 
-        obstacles = []
-        for value, rect, n_half in regions:
-            x0, y0, w, h = rect
-            # n_half (the fill's area) is the region's pixel count: later fills never overwrite.
-            stride = _sample_stride(n_half, cfg.max_points)
-            edge = _region_contour(fill, value, rect) if stride > 1 else _NO_EDGE
-            xs, ys, disp_samples, n_grid, n_near = _region_samples(
-                fill, value, x0, y0, w, h, stride, edge, near_half, disp_px
-            )
-            truncated = bool(
-                x0 <= 0 or y0 <= 0 or 2 * (x0 + w) >= width - 1 or 2 * (y0 + h) >= height - 1
-            )
-            obstacles.append(
-                self._boundary(
-                    2 * xs,
-                    2 * ys,
-                    n_grid,
-                    disp_samples,
-                    k,
-                    pos_ned_m,
-                    R_ned_from_frd,
-                    4 * n_half,
-                    4 * n_near,
-                    truncated,
-                )
-            )
-        obstacles.sort(key=lambda o: (o.nearest_range_m, tuple(o.center_ned_m)))
-        return result(tuple(obstacles))
+    def _region_obstacle(
+        self,
+        region,
+        shape,
+        fill,
+        near_half,
+        disp_px,
+        k: StereoIntrinsics,
+        pos_ned_m,
+        R_ned_from_frd,
+    ) -> Obstacle:
+        """The obstacle of one filled region: samples of it, and its boundary sphere."""
+        value, (x0, y0, w, h), n_half = region
+        height, width = shape
+        # n_half (the fill's area) is the region's pixel count: later fills never overwrite.
+        stride = _sample_stride(n_half, self.config.max_points)
+        edge = _region_contour(fill, value, (x0, y0, w, h)) if stride > 1 else _NO_EDGE
+        xs, ys, disp_samples, n_grid, n_near = _region_samples(
+            fill, value, x0, y0, w, h, stride, edge, near_half, disp_px
+        )
+        truncated = bool(
+            x0 <= 0 or y0 <= 0 or 2 * (x0 + w) >= width - 1 or 2 * (y0 + h) >= height - 1
+        )
+        return self._boundary(
+            2 * xs,
+            2 * ys,
+            n_grid,
+            disp_samples,
+            k,
+            pos_ned_m,
+            R_ned_from_frd,
+            4 * n_half,
+            4 * n_near,
+            truncated,
+        )
 
     def _boundary(
         self,

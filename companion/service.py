@@ -98,10 +98,8 @@ class CompanionService:
         self._status.open()
 
     def readiness_line(self) -> str:
-        z = self.config.zenoh
-        eps = [f"listen:{e}" for e in z.listen] + [f"connect:{e}" for e in z.connect]
         return (
-            f"COMPANION READY mavlink={self.config.link.url} zenoh={','.join(eps) or 'config'} "
+            f"COMPANION READY mavlink={self.config.link.url} zenoh={self.config.zenoh.describe()} "
             f"key={self.frame_key} status={self.status_key} "
             f"sysid={self.config.link.system_id} compid={self.config.link.component_id} "
             f"signing={'on' if self.link.signing else 'off'}"

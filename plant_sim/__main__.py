@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import logging
 import math
 import os
 import sys
@@ -72,6 +71,22 @@ def build_parser() -> argparse.ArgumentParser:
         listen_default=f"default {DEFAULT_ENDPOINT}",
         connect_help="router or companion",
     )
+    _add_simulation_arguments(p)
+    _add_signing_and_log_arguments(p)
+    _add_camera_only_arguments(p)
+    p.add_argument(
+        "--ready-file",
+        type=Path,
+        help="also write the readiness line to this file (removed at exit): a healthcheck",
+    )
+    p.add_argument(
+        "--log-file", type=Path, help="also copy stdout and stderr to this file (appended)"
+    )
+    return p
+
+
+def _add_simulation_arguments(p: argparse.ArgumentParser) -> None:
+    """Camera, vehicle id, pace, duration, start state and autopilot flavour."""
     p.add_argument("--no-camera", action="store_true", help="do not render or publish frames")
     p.add_argument("--camera-rate-hz", type=float, help="override the scenario's camera rate")
     p.add_argument("--vehicle-id", help="override the scenario's vehicle id (Zenoh keys)")
@@ -97,6 +112,10 @@ def build_parser() -> argparse.ArgumentParser:
         "main/sub modes, OFFBOARD only after a > 2 Hz setpoint stream, offboard-loss "
         "failsafe after COM_OF_LOSS_T (1 s) to Hold, NAV_TAKEOFF in AMSL",
     )
+
+
+def _add_signing_and_log_arguments(p: argparse.ArgumentParser) -> None:
+    """MAVLink signing, the run's logs and rates, the log level."""
     add_signing_arguments(p)
     p.add_argument(
         "--signing-state",
@@ -121,6 +140,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--truth-rate-hz", type=float, default=50.0, help="truth-log rows per sim second"
     )
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+
+
+def _add_camera_only_arguments(p: argparse.ArgumentParser) -> None:
+    """Camera-only mode: render from an external autopilot's pose."""
     cam = p.add_argument_group(
         "camera-only mode",
         "follow an external MAVLink autopilot (ArduPilot/PX4 SITL, a HIL rig): no physics, "
@@ -153,15 +176,6 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help="the autopilot's system id (default 0: the first autopilot heard)",
     )
-    p.add_argument(
-        "--ready-file",
-        type=Path,
-        help="also write the readiness line to this file (removed at exit): a healthcheck",
-    )
-    p.add_argument(
-        "--log-file", type=Path, help="also copy stdout and stderr to this file (appended)"
-    )
-    return p
 
 
 def _camera_only_config(args: argparse.Namespace, scenario):
@@ -296,19 +310,11 @@ def run(config, ready_file: Path | None = None) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point (``plant-sim``)."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    from protocols.logfile import LogFileError, start_log_file
+    from protocols.logfile import start_logging
 
     args = build_parser().parse_args(argv)
-    try:
-        start_log_file(args.log_file)
-    except LogFileError as exc:
-        print(f"plant-sim: {exc}", file=sys.stderr)
+    if not start_logging("plant-sim", args.log_file, args.log_level):
         return 2
-    logging.basicConfig(
-        level=getattr(logging, args.log_level),
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
-    )
     try:
         config = config_from_args(args)
     except (ValueError, OSError) as exc:

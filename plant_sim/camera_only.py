@@ -189,10 +189,7 @@ class CameraOnlyService:
         """``PLANT_SIM READY mode=camera-only pose-from=URL zenoh=... key=KEY``."""
         zenoh_desc, key = "off", "-"
         if self.publisher is not None:
-            z = self.config.zenoh
-            eps = [f"listen:{e}" for e in z.listen] + [f"connect:{e}" for e in z.connect]
-            zenoh_desc = ",".join(eps) if eps else "config"
-            key = self.publisher.key
+            zenoh_desc, key = self.config.zenoh.describe(), self.publisher.key
         return (
             f"PLANT_SIM READY mode=camera-only pose-from={self.config.pose_from} "
             f"zenoh={zenoh_desc} key={key}"

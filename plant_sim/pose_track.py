@@ -43,13 +43,16 @@ class ExternalPose:
 
 
 def _bracket(buf: deque, t_s: float):
-    """(older, newer) samples around ``t_s``; newer is None past the newest."""
-    prev = None
+    """(older, newer) samples around ``t_s``; newer is None past the newest, older None
+    before the oldest (the newest samples are searched first)."""
+    older = newer = None
     for sample in reversed(buf):
-        if sample[0] <= t_s:
-            return sample, prev
-        prev = sample
-    return None, prev
+        if sample[0] > t_s:
+            newer = sample
+            continue
+        older = sample
+        break
+    return older, newer
 
 
 class PoseTrack:

@@ -113,49 +113,64 @@ class PlantConfig:
             raise ValueError("autopilot_rate_hz and truth_rate_hz must be > 0")
 
 
+def _initial_vehicle(scenario) -> Quadrotor:
+    """The quadrotor at the scenario's start: airborne where it says, else on the ground
+    below it (disarmed)."""
+    start = scenario.start
+    ground = scenario.ground_down_m
+    pos = start.pos_ned_m
+    if not start.airborne:
+        pos = (pos[0], pos[1], ground if ground is not None else pos[2])
+    return Quadrotor(
+        scenario.vehicle,
+        scenario.control,
+        pos_ned_m=pos,
+        yaw_rad=math.radians(start.yaw_deg),
+        ground_down_m=ground,
+        armed=start.airborne,
+    )
+
+
+def _param_table(config: PlantConfig) -> ParamTable:
+    """The autopilot's parameters, from the scenario's failsafe and control settings
+    (ArduCopter names and units: cm, cm/s, centidegrees)."""
+    sc = config.scenario
+    fs = sc.failsafe
+    return ParamTable(
+        {
+            "GUID_TIMEOUT": fs.guided_velocity_timeout_s,
+            "DISARM_DELAY": fs.disarm_delay_s,
+            "LAND_SPEED": fs.land_speed_mps * 100.0,
+            "RTL_ALT": fs.rtl_alt_m * 100.0,
+            "WPNAV_SPEED_UP": fs.takeoff_climb_mps * 100.0,
+            "ANGLE_MAX": sc.control.max_tilt_deg * 100.0,
+            "SIM_SPEEDUP": config.speedup if math.isfinite(config.speedup) else 0.0,
+            "SIM_CAM_RATE": sc.camera.rate_hz if sc.camera.enabled else 0.0,
+        },
+        extra_specs=PX4_PARAM_SPECS if config.autopilot_flavour == "px4" else (),
+    )
+
+
 class PlantService:
     """Owns the plant's parts; :meth:`open`, :meth:`run`, :meth:`close`."""
 
     def __init__(self, config: PlantConfig) -> None:
         self.config = config
         sc = config.scenario
-        start = sc.start
-        yaw_rad = math.radians(start.yaw_deg)
-        ground = sc.ground_down_m
-        pos = start.pos_ned_m
-        if not start.airborne:
-            pos = (pos[0], pos[1], ground if ground is not None else pos[2])
-        self.quad = Quadrotor(
-            sc.vehicle,
-            sc.control,
-            pos_ned_m=pos,
-            yaw_rad=yaw_rad,
-            ground_down_m=ground,
-            armed=start.airborne,
-        )
         fs = sc.failsafe
-        self.params = ParamTable(
-            {
-                "GUID_TIMEOUT": fs.guided_velocity_timeout_s,
-                "DISARM_DELAY": fs.disarm_delay_s,
-                "LAND_SPEED": fs.land_speed_mps * 100.0,
-                "RTL_ALT": fs.rtl_alt_m * 100.0,
-                "WPNAV_SPEED_UP": fs.takeoff_climb_mps * 100.0,
-                "ANGLE_MAX": sc.control.max_tilt_deg * 100.0,
-                "SIM_SPEEDUP": config.speedup if math.isfinite(config.speedup) else 0.0,
-                "SIM_CAM_RATE": sc.camera.rate_hz if sc.camera.enabled else 0.0,
-            },
-            extra_specs=PX4_PARAM_SPECS if config.autopilot_flavour == "px4" else (),
-        )
+        ground = sc.ground_down_m
+        self.quad = _initial_vehicle(sc)
+        pos = self.quad.pos_ned_m
+        self.params = _param_table(config)
         self._base_timings = ModeTimings(land_detect_s=fs.land_detect_s)
-        home = (pos[0], pos[1], ground if ground is not None else 0.0)
+        home = (float(pos[0]), float(pos[1]), ground if ground is not None else 0.0)
         kin = self._kinematics(self.quad.snapshot())
         self.machine = FlightModeMachine(
             timings_from_params(self._base_timings, self.params),
             home_ned_m=home,
             ground_down_m=ground,
-            mode=start.mode,
-            armed=start.airborne,
+            mode=sc.start.mode,
+            armed=sc.start.airborne,
             kin=kin,
         )
         self._applied_setpoint = None
@@ -235,13 +250,9 @@ class PlantService:
 
     def readiness_line(self) -> str:
         """``PLANT_SIM READY mavlink=URL[,URL] zenoh=ENDPOINTS|off key=KEY speedup=N``."""
-        zenoh_desc = "off"
-        key = "-"
+        zenoh_desc, key = "off", "-"
         if self.publisher is not None:
-            z = self.config.zenoh
-            eps = [f"listen:{e}" for e in z.listen] + [f"connect:{e}" for e in z.connect]
-            zenoh_desc = ",".join(eps) if eps else "config"
-            key = self.publisher.key
+            zenoh_desc, key = self.config.zenoh.describe(), self.publisher.key
         return (
             f"PLANT_SIM READY mavlink={','.join(self.link.bound_urls)} zenoh={zenoh_desc} "
             f"key={key} speedup={self.config.speedup:g}"

@@ -180,37 +180,33 @@ def _sphere_texture(lat, x, y, z, cell_m, footprint_m, seed_offset):
     reads its own lattice layer, so the texture is fixed to the sphere and seamless enough
     for matching (both eyes see the same seams). Octaves finer than the pixel footprint fade.
     """
-    mask = _LATTICE_MASK
     face, s, t = _cube_face(x, y, z)
-    layer = (int(seed_offset) + 5 * face) & mask
-    fine = 0.5
-    w = _lod_weight(footprint_m, cell_m)
-    if w > 0.0:
-        c = 1.0 / cell_m
-        fine = 0.5 + w * (_value_noise2(lat, s * c, t * c, layer) - 0.5)
-    coarse = 0.5
-    w = _lod_weight(footprint_m, 4.0 * cell_m)
-    if w > 0.0:
-        c = 0.25 / cell_m
-        coarse = 0.5 + w * (_value_noise2(lat, t * c, s * c, (layer + 3) & mask) - 0.5)
-    return 0.55 * fine + 0.45 * coarse
+    layer = (int(seed_offset) + 5 * face) & _LATTICE_MASK
+    return _two_octaves(lat, s, t, layer, 3, cell_m, footprint_m)
 
 
 @numba.njit(cache=True, inline="always")
 def _ground_texture(lat, x, y, cell_m, footprint_m, seed_offset):
     """Two octaves (cell and 4× cell) of 2-D value noise in [0, 1], level-of-detail faded."""
-    mask = _LATTICE_MASK
-    layer = int(seed_offset) & mask
+    return _two_octaves(lat, x, y, int(seed_offset) & _LATTICE_MASK, 7, cell_m, footprint_m)
+
+
+@numba.njit(cache=True, inline="always")
+def _two_octaves(lat, u, v, layer, coarse_shift, cell_m, footprint_m):
+    """Value noise at the cell (layer ``layer``) and at 4× the cell (axes swapped, layer
+    ``layer + coarse_shift``), each faded toward grey as the pixel footprint outgrows it."""
     fine = 0.5
     w = _lod_weight(footprint_m, cell_m)
     if w > 0.0:
         c = 1.0 / cell_m
-        fine = 0.5 + w * (_value_noise2(lat, x * c, y * c, layer) - 0.5)
+        fine = 0.5 + w * (_value_noise2(lat, u * c, v * c, layer) - 0.5)
     coarse = 0.5
     w = _lod_weight(footprint_m, 4.0 * cell_m)
     if w > 0.0:
         c = 0.25 / cell_m
-        coarse = 0.5 + w * (_value_noise2(lat, y * c, x * c, (layer + 7) & mask) - 0.5)
+        coarse = 0.5 + w * (
+            _value_noise2(lat, v * c, u * c, (layer + coarse_shift) & _LATTICE_MASK) - 0.5
+        )
     return 0.55 * fine + 0.45 * coarse
 
 

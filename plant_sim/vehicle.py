@@ -309,16 +309,10 @@ class Quadrotor:
         """Physics step [s]."""
         return self._dt_s
 
-    def step(self, n_steps: int = 1) -> None:
-        """Advance ``n_steps`` physics steps."""
-        if n_steps < 0:
-            raise ValueError(f"n_steps must be >= 0, got {n_steps}")
-        if n_steps == 0:
-            return
-        self._state, self._phase, self._yaw_sp_rad, self._on_ground = _advance(
-            self._state,
-            self._ctrl_out,
-            int(n_steps),
+    def _loop_args(self) -> tuple:
+        """The compiled loop's arguments after (state, control output, steps): control phase,
+        rates, setpoints, gains, limits, parameters, arming and ground."""
+        return (
             self._phase,
             self.control.steps_per_control,
             self._dt_s,
@@ -333,6 +327,16 @@ class Quadrotor:
             self._k,
             self._armed,
             self._ground_z_m,
+        )
+
+    def step(self, n_steps: int = 1) -> None:
+        """Advance ``n_steps`` physics steps."""
+        if n_steps < 0:
+            raise ValueError(f"n_steps must be >= 0, got {n_steps}")
+        if n_steps == 0:
+            return
+        self._state, self._phase, self._yaw_sp_rad, self._on_ground = _advance(
+            self._state, self._ctrl_out, int(n_steps), *self._loop_args()
         )
         self._steps += int(n_steps)
         if not np.all(np.isfinite(self._state)):
@@ -375,25 +379,7 @@ class Quadrotor:
             max_pitch,
             min_surface,
         ) = _advance_watching(
-            self._state,
-            self._ctrl_out,
-            int(n_steps),
-            self._phase,
-            self.control.steps_per_control,
-            self._dt_s,
-            self._pos_sp,
-            self._vel_sp,
-            self._yaw_sp_rad,
-            self._yaw_rate_sp,
-            self._gains_pos,
-            self._gains_att,
-            self._max_tilt_rad,
-            self.control.min_vertical_accel_mps2,
-            self._k,
-            self._armed,
-            self._ground_z_m,
-            centres_paper,
-            radii,
+            self._state, self._ctrl_out, int(n_steps), *self._loop_args(), centres_paper, radii
         )
         self._steps += int(n_steps)
         if not np.all(np.isfinite(self._state)):

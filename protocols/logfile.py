@@ -8,12 +8,13 @@ the process runs as, instead of a bare "Permission denied" later.
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 from pathlib import Path
 from typing import TextIO
 
-__all__ = ["LogFileError", "start_log_file", "unwritable_message"]
+__all__ = ["LogFileError", "start_log_file", "start_logging", "unwritable_message"]
 
 
 class LogFileError(OSError):
@@ -82,3 +83,20 @@ def start_log_file(path: Path | None) -> TextIO | None:
     sys.stdout = _Tee(sys.stdout, log)  # type: ignore[assignment]
     sys.stderr = _Tee(sys.stderr, log)  # type: ignore[assignment]
     return log
+
+
+def start_logging(prog: str, log_file: Path | None, log_level: str) -> bool:
+    """A process's logging at start-up: stdout and stderr copied to ``log_file`` (if any),
+    log records at ``log_level`` and above to stderr. False, after saying why on stderr,
+    when the log file cannot be opened (the process should exit with status 2)."""
+    try:
+        start_log_file(log_file)
+    except LogFileError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return False
+    logging.basicConfig(
+        level=getattr(logging, log_level),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    return True

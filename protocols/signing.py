@@ -4,10 +4,22 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import struct
+import time
+from collections.abc import Callable
 
-__all__ = ["SIGNING_KEY_ENV", "SigningKey", "signature_valid"]
+__all__ = [
+    "SIGNING_KEY_ENV",
+    "SignatureVerifier",
+    "SigningKey",
+    "signature_valid",
+    "signing_timestamp_now",
+]
 
 _IFLAG_SIGNED = 0x01
+_V2 = 0xFD
+_SIGNING_EPOCH_UNIX_S = 1420070400  # 2015-01-01T00:00:00Z, MAVLink signing epoch
+_NEW_STREAM_WINDOW = 60 * 100_000  # a new stream may lag our timestamp by 1 min [10 µs]
 
 #: Environment variable either process reads the key from (keeps it off command lines).
 SIGNING_KEY_ENV = "STEREO_AVOID_SIGNING_KEY"
@@ -70,3 +82,53 @@ def signature_valid(secret: bytes, frame: bytes | bytearray) -> bool:
         return False
     expected = hashlib.sha256(bytes(secret) + bytes(frame[:-6])).digest()[:6]
     return hmac.compare_digest(expected, bytes(frame[-6:]))
+
+
+def signing_timestamp_now(wall_unix_s: float | None = None) -> int:
+    """MAVLink signing timestamp [10 µs since 2015-01-01] for the wall clock."""
+    now = time.time() if wall_unix_s is None else wall_unix_s
+    return int((now - _SIGNING_EPOCH_UNIX_S) * 100_000)
+
+
+class SignatureVerifier:
+    """MAVLink 2 signature check with replay protection, in the safe order.
+
+    1. signature (SHA-256 over key + frame without the signature) — a forgery stops here and
+       touches no state;
+    2. timestamp against the stream's last one (new streams: within one minute of ours);
+    3. only then record the timestamp.
+    """
+
+    def __init__(
+        self,
+        key: SigningKey,
+        clock_unix_s: Callable[[], float] = time.time,
+        last_timestamps: dict[tuple[int, int, int], int] | None = None,
+    ) -> None:
+        self._key = key
+        self._clock = clock_unix_s
+        self._last: dict[tuple[int, int, int], int] = dict(last_timestamps or {})
+
+    @property
+    def last_timestamps(self) -> dict[tuple[int, int, int], int]:
+        """Newest accepted timestamp per (link id, system, component) stream."""
+        return dict(self._last)
+
+    def verify(self, frame: bytes) -> str | None:
+        """None if ``frame`` is acceptable, else "unsigned" / "bad_signature" / "replay"."""
+        if frame[0] != _V2 or not frame[2] & _IFLAG_SIGNED or len(frame) < 25:
+            return "unsigned"
+        if not signature_valid(self._key.secret, frame):
+            return "bad_signature"
+        link_id = frame[-13]
+        tlow, thigh = struct.unpack_from("<IH", frame, len(frame) - 12)
+        timestamp = tlow | (thigh << 32)
+        stream = (link_id, frame[5], frame[6])
+        last = self._last.get(stream)
+        if last is not None:
+            if timestamp <= last:
+                return "replay"
+        elif timestamp + _NEW_STREAM_WINDOW < signing_timestamp_now(self._clock()):
+            return "replay"
+        self._last[stream] = timestamp
+        return None

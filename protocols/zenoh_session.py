@@ -25,6 +25,12 @@ class ZenohSettings:
     config_file: Path | None = None
     mode: str = "peer"
 
+    def describe(self) -> str:
+        """``listen:E,connect:E`` for readiness lines and logs; ``config`` when the
+        endpoints come from the config file only."""
+        eps = [f"listen:{e}" for e in self.listen] + [f"connect:{e}" for e in self.connect]
+        return ",".join(eps) or "config"
+
 
 def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     """The session config: the file (if any), else mode with multicast scouting off; then

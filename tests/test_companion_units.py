@@ -401,7 +401,8 @@ def _signed_frame(key: bytes, timestamp: int, sysid=1, compid=1) -> bytes:
 
 
 def test_forged_high_timestamp_does_not_block_the_genuine_stream():
-    from companion.link.connection import _safe_check_signature
+    from companion.link.connection import _verified_by
+    from protocols.signing import SignatureVerifier, SigningKey
 
     key, wrong = bytes(range(32)), bytes(32)
     now = 300_000_000_000
@@ -413,7 +414,9 @@ def test_forged_high_timestamp_does_not_block_the_genuine_stream():
     dec.signing.timestamp = now
     import types
 
-    dec.check_signature = types.MethodType(_safe_check_signature(dec.check_signature), dec)
+    # the verifier's clock at ``now`` (signing timestamps count 10 µs from 2015-01-01)
+    verifier = SignatureVerifier(SigningKey(key), clock_unix_s=lambda: 1420070400 + now * 1e-5)
+    dec.check_signature = types.MethodType(_verified_by(verifier), dec)
     with pytest.raises(mavlink.MAVError):
         dec.decode(bytearray(forged))
     assert dec.decode(bytearray(genuine)).get_type() == "HEARTBEAT"

@@ -10,7 +10,7 @@ from companion.clock_model import BootTime, BootTimeMonitor, ClockModel, FrameCl
 from companion.takeover import TakeoverGuard
 from plant_sim.autopilot.commands import MavCmd, MavResult, handle_command
 from plant_sim.autopilot.geodesy import FlatEarth
-from plant_sim.autopilot.link import SignatureVerifier, load_signing_state, save_signing_state
+from plant_sim.autopilot.link import load_signing_state, save_signing_state
 from plant_sim.autopilot.modes import FlightMode, FlightModeMachine, Kinematics, ModeTimings
 from plant_sim.autopilot.ratelimit import RateLimits, RequestLimiter, TokenBucket
 from plant_sim.autopilot.setpoints import (
@@ -19,7 +19,7 @@ from plant_sim.autopilot.setpoints import (
     check_target_range,
     decode_global_target,
 )
-from protocols.signing import SigningKey
+from protocols.signing import SignatureVerifier, SigningKey
 
 HOSTILE = (math.nan, math.inf, -math.inf, 1e30, -1e30, -1.0, 2.5e9)
 EARTH = FlatEarth(-35.363261, 149.165230, 584.0)

@@ -11,12 +11,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from plant_sim.autopilot.link import (
-    SignatureVerifier,
-    parse_endpoint,
-    signing_timestamp_now,
-    split_frames,
-)
+from plant_sim.autopilot.link import parse_endpoint, split_frames
 from plant_sim.autopilot.modes import (
     FlightMode,
     FlightModeMachine,
@@ -32,7 +27,7 @@ from plant_sim.clock import Pacer
 from plant_sim.scenario import ScenarioError, load_scenario, scenario_from_dict
 from plant_sim.tlog import TlogWriter
 from plant_sim.vehicle import Quadrotor
-from protocols.signing import SigningKey
+from protocols.signing import SignatureVerifier, SigningKey, signing_timestamp_now
 
 POSE = VehiclePose(pos_ned_m=(1.0, 2.0, -3.0), yaw_rad=math.pi / 2)
 

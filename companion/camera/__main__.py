@@ -459,12 +459,10 @@ class CameraService:
 
     def readiness_line(self) -> str:
         intrinsics, _rectify, origin = self._geometry
-        z = self.config.zenoh
-        eps = [f"listen:{e}" for e in z.listen] + [f"connect:{e}" for e in z.connect]
         return (
             f"STEREO_CAMERA READY key={self.key} source={self._source.description} "
             f"size={intrinsics.width_px}x{intrinsics.height_px} rectify={origin} "
-            f"zenoh={','.join(eps) or 'config'}"
+            f"zenoh={self.config.zenoh.describe()}"
         )
 
     def run(self, should_stop: Callable[[], bool]) -> None:

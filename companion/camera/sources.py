@@ -229,7 +229,41 @@ class _Capture:
             self._cap = None
 
 
-class V4L2PairCamera:
+class _LiveCamera:
+    """What the live cameras share: the size found on :meth:`open`, capture stamps from the
+    injected clock made strictly increasing, and the end of a video file as the end."""
+
+    description: str
+
+    def _init_live(self, requested: tuple[int, int] | None, clock: Callable[[], int]) -> None:
+        self._requested = requested
+        self._clock = clock
+        self._size: tuple[int, int] | None = None
+        self._last_ns = -1
+        self._ended = False
+
+    @property
+    def size_px(self) -> tuple[int, int] | None:
+        return self._size
+
+    def _read_pair(self) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """The next (left, right, capture time [ns]); None at the end of a file."""
+        raise NotImplementedError
+
+    def read(self) -> RawPair | None:
+        if self._ended:
+            return None
+        pair = self._read_pair()
+        if pair is None:
+            self._ended = True
+            return None
+        left, right, capture_ns = pair
+        capture_ns = max(capture_ns, self._last_ns + 1)
+        self._last_ns = capture_ns
+        return RawPair(left, right, capture_ns)
+
+
+class V4L2PairCamera(_LiveCamera):
     """Two cameras (V4L2 index or ``/dev/videoN``; a video file or pipeline also works).
 
     Parameters
@@ -259,16 +293,8 @@ class V4L2PairCamera:
             _Capture("left", left_device, size_px, fps, fourcc),
             _Capture("right", right_device, size_px, fps, fourcc),
         )
-        self._requested = size_px
-        self._clock = clock
-        self._size: tuple[int, int] | None = None
-        self._last_ns = -1
-        self._ended = False
+        self._init_live(size_px, clock)
         self.description = f"v4l2:{self._eyes[0].device},{self._eyes[1].device}"
-
-    @property
-    def size_px(self) -> tuple[int, int] | None:
-        return self._size
 
     def open(self) -> None:
         try:
@@ -301,28 +327,23 @@ class V4L2PairCamera:
         left, right = (eye.retrieve() for eye in self._eyes)
         return left, right, sum(stamps) // 2
 
-    def read(self) -> RawPair | None:
-        if self._ended:
-            return None
+    def _read_pair(self) -> tuple[np.ndarray, np.ndarray, int] | None:
         left, right, capture_ns = self._grab_pair()
         if left is None or right is None:
-            self._ended = True
             return None
         for eye, image in zip(self._eyes, (left, right), strict=True):
             if _shape_size(image) != self._size:
                 raise SourceError(
                     f"{eye.name}: frame size changed to {_size_text(_shape_size(image))}"
                 )
-        capture_ns = max(capture_ns, self._last_ns + 1)
-        self._last_ns = capture_ns
-        return RawPair(left, right, capture_ns)
+        return left, right, capture_ns
 
     def close(self) -> None:
         for eye in self._eyes:
             eye.close()
 
 
-class SideBySideCamera:
+class SideBySideCamera(_LiveCamera):
     """One UVC stereo camera delivering ``[left | right]`` in one frame of width ``2·W``.
 
     Parameters
@@ -346,16 +367,8 @@ class SideBySideCamera:
         full = (2 * size_px[0], size_px[1]) if size_px is not None else None
         note = f" (2 x {_size_text(size_px)} side by side)" if size_px is not None else ""
         self._cap = _Capture("side-by-side", device, full, fps, fourcc, note)
-        self._requested = full
-        self._clock = clock
-        self._size: tuple[int, int] | None = None
-        self._last_ns = -1
-        self._ended = False
+        self._init_live(full, clock)
         self.description = f"side-by-side:{self._cap.device}"
-
-    @property
-    def size_px(self) -> tuple[int, int] | None:
-        return self._size
 
     def open(self) -> None:
         try:
@@ -382,12 +395,9 @@ class SideBySideCamera:
         capture_ns = self._clock()
         return self._cap.retrieve(), capture_ns
 
-    def read(self) -> RawPair | None:
-        if self._ended:
-            return None
+    def _read_pair(self) -> tuple[np.ndarray, np.ndarray, int] | None:
         frame = self._grab()
         if frame is None:
-            self._ended = True
             return None
         image, capture_ns = frame
         w, h = self._size
@@ -395,11 +405,7 @@ class SideBySideCamera:
             raise SourceError(
                 f"{self._cap.name}: frame size changed to {_size_text(_shape_size(image))}"
             )
-        capture_ns = max(capture_ns, self._last_ns + 1)
-        self._last_ns = capture_ns
-        return RawPair(
-            np.ascontiguousarray(image[:, :w]), np.ascontiguousarray(image[:, w:]), capture_ns
-        )
+        return np.ascontiguousarray(image[:, :w]), np.ascontiguousarray(image[:, w:]), capture_ns
 
     def close(self) -> None:
         self._cap.close()

@@ -6,8 +6,9 @@ adds what the companion needs around it:
 
 * MAVLink 2 signing with a 32-byte key. pymavlink's ``check_signature`` records a new
   stream's timestamp *before* it verifies the signature, so one forged frame with a huge
-  timestamp would block the genuine stream; here the SHA-256 signature is verified first
-  and pymavlink's replay check only runs for authentic frames.
+  timestamp would block the genuine stream; here it is replaced by
+  :class:`protocols.signing.SignatureVerifier` (the check plant-sim uses too): the SHA-256
+  signature first, and the replay check only for authentic frames.
 * Counters of every refused or malformed frame (:class:`LinkCounters`), never an exception.
 * ``poll()`` drains everything that is waiting (a receiver that falls behind a 50 Hz ×
   speedup stream must drain, DESIGN.md budget), ``fileno()`` for ``select``.
@@ -20,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
+import struct
 import types
 from dataclasses import dataclass
 
@@ -27,9 +29,9 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.config import SigningKey
-from protocols.signing import signature_valid
+from protocols.signing import SignatureVerifier
 
-__all__ = ["LinkCounters", "MavlinkConnection", "signature_valid"]
+__all__ = ["LinkCounters", "MavlinkConnection"]
 
 _log = logging.getLogger("companion.link")
 
@@ -48,11 +50,16 @@ class LinkCounters:
         return dataclasses.asdict(self)
 
 
-def _safe_check_signature(original):
+def _verified_by(verifier: SignatureVerifier):
+    """pymavlink's ``check_signature`` replaced by ``verifier`` (signature, then replay);
+    our outgoing timestamp stays ahead of every accepted one, as pymavlink keeps it."""
+
     def check(self, msgbuf, src_system, src_component):
-        if self.signing.secret_key is None or not signature_valid(self.signing.secret_key, msgbuf):
+        if verifier.verify(bytes(msgbuf)) is not None:
             return False
-        return original(msgbuf, src_system, src_component)
+        tlow, thigh = struct.unpack_from("<IH", msgbuf, len(msgbuf) - 12)
+        self.signing.timestamp = max(self.signing.timestamp, tlow | (thigh << 32))
+        return True
 
     return check
 
@@ -112,8 +119,8 @@ class MavlinkConnection:
             conn.setup_signing(
                 self._signing_key.secret, sign_outgoing=True, allow_unsigned_callback=None
             )
-            mav = conn.mav
-            mav.check_signature = types.MethodType(_safe_check_signature(mav.check_signature), mav)
+            verifier = SignatureVerifier(self._signing_key)
+            conn.mav.check_signature = types.MethodType(_verified_by(verifier), conn.mav)
         self._conn = conn
 
     def close(self) -> None:

@@ -45,18 +45,16 @@ from pathlib import Path
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from plant_sim.autopilot.ratelimit import TokenBucket
-from protocols.signing import SigningKey, signature_valid
+from protocols.signing import SignatureVerifier, SigningKey, signing_timestamp_now
 
 __all__ = [
     "PEER_TIMEOUT_S",
     "EndpointSpec",
     "LinkStats",
     "MavlinkLink",
-    "SignatureVerifier",
     "load_signing_state",
     "parse_endpoint",
     "save_signing_state",
-    "signing_timestamp_now",
     "split_frames",
 ]
 
@@ -64,8 +62,6 @@ _log = logging.getLogger("plant_sim.link")
 
 PEER_TIMEOUT_S = 30.0
 _MAX_DATAGRAM = 65535
-_SIGNING_EPOCH_UNIX_S = 1420070400  # 2015-01-01T00:00:00Z, MAVLink signing epoch
-_NEW_STREAM_WINDOW = 60 * 100_000  # a new stream may lag our timestamp by 1 min [10 µs]
 _V1, _V2 = 0xFE, 0xFD
 _IFLAG_SIGNED = 0x01
 
@@ -109,12 +105,6 @@ def parse_endpoint(url: str) -> EndpointSpec:
     if not host:
         raise ValueError(f"MAVLink endpoint {url!r}: empty host")
     return EndpointSpec(kind, host, port)
-
-
-def signing_timestamp_now(wall_unix_s: float | None = None) -> int:
-    """MAVLink signing timestamp [10 µs since 2015-01-01] for the wall clock."""
-    now = time.time() if wall_unix_s is None else wall_unix_s
-    return int((now - _SIGNING_EPOCH_UNIX_S) * 100_000)
 
 
 @dataclass
@@ -180,50 +170,6 @@ def split_frames(data: bytes) -> Iterator[tuple[str, int, bytes]]:
             return
         yield ("frame", j, data[j : j + total])
         i = j + total
-
-
-class SignatureVerifier:
-    """MAVLink 2 signature check with replay protection, in the safe order.
-
-    1. signature (SHA-256 over key + frame without the signature) — a forgery stops here and
-       touches no state;
-    2. timestamp against the stream's last one (new streams: within one minute of ours);
-    3. only then record the timestamp.
-    """
-
-    def __init__(
-        self,
-        key: SigningKey,
-        clock_unix_s: Callable[[], float] = time.time,
-        last_timestamps: dict[tuple[int, int, int], int] | None = None,
-    ) -> None:
-        self._key = key
-        self._clock = clock_unix_s
-        self._last: dict[tuple[int, int, int], int] = dict(last_timestamps or {})
-
-    @property
-    def last_timestamps(self) -> dict[tuple[int, int, int], int]:
-        """Newest accepted timestamp per (link id, system, component) stream."""
-        return dict(self._last)
-
-    def verify(self, frame: bytes) -> str | None:
-        """None if ``frame`` is acceptable, else "unsigned" / "bad_signature" / "replay"."""
-        if frame[0] != _V2 or not frame[2] & _IFLAG_SIGNED or len(frame) < 25:
-            return "unsigned"
-        if not signature_valid(self._key.secret, frame):
-            return "bad_signature"
-        link_id = frame[-13]
-        tlow, thigh = struct.unpack_from("<IH", frame, len(frame) - 12)
-        timestamp = tlow | (thigh << 32)
-        stream = (link_id, frame[5], frame[6])
-        last = self._last.get(stream)
-        if last is not None:
-            if timestamp <= last:
-                return "replay"
-        elif timestamp + _NEW_STREAM_WINDOW < signing_timestamp_now(self._clock()):
-            return "replay"
-        self._last[stream] = timestamp
-        return None
 
 
 def load_signing_state(path: Path) -> dict[tuple[int, int, int], int]:

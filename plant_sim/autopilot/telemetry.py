@@ -216,73 +216,18 @@ class TelemetryBuilder:
         signing_refused: int = 0,
     ):
         """The message ``name`` for the state at ``snap.time_s``."""
-        t_ms = _ms(snap.time_s)
         if name == "HEARTBEAT":
             return self.heartbeat(machine)
         if name == "LOCAL_POSITION_NED":
-            p, v = snap.pos_ned_m, snap.vel_ned_mps
-            return mavlink.MAVLink_local_position_ned_message(
-                t_ms, float(p[0]), float(p[1]), float(p[2]), float(v[0]), float(v[1]), float(v[2])
-            )
+            return _local_position(snap)
         if name == "ATTITUDE":
-            w = snap.body_rates_frd_radps
-            return mavlink.MAVLink_attitude_message(
-                t_ms,
-                snap.roll_rad,
-                snap.pitch_rad,
-                snap.yaw_rad,
-                float(w[0]),
-                float(w[1]),
-                float(w[2]),
-            )
+            return _attitude(snap)
         if name == "GLOBAL_POSITION_INT":
-            lat, lon, alt = self.geodetic(snap.pos_ned_m)
-            rel_mm = round((machine.home_ned_m[2] - float(snap.pos_ned_m[2])) * 1000.0)
-            v = snap.vel_ned_mps
-            return mavlink.MAVLink_global_position_int_message(
-                t_ms,
-                lat,
-                lon,
-                alt,
-                rel_mm,
-                round(float(v[0]) * 100.0),
-                round(float(v[1]) * 100.0),
-                round(float(v[2]) * 100.0),
-                _wrap_cdeg(snap.yaw_rad),
-            )
+            return self.global_position(snap, machine)
         if name == "GPS_RAW_INT":
-            lat, lon, alt = self.geodetic(snap.pos_ned_m)
-            v = snap.vel_ned_mps
-            ground_speed = math.hypot(float(v[0]), float(v[1]))
-            cog = _wrap_cdeg(math.atan2(float(v[1]), float(v[0]))) if ground_speed > 0.1 else 65535
-            return mavlink.MAVLink_gps_raw_int_message(
-                int(snap.time_s * 1e6),
-                mavlink.GPS_FIX_TYPE_3D_FIX,
-                lat,
-                lon,
-                alt,
-                80,  # eph: HDOP 0.8
-                120,  # epv: VDOP 1.2
-                round(ground_speed * 100.0),
-                cog,
-                12,
-            )
+            return self.gps_raw(snap)
         if name == "SYS_STATUS":
-            return mavlink.MAVLink_sys_status_message(
-                SENSORS_PRESENT,
-                SENSORS_PRESENT,
-                SENSORS_PRESENT,
-                100,  # load 10 %
-                12600,  # mV
-                -1,  # current unknown
-                100,  # battery %
-                0,
-                min(comm_errors, 65535),
-                min(signing_refused, 65535),
-                0,
-                0,
-                0,
-            )
+            return _sys_status(comm_errors, signing_refused)
         if name == "EXTENDED_SYS_STATE":
             return mavlink.MAVLink_extended_sys_state_message(
                 mavlink.MAV_VTOL_STATE_UNDEFINED, int(machine.landed_state)
@@ -294,8 +239,44 @@ class TelemetryBuilder:
         if name == "AUTOPILOT_VERSION":
             return self.autopilot_version()
         if name == "SYSTEM_TIME":
-            return mavlink.MAVLink_system_time_message(int(wall_unix_s * 1e6), t_ms)
+            return mavlink.MAVLink_system_time_message(int(wall_unix_s * 1e6), _ms(snap.time_s))
         raise KeyError(f"no builder for message {name!r}")
+
+    def global_position(self, snap: VehicleState, machine: FlightModeMachine):
+        """GLOBAL_POSITION_INT: position about the fixed home, altitude above home."""
+        lat, lon, alt = self.geodetic(snap.pos_ned_m)
+        rel_mm = round((machine.home_ned_m[2] - float(snap.pos_ned_m[2])) * 1000.0)
+        v = snap.vel_ned_mps
+        return mavlink.MAVLink_global_position_int_message(
+            _ms(snap.time_s),
+            lat,
+            lon,
+            alt,
+            rel_mm,
+            round(float(v[0]) * 100.0),
+            round(float(v[1]) * 100.0),
+            round(float(v[2]) * 100.0),
+            _wrap_cdeg(snap.yaw_rad),
+        )
+
+    def gps_raw(self, snap: VehicleState):
+        """GPS_RAW_INT: a 3-D fix with 12 satellites, course over ground above 0.1 m/s."""
+        lat, lon, alt = self.geodetic(snap.pos_ned_m)
+        v = snap.vel_ned_mps
+        ground_speed = math.hypot(float(v[0]), float(v[1]))
+        cog = _wrap_cdeg(math.atan2(float(v[1]), float(v[0]))) if ground_speed > 0.1 else 65535
+        return mavlink.MAVLink_gps_raw_int_message(
+            int(snap.time_s * 1e6),
+            mavlink.GPS_FIX_TYPE_3D_FIX,
+            lat,
+            lon,
+            alt,
+            80,  # eph: HDOP 0.8
+            120,  # epv: VDOP 1.2
+            round(ground_speed * 100.0),
+            cog,
+            12,
+        )
 
     def home_position(self, machine: FlightModeMachine, time_s: float):
         home = machine.home_ned_m
@@ -360,3 +341,49 @@ class TelemetryBuilder:
             self.identity.uid,
             [0] * 18,
         )
+
+
+def _local_position(snap: VehicleState):
+    p, v = snap.pos_ned_m, snap.vel_ned_mps
+    return mavlink.MAVLink_local_position_ned_message(
+        _ms(snap.time_s),
+        float(p[0]),
+        float(p[1]),
+        float(p[2]),
+        float(v[0]),
+        float(v[1]),
+        float(v[2]),
+    )
+
+
+def _attitude(snap: VehicleState):
+    w = snap.body_rates_frd_radps
+    return mavlink.MAVLink_attitude_message(
+        _ms(snap.time_s),
+        snap.roll_rad,
+        snap.pitch_rad,
+        snap.yaw_rad,
+        float(w[0]),
+        float(w[1]),
+        float(w[2]),
+    )
+
+
+def _sys_status(comm_errors: int, signing_refused: int):
+    """SYS_STATUS: every sensor present, enabled and healthy (MAVSDK's health_all_ok);
+    the link's errors and refused signatures in its error counters."""
+    return mavlink.MAVLink_sys_status_message(
+        SENSORS_PRESENT,
+        SENSORS_PRESENT,
+        SENSORS_PRESENT,
+        100,  # load 10 %
+        12600,  # mV
+        -1,  # current unknown
+        100,  # battery %
+        0,
+        min(comm_errors, 65535),
+        min(signing_refused, 65535),
+        0,
+        0,
+        0,
+    )

@@ -32,16 +32,25 @@ def write_figures(
     """Write fig6_trajectory.png … fig11_avoid_flag.png into ``out_dir``; return the paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    t = history.column("time_s")
-    paths: list[Path] = []
-
-    def save(fig: Figure, name: str) -> None:
+    figures = {
+        "fig6_trajectory.png": _trajectory(history, world, goal_ned_m),
+        "fig7_attitude.png": _attitude(history, max_tilt_deg),
+        "fig8_velocity.png": _velocity(history),
+        "fig9_rotor_thrust.png": _rotor_thrust(history, rotor_limits_n),
+        "fig10_distance.png": _distance(history, detect_threshold_m),
+        "fig11_avoid_flag.png": _avoid_flag(history),
+    }
+    paths = []
+    for name, fig in figures.items():
         fig.tight_layout()
         path = out_dir / name
         fig.savefig(path, dpi=110)
         paths.append(path)
+    return paths
 
-    # Fig. 6: trajectory, top view (east right, north up) and side view
+
+def _trajectory(history: History, world: World, goal_ned_m: Sequence[float]) -> Figure:
+    """Fig. 6: trajectory, top view (east right, north up) and side view."""
     north, east, down = (history.column(c) for c in ("north_m", "east_m", "down_m"))
     fig = Figure(figsize=(11, 4.8))
     top, side = fig.subplots(1, 2)
@@ -60,9 +69,12 @@ def write_figures(
     side.set(xlabel="north [m]", ylabel="altitude [m]", title="side view")
     side.set_aspect("equal", adjustable="datalim")
     side.grid(True, alpha=0.3)
-    save(fig, "fig6_trajectory.png")
+    return fig
 
-    # Fig. 7: attitude, commanded (dotted) vs actual (solid)
+
+def _attitude(history: History, max_tilt_deg: float) -> Figure:
+    """Fig. 7: attitude, commanded (dotted) vs actual (solid)."""
+    t = history.column("time_s")
     fig = Figure(figsize=(9, 7))
     axes = fig.subplots(3, 1, sharex=True)
     for ax, name in zip(axes, ("roll", "pitch", "yaw"), strict=True):
@@ -81,9 +93,12 @@ def write_figures(
     axes[0].legend(loc="upper right", fontsize=8)
     axes[0].set_title("Fig. 7 attitude (MAVLink roll/pitch/yaw, NED)")
     axes[-1].set_xlabel("time [s]")
-    save(fig, "fig7_attitude.png")
+    return fig
 
-    # Fig. 8: velocity
+
+def _velocity(history: History) -> Figure:
+    """Fig. 8: velocity, NED."""
+    t = history.column("time_s")
     fig = Figure(figsize=(9, 4))
     ax = fig.subplots()
     for name, style in (("vn", "b-"), ("ve", "g-"), ("vd", "r-")):
@@ -91,9 +106,12 @@ def write_figures(
     ax.set(xlabel="time [s]", ylabel="velocity [m/s]", title="Fig. 8 velocity (NED)")
     ax.legend(fontsize=8)
     ax.grid(True, alpha=0.3)
-    save(fig, "fig8_velocity.png")
+    return fig
 
-    # Fig. 9: rotor thrusts
+
+def _rotor_thrust(history: History, rotor_limits_n: tuple[float, float]) -> Figure:
+    """Fig. 9: rotor thrusts and their limits."""
+    t = history.column("time_s")
     fig = Figure(figsize=(9, 4))
     ax = fig.subplots()
     for i in range(1, 5):
@@ -103,9 +121,12 @@ def write_figures(
     ax.set(xlabel="time [s]", ylabel="thrust [N]", title="Fig. 9 rotor thrusts")
     ax.legend(fontsize=8)
     ax.grid(True, alpha=0.3)
-    save(fig, "fig9_rotor_thrust.png")
+    return fig
 
-    # Fig. 10: distance to the obstacle surface
+
+def _distance(history: History, detect_threshold_m: float) -> Figure:
+    """Fig. 10: distance from the vehicle centre to the nearest obstacle surface."""
+    t = history.column("time_s")
     dist = history.column("nearest_surface_m")
     fig = Figure(figsize=(9, 4))
     ax = fig.subplots()
@@ -118,18 +139,19 @@ def write_figures(
     ax.set(xlabel="time [s]", ylabel="distance [m]", title="Fig. 10 distance from obstacle")
     ax.legend(fontsize=8)
     ax.grid(True, alpha=0.3)
-    save(fig, "fig10_distance.png")
+    return fig
 
-    # Fig. 11: avoidance flag
+
+def _avoid_flag(history: History) -> Figure:
+    """Fig. 11: the avoidance flag."""
     fig = Figure(figsize=(9, 2.8))
     ax = fig.subplots()
-    ax.step(t, history.column("avoid_flag"), "b-", where="post")
+    ax.step(history.column("time_s"), history.column("avoid_flag"), "b-", where="post")
     ax.set(
         xlabel="time [s]", ylabel="flag", title="Fig. 11 collision avoidance flag", ylim=(-0.1, 1.1)
     )
     ax.grid(True, alpha=0.3)
-    save(fig, "fig11_avoid_flag.png")
-    return paths
+    return fig
 
 
 def _obstacle_patches(world: World, top_view: bool) -> list:

@@ -338,10 +338,8 @@ def run_sil(
     out = Path(options.out_dir).resolve()  # the children may run anywhere
     out.mkdir(parents=True, exist_ok=True)
     mav_port = free_port()
-    zen_port = free_port(socket.SOCK_STREAM)
-    zen = f"tcp/127.0.0.1:{zen_port}"
+    zen = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     env = {"STEREO_AVOID_SIGNING_KEY": options.signing_key} if options.signing_key else {}
-    vehicle = scenario.vehicle_id
     companion = ChildProcess(
         "companion",
         "companion",
@@ -351,7 +349,7 @@ def run_sil(
             "--zenoh-listen",
             zen,
             "--vehicle-id",
-            vehicle,
+            scenario.vehicle_id,
             "--goal",
             *(str(x) for x in goal),
             *options.companion_args,
@@ -362,46 +360,74 @@ def run_sil(
     wall_start = time.monotonic()
     try:
         companion.wait_line(r"^COMPANION READY ", options.startup_timeout_s)
-        plant_cmd = [
-            "--mavlink",
-            f"udpin:127.0.0.1:{mav_port}",
-            "--zenoh-connect",
-            zen,
-            "--zenoh-listen",
-            f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}",
-            "--speedup",
-            f"{options.speedup:g}",
-            "--log-dir",
-            str(out),
-            *options.plant_args,
-        ]
-        if options.scenario_path:
-            plant_cmd += ["--scenario", str(options.scenario_path)]
-        plant = ChildProcess("plant-sim", "plant_sim", plant_cmd, env)
+        plant = _start_plant(options, out, mav_port, zen, env)
         plant.wait_line(r"^PLANT_SIM READY ", options.startup_timeout_s)
         say(f"plant-sim and companion up (MAVLink udp {mav_port}, Zenoh {zen})")
-        steering = companion.wait_line(r"^COMPANION EVENT steering ", 30.0)
-        t0 = json.loads(steering.string.split(" ", 3)[3]).get("autopilot_time_s") or 0.0
-        say(f"companion steering at t={t0:.2f} s (simulation time)")
-        deadline = time.monotonic() + options.max_time_s / options.speedup + 10.0
-        last_say = 0.0
-        while time.monotonic() < deadline:
-            if companion.events("goal_reached") or plant.proc.poll() is not None:
-                break
-            if companion.proc.poll() is not None:
-                raise RuntimeError(f"companion exited\n{companion.logs()}")
-            if time.monotonic() - last_say >= 1.0:
-                last_say = time.monotonic()
-                last = _last_progress(companion.stderr_text())
-                if last:
-                    say(last)
-            time.sleep(0.05)
-        time.sleep(0.5)  # a little of the flight after the goal, as the truth log samples it
+        t0 = _fly(options, companion, plant, say)
     finally:
         if plant is not None:
             plant.stop()
         companion.stop()
-    wall = time.monotonic() - wall_start
+    return _collect(options, out, goal, companion, plant, t0, time.monotonic() - wall_start)
+
+
+def _start_plant(
+    options: SilOptions, out: Path, mav_port: int, zen: str, env: dict[str, str]
+) -> ChildProcess:
+    """plant-sim connected to the companion's MAVLink port and Zenoh endpoint."""
+    plant_cmd = [
+        "--mavlink",
+        f"udpin:127.0.0.1:{mav_port}",
+        "--zenoh-connect",
+        zen,
+        "--zenoh-listen",
+        f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}",
+        "--speedup",
+        f"{options.speedup:g}",
+        "--log-dir",
+        str(out),
+        *options.plant_args,
+    ]
+    if options.scenario_path:
+        plant_cmd += ["--scenario", str(options.scenario_path)]
+    return ChildProcess("plant-sim", "plant_sim", plant_cmd, env)
+
+
+def _fly(
+    options: SilOptions, companion: ChildProcess, plant: ChildProcess, say: Callable[[str], None]
+) -> float:
+    """Wait for the companion to steer, then for the goal, plant-sim's end or the time
+    limit, saying the companion's progress once a second; the steering time [s, sim]."""
+    steering = companion.wait_line(r"^COMPANION EVENT steering ", 30.0)
+    t0 = json.loads(steering.string.split(" ", 3)[3]).get("autopilot_time_s") or 0.0
+    say(f"companion steering at t={t0:.2f} s (simulation time)")
+    deadline = time.monotonic() + options.max_time_s / options.speedup + 10.0
+    last_say = 0.0
+    while time.monotonic() < deadline:
+        if companion.events("goal_reached") or plant.proc.poll() is not None:
+            break
+        if companion.proc.poll() is not None:
+            raise RuntimeError(f"companion exited\n{companion.logs()}")
+        if time.monotonic() - last_say >= 1.0:
+            last_say = time.monotonic()
+            last = _last_progress(companion.stderr_text())
+            if last:
+                say(last)
+        time.sleep(0.05)
+    time.sleep(0.5)  # a little of the flight after the goal, as the truth log samples it
+    return t0
+
+
+def _collect(
+    options: SilOptions,
+    out: Path,
+    goal,
+    companion: ChildProcess,
+    plant: ChildProcess | None,
+    t0: float,
+    wall_s: float,
+) -> SilResult:
+    """The children's logs into ``out``, their statistics, and the verdict from the truth."""
     events = companion.events()
     companion_stats = companion.stats("COMPANION STATS ")
     plant_stats = plant.stats("PLANT_SIM STATS ") if plant is not None else None
@@ -420,7 +446,7 @@ def run_sil(
         t0_s=t0,
         avoid_intervals=intervals,
         frames=(companion_stats or {}).get("frames_processed", 0),
-        wall_time_s=wall,
+        wall_time_s=wall_s,
     )
     return SilResult(
         verdict=verdict,
