@@ -168,6 +168,10 @@ def _replay(args: argparse.Namespace) -> int:
     return _fly_and_report(scene_of(seed, args.family), out, args.json, cfg)
 
 
+_FAMILIES = ["mixed", *FAMILIES]
+_PERCEPTIONS = ["stereo", "truth"]
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="stereo-avoid", description=__doc__.split("\n")[0].split(": ", 1)[1]
@@ -176,7 +180,24 @@ def _parser() -> argparse.ArgumentParser:
     paper = sub.add_parser("paper", help="fly the paper's §6 scenario in lockstep")
     paper.add_argument("--out", type=Path, default=Path("runs/paper"), help="output folder")
     paper.add_argument("--json", action="store_true", help="print the verdict as JSON")
-    mc = sub.add_parser("montecarlo", help="random scenes on a Dask cluster (local or remote)")
+    _add_montecarlo(sub.add_parser("montecarlo", help="random scenes on a Dask cluster"))
+    replay = sub.add_parser("replay", help="fly one Monte Carlo scene again by its seed")
+    replay.add_argument("target", metavar="SEED", help="Monte Carlo seed (an integer)")
+    replay.add_argument("--out", type=Path, default=None, help="output folder")
+    replay.add_argument("--json", action="store_true", help="print the verdict as JSON")
+    replay.add_argument("--family", choices=_FAMILIES, default="mixed", help="scene family")
+    replay.add_argument(
+        "--perception", choices=_PERCEPTIONS, default="stereo", help="as in montecarlo"
+    )
+    replay.add_argument(
+        "--max-time-s", type=float, default=None, help="as in montecarlo (default 90 s)"
+    )
+    _add_sil(sub.add_parser("sil", help="plant-sim + companion as processes on loopback"))
+    return parser
+
+
+def _add_montecarlo(mc: argparse.ArgumentParser) -> None:
+    """``stereo-avoid montecarlo``: batch size, cluster, output and scene options."""
     mc.add_argument("--n", type=int, default=20, help="number of scenes")
     mc.add_argument("--seed", type=int, default=0, help="first seed")
     mc.add_argument(
@@ -201,14 +222,12 @@ def _parser() -> argparse.ArgumentParser:
         "--resume", action="store_true", help="finish the run in --out: skip finished seeds"
     )
     mc.add_argument("--json", action="store_true", help="print the summary as JSON")
-    families = ["mixed", *FAMILIES]
     mc.add_argument(
-        "--family", choices=families, default="mixed", help="scene family (mixed: by seed)"
+        "--family", choices=_FAMILIES, default="mixed", help="scene family (mixed: by seed)"
     )
-    perceptions = ["stereo", "truth"]
     mc.add_argument(
         "--perception",
-        choices=perceptions,
+        choices=_PERCEPTIONS,
         default="stereo",
         help="stereo matcher (default) or ground truth (the renderer's exact depth)",
     )
@@ -218,18 +237,10 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="simulation time limit per scene (default 90 s; shorter for smoke runs)",
     )
-    replay = sub.add_parser("replay", help="fly one Monte Carlo scene again by its seed")
-    replay.add_argument("target", metavar="SEED", help="Monte Carlo seed (an integer)")
-    replay.add_argument("--out", type=Path, default=None, help="output folder")
-    replay.add_argument("--json", action="store_true", help="print the verdict as JSON")
-    replay.add_argument("--family", choices=families, default="mixed", help="scene family")
-    replay.add_argument(
-        "--perception", choices=perceptions, default="stereo", help="as in montecarlo"
-    )
-    replay.add_argument(
-        "--max-time-s", type=float, default=None, help="as in montecarlo (default 90 s)"
-    )
-    sil = sub.add_parser("sil", help="plant-sim + companion as processes on loopback")
+
+
+def _add_sil(sil: argparse.ArgumentParser) -> None:
+    """``stereo-avoid sil``: scenario, pace, output and which autopilot flies it."""
     sil.add_argument("--scenario", type=Path, default=None, help="plant-sim scenario file")
     sil.add_argument("--speedup", type=float, default=4.0, help="simulation speed-up")
     sil.add_argument("--out", type=Path, default=Path("runs/sil"), help="output folder")
@@ -251,7 +262,6 @@ def _parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="extra SITL parameter file (NAME VALUE lines, e.g. WPNAV_SPEED 100), repeatable",
     )
-    return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
