@@ -167,8 +167,6 @@ def run_scene(
         yaw_rad=scene.start_yaw_rad,
         ground_down_m=None if scene.world.ground is None else scene.world.ground.down_m,
     )
-    renderer = StereoCameraRenderer(cfg.camera, cfg.render)
-    intrinsics = cfg.camera.intrinsics
     mission = Mission(
         scene.waypoints_ned_m,
         cfg.goal_tolerance_m,
@@ -177,104 +175,133 @@ def run_scene(
         cfg.known_space,
         cfg.envelope,
     )
-    truth: TruthPerception | None = None
-    if cfg.truth_perception:
-        truth = mission.pipeline.perception = TruthPerception(cfg.perception)
-        blank = np.zeros((intrinsics.height_px, intrinsics.width_px), np.uint8)
-        blank.flags.writeable = False
+    shoot = _camera(scene, cfg, mission)
     centres_ned_m = np.array([s.center_ned_m for s in scene.world.spheres]).reshape(-1, 3)
     radii_m = np.array([s.radius_m for s in scene.world.spheres])
     goal = np.asarray(scene.goal_ned_m, dtype=float)
     history = History()
     frame_period_s = 1.0 / cfg.camera_rate_hz
-
-    min_surface = math.inf
-    max_roll = max_pitch = 0.0
-    avoid_time = 0.0
-    reached = collided = False
-    failure: str | None = None
+    tally = _Tally()
     seq = 0
     next_progress_s = 0.0
     pending_kills = sorted(float(t) for t in kill_times_s)
-    hold_since: float | None = None
-    hold_reason: str | None = None
     kills: list[KillOutcome] = []
     while True:
         state = quad.snapshot()
-        R_ned_from_frd = state.R_ned_from_frd
-        if truth is None:
-            frame = _render_frame(renderer, scene.world, state, R_ned_from_frd, seq, intrinsics)
-        else:
-            depth = renderer.render_depth(scene.world, state.pos_ned_m, R_ned_from_frd)
-            truth.provide(seq, depth)
-            frame = StereoFrame(seq, round(state.time_s * 1e9), intrinsics, blank, blank)
-        pose = PoseAtCapture(state.pos_ned_m, state.vel_ned_mps, R_ned_from_frd)
-        out = mission.step(frame, pose).output
-        decision = out.guidance
+        pose = PoseAtCapture(state.pos_ned_m, state.vel_ned_mps, state.R_ned_from_frd)
+        out = mission.step(shoot(state, seq), pose).output
         quad.set_setpoint(Setpoint(pos_ned_m=tuple(out.setpoint_ned_m), yaw_rad=out.yaw_rad))
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
-        goal_dist = math.dist(state.pos_ned_m, goal)
         if record_history:
             _record(history, state, surface, out, len(out.perception.obstacles))
-        min_surface = min(min_surface, surface)
-        if decision.avoidance_flag:
-            avoid_time += frame_period_s
+        tally.min_surface = min(tally.min_surface, surface)
+        if out.guidance.avoidance_flag:
+            tally.avoid_time += frame_period_s
         if progress is not None and state.time_s >= next_progress_s:
-            progress(state.time_s, goal_dist)
+            progress(state.time_s, math.dist(state.pos_ned_m, goal))
             next_progress_s += 1.0
         while pending_kills and state.time_s >= pending_kills[0] - 1e-9:
             kills.append(_kill_tail(copy.deepcopy(quad), scene.world, pending_kills.pop(0), cfg))
-        if surface < cfg.collision_distance_m:
-            collided, failure = True, "collision"
-            break
-        if mission.goal_reached:  # the last waypoint, within goal_tolerance_m
-            reached = True
-            break
-        # a reported stop (HOLD) that has come to rest ends the run: the world is static
-        if decision.mode is Mode.HOLD and float(np.linalg.norm(state.vel_ned_mps)) < 0.05:
-            hold_since = state.time_s if hold_since is None else hold_since
-            if state.time_s - hold_since >= 2.0:
-                failure, hold_reason = "hold", decision.reason.value
-                break
-        else:
-            hold_since = None
-        if state.time_s >= cfg.max_time_s:
-            failure = "hold" if decision.mode is Mode.HOLD else "timeout"
-            hold_reason = decision.reason.value if failure == "hold" else None
+        if tally.ends_run(cfg, mission, out.guidance, state, surface):
             break
         if cfg.companion_stop_s is not None and state.time_s >= cfg.companion_stop_s:
-            tail = _kill_tail(quad, scene.world, state.time_s, cfg)
-            min_surface = min(min_surface, tail.min_surface_distance_m)
-            reached = float(np.linalg.norm(quad.pos_ned_m - goal)) < cfg.goal_tolerance_m
-            collided = min_surface < cfg.collision_distance_m
-            failure = "collision" if collided else "companion_stopped"
+            tally.companion_stops(_kill_tail(quad, scene.world, state.time_s, cfg), quad, goal, cfg)
             break
         # advance to the next frame, watching commanded tilt and clearance at every step
         seq += 1
-        t_next = seq * frame_period_s
-        n_steps = _steps_until(quad, t_next)
+        n_steps = _steps_until(quad, seq * frame_period_s)
         roll_cmd, pitch_cmd, surface_min = quad.step_watching(n_steps, centres_ned_m, radii_m)
-        max_roll = max(max_roll, roll_cmd)
-        max_pitch = max(max_pitch, pitch_cmd)
-        min_surface = min(min_surface, surface_min)
-
-    verdict = Verdict(
-        scene=scene.name,
-        seed=scene.seed,
-        reached_goal=reached,
-        collided=collided,
-        min_surface_distance_m=round(min_surface, 4),
-        max_roll_cmd_deg=round(math.degrees(max_roll), 4),
-        max_pitch_cmd_deg=round(math.degrees(max_pitch), 4),
-        avoidance_time_s=round(avoid_time, 4),
-        sim_time_s=round(quad.time_s, 4),
-        wall_time_s=round(time.perf_counter() - wall_start, 3),
-        final_goal_distance_m=round(float(np.linalg.norm(quad.pos_ned_m - goal)), 4),
-        frames=seq + 1,
-        failure=failure,
-        hold_reason=hold_reason,
-    )
+        tally.max_roll = max(tally.max_roll, roll_cmd)
+        tally.max_pitch = max(tally.max_pitch, pitch_cmd)
+        tally.min_surface = min(tally.min_surface, surface_min)
+    verdict = tally.verdict(scene, quad, goal, frames=seq + 1, wall_start_s=wall_start)
     return RunResult(verdict=verdict, history=history, kills=tuple(kills))
+
+
+def _camera(
+    scene: Scene, cfg: RunConfig, mission: Mission
+) -> Callable[[VehicleState, int], StereoFrame]:
+    """What the companion is shown at a state: the rendered stereo pair, or with ground-truth
+    perception blank images whose true depth the mission's perception is handed."""
+    renderer = StereoCameraRenderer(cfg.camera, cfg.render)
+    intrinsics = cfg.camera.intrinsics
+    if not cfg.truth_perception:
+        return lambda state, seq: _render_frame(
+            renderer, scene.world, state, state.R_ned_from_frd, seq, intrinsics
+        )
+    truth = mission.pipeline.perception = TruthPerception(cfg.perception)
+    blank = np.zeros((intrinsics.height_px, intrinsics.width_px), np.uint8)
+    blank.flags.writeable = False
+
+    def shoot(state: VehicleState, seq: int) -> StereoFrame:
+        truth.provide(
+            seq, renderer.render_depth(scene.world, state.pos_ned_m, state.R_ned_from_frd)
+        )
+        return StereoFrame(seq, round(state.time_s * 1e9), intrinsics, blank, blank)
+
+    return shoot
+
+
+@dataclass
+class _Tally:
+    """What a run has measured so far, and how it ended."""
+
+    min_surface: float = math.inf
+    max_roll: float = 0.0
+    max_pitch: float = 0.0
+    avoid_time: float = 0.0
+    hold_since: float | None = None
+    reached: bool = False
+    collided: bool = False
+    failure: str | None = None
+    hold_reason: str | None = None
+
+    def ends_run(self, cfg: RunConfig, mission: Mission, decision, state, surface: float) -> bool:
+        """A collision, the goal, a reported stop come to rest for 2 s (the world is static)
+        or the time limit ends the run."""
+        if surface < cfg.collision_distance_m:
+            self.collided, self.failure = True, "collision"
+            return True
+        if mission.goal_reached:  # the last waypoint, within goal_tolerance_m
+            self.reached = True
+            return True
+        if decision.mode is Mode.HOLD and float(np.linalg.norm(state.vel_ned_mps)) < 0.05:
+            self.hold_since = state.time_s if self.hold_since is None else self.hold_since
+            if state.time_s - self.hold_since >= 2.0:
+                self.failure, self.hold_reason = "hold", decision.reason.value
+                return True
+        else:
+            self.hold_since = None
+        if state.time_s >= cfg.max_time_s:
+            self.failure = "hold" if decision.mode is Mode.HOLD else "timeout"
+            self.hold_reason = decision.reason.value if self.failure == "hold" else None
+            return True
+        return False
+
+    def companion_stops(self, tail: KillOutcome, quad: Quadrotor, goal, cfg: RunConfig) -> None:
+        """The run ends with the companion's death: judged by how the plant flew on."""
+        self.min_surface = min(self.min_surface, tail.min_surface_distance_m)
+        self.reached = float(np.linalg.norm(quad.pos_ned_m - goal)) < cfg.goal_tolerance_m
+        self.collided = self.min_surface < cfg.collision_distance_m
+        self.failure = "collision" if self.collided else "companion_stopped"
+
+    def verdict(self, scene: Scene, quad: Quadrotor, goal, *, frames: int, wall_start_s: float):
+        return Verdict(
+            scene=scene.name,
+            seed=scene.seed,
+            reached_goal=self.reached,
+            collided=self.collided,
+            min_surface_distance_m=round(self.min_surface, 4),
+            max_roll_cmd_deg=round(math.degrees(self.max_roll), 4),
+            max_pitch_cmd_deg=round(math.degrees(self.max_pitch), 4),
+            avoidance_time_s=round(self.avoid_time, 4),
+            sim_time_s=round(quad.time_s, 4),
+            wall_time_s=round(time.perf_counter() - wall_start_s, 3),
+            final_goal_distance_m=round(float(np.linalg.norm(quad.pos_ned_m - goal)), 4),
+            frames=frames,
+            failure=self.failure,
+            hold_reason=self.hold_reason,
+        )
 
 
 def _steps_until(quad: Quadrotor, time_s: float) -> int:
