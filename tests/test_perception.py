@@ -513,7 +513,6 @@ def test_middlebury_motorcycle_near_mask_at_3m():
     rig's focal length and baseline; see benchmarks/bench_middlebury.py): the near mask at
     3 m has precision >= 0.95 and recall >= 0.90 over the pixels both cameras see, and
     every near pixel the right camera cannot see is unknown."""
-    pytest.importorskip("skimage")
     middlebury = _load_benchmark("bench_middlebury")
     frame, gt = middlebury.motorcycle_frame()
     result = StereoPerception().process(frame, np.zeros(3), LEVEL)
@@ -528,7 +527,6 @@ def test_middlebury_motorcycle_near_mask_at_3m():
 def test_middlebury_scores_against_the_ground_truth_itself():
     """The scorer on the ground truth as the depth map: perfect scores (a check of the
     scorer), and the near pixels the right camera cannot see are counted as reported."""
-    pytest.importorskip("skimage")
     middlebury = _load_benchmark("bench_middlebury")
     frame, gt = middlebury.motorcycle_frame()
     fb = frame.intrinsics.focal_baseline_m_px
