@@ -359,6 +359,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--log-file", type=Path, help="also copy stdout and stderr to this file (appended)"
     )
+    # [observe] recording and viewing (companion.record, companion.viz); off by default
+    p.add_argument(
+        "--record",
+        type=Path,
+        metavar="FILE.mcap",
+        help="record every frame and MAVLink message in and out (MCAP) for "
+        "`stereo-avoid replay FILE.mcap`; Foxglove opens it",
+    )
+    p.add_argument(
+        "--rerun",
+        metavar="FILE.rrd|serve[:PORT]",
+        help="log depth, obstacles, cones, setpoints to Rerun: a .rrd file, or 'serve' for "
+        "a live web viewer on http://127.0.0.1:PORT (default 9090)",
+    )
     return p
 
 
