@@ -1,12 +1,14 @@
 """Recording and viewing, in process: geometry closed forms, observers, record → replay.
 
-The record → replay round trip here runs the lockstep plant in process and feeds the
-recorder the same hook calls the service makes; the networked SIL round trip is in
-``test_view_sil.py``.
+The record → replay round trip here steps a :class:`CompanionCore` against a scripted
+ArduCopter with rendered frames of the paper's obstacle, its steps shown to the recorder
+as the service shows them; the networked SIL round trip is in ``test_view_sil.py``.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import importlib.util
 import json
 import logging
 import math
@@ -18,16 +20,23 @@ from mcap.writer import Writer
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.config import CompanionConfig, build_parser, config_from_args
+from companion.core import (
+    CompanionCore,
+    FrameProcessed,
+    FrameReceived,
+    MavlinkReceived,
+    SendMavlink,
+    SendSetpoint,
+    Tick,
+)
 from companion.guidance import GuidanceConfig
-from companion.observe import CompanionObserver, Observers, TappedLink
+from companion.observe import CompanionObserver, Observers
 from companion.perception import PerceptionConfig
-from companion.pipeline import AvoidancePipeline
-from companion.pose_history import PoseHistory
 from companion.record import format as fmt
 from companion.record.recorder import McapRecorder
 from companion.record.replay import RecordingError, replay
 from companion.viz.options import ViewOptionError, observers_from_args
-from companion.viz.rerun_log import RerunTarget
+from companion.viz.rerun_log import RerunObserver, RerunTarget
 from companion.viz.scene_geometry import (
     CLASS_NEAR,
     CLASS_UNKNOWN,
@@ -41,6 +50,8 @@ from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import paper_world
 from protocols.camera import CameraModel
 from protocols.frames import rotation_321
+from protocols.signing import SigningKey
+from protocols.stereo_frame import StereoFrame
 
 # ---- geometry ---------------------------------------------------------------------------
 
@@ -124,8 +135,10 @@ def test_view_options(tmp_path):
         observers_from_args(tmp_path / "x.bag", None)
     with pytest.raises(ViewOptionError, match="does not exist"):
         observers_from_args(tmp_path / "missing" / "x.mcap", None)
-    (rec,) = observers_from_args(tmp_path / "x.mcap", None)
-    assert isinstance(rec, McapRecorder)
+    rec, view = observers_from_args(tmp_path / "x.mcap", "serve:8000")
+    assert isinstance(rec, McapRecorder) and not rec.wants_pipeline
+    assert isinstance(view, RerunObserver) and view.wants_pipeline
+    assert Observers([rec, view]).wants_pipeline and not Observers([rec]).wants_pipeline
     args = build_parser().parse_args(["--record", str(tmp_path / "x.mcap"), "--rerun", "serve"])
     assert args.record == tmp_path / "x.mcap" and args.rerun == "serve"
     config_from_args(args)  # the flags are not config: the config still builds
@@ -140,21 +153,38 @@ def test_companion_refuses_bad_view_flags(tmp_path, capsys):
     assert "--rerun takes FILE.rrd" in capsys.readouterr().err
 
 
+def test_without_the_view_extra_the_flags_name_it(tmp_path, capsys, monkeypatch):
+    """rerun-sdk and mcap are an optional extra: a missing one is a clear error, exit 2."""
+    real = importlib.util.find_spec
+    missing = {"rerun", "mcap"}
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name in missing else real(name, *a)
+    )
+    from companion.__main__ import main
+    from plant_sim.lockstep.cli import main as stereo_avoid
+
+    assert main(["--rerun", str(tmp_path / "x.rrd")]) == 2
+    err = capsys.readouterr().err
+    assert "--rerun needs rerun-sdk" in err and "pip install 'stereo-avoid[view]'" in err
+    assert main(["--record", str(tmp_path / "x.mcap")]) == 2
+    assert "--record needs mcap" in capsys.readouterr().err
+    assert stereo_avoid(["paper", "--rerun", str(tmp_path / "x.rrd")]) == 2
+    assert "stereo-avoid[view]" in capsys.readouterr().err
+    assert stereo_avoid(["replay", str(tmp_path / "x.mcap")]) == 2
+    assert "stereo-avoid[view]" in capsys.readouterr().err
+
+
 class _Boom(CompanionObserver):
-    def on_frame(self, frame, recv_ns):
+    def on_step(self, event, outputs):
         raise RuntimeError("bug")
 
 
 class _Count(CompanionObserver):
     def __init__(self):
-        self.frames = 0
-        self.out = []
+        self.steps = []
 
-    def on_frame(self, frame, recv_ns):
-        self.frames += 1
-
-    def on_mavlink_out(self, msg, sent_ns):
-        self.out.append(msg)
+    def on_step(self, event, outputs):
+        self.steps.append((event, list(outputs)))
 
 
 def test_observers_fan_out_and_contain_failures(caplog):
@@ -163,27 +193,10 @@ def test_observers_fan_out_and_contain_failures(caplog):
     obs = Observers([_Boom(), count])
     assert obs and len(obs) == 2
     with caplog.at_level(logging.ERROR, logger="companion.observe"):
-        for _ in range(3):
-            obs.on_frame(None, 0)
-    assert count.frames == 3  # the failing observer does not starve the next one
-    assert len([r for r in caplog.records if "_Boom.on_frame failed" in r.message]) == 1
-
-
-class _Link:
-    def __init__(self, ok):
-        self.ok = ok
-        self.url = "udpout:x"
-
-    def send(self, msg):
-        return self.ok
-
-
-def test_tapped_link_reports_only_sent_messages():
-    count = _Count()
-    ok, failing = TappedLink(_Link(True), count), TappedLink(_Link(False), count)
-    assert ok.url == "udpout:x"  # everything else is the link's
-    assert ok.send("a") and not failing.send("b")
-    assert count.out == ["a"]
+        for i in range(3):
+            obs.on_step(Tick(i), [])
+    assert [e.now_ns for e, _ in count.steps] == [0, 1, 2]  # the failing one starves no one
+    assert len([r for r in caplog.records if "_Boom.on_step failed" in r.message]) == 1
 
 
 def test_config_round_trip_through_a_recording():
@@ -192,107 +205,216 @@ def test_config_round_trip_through_a_recording():
         perception=PerceptionConfig(threshold_m=5.0, safety_margin_m=0.4),
         guidance=GuidanceConfig.from_dict({}),
     )
+    secret = "correct horse battery staple"
+    config = dataclasses.replace(
+        config,
+        link=dataclasses.replace(
+            config.link, signing_key=SigningKey.from_text(secret), px4_prestream_s=2.0
+        ),
+    )
     text = json.dumps(fmt.config_to_dict(config))
-    assert "signing" not in text
-    back = fmt.config_from_recorded(text)
+    assert "signing" not in text and SigningKey.from_text(secret).secret.hex() not in text
+    back = fmt.config_from_recorded(json.loads(text), signing=True)
     for name in ("waypoints_ned_m", "perception", "guidance", "known_space", "envelope"):
         assert getattr(back, name) == getattr(config, name), name
-    assert back.link.frame_clock is config.link.frame_clock
+    assert dataclasses.replace(back.link, signing_key=None) == dataclasses.replace(
+        config.link, signing_key=None
+    )
+    assert back.link.signing_key is not None  # a placeholder: the core asks only "is one set"
+    assert fmt.config_from_recorded(json.loads(text), signing=False).link.signing_key is None
+
+
+def test_mavlink_frame_fields_leave_out_what_the_link_adds():
+    msg = mavlink.MAVLink_set_position_target_local_ned_message(
+        1234, 1, 1, 1, 2552, 1.5, -2.0, -7.0, 0, 0, 0, 0, 0, 0, 0.25, 0
+    )
+    plain = bytes(msg.pack(mavlink.MAVLink(None, srcSystem=1, srcComponent=196)))
+    signer = mavlink.MAVLink(None, srcSystem=1, srcComponent=196)
+    signer.seq = 77
+    signer.signing.secret_key = bytes(range(32))
+    signer.signing.sign_outgoing = True
+    signed = bytes(msg.pack(signer))
+    assert signed != plain and len(signed) == len(plain) + 13  # sequence, signature
+    fields = fmt.mavlink_frame_fields(plain)
+    assert fields == fmt.mavlink_frame_fields(signed)
+    assert fields[:3] == (mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED, 1, 196)
+    v1 = mavlink.MAVLink(None, srcSystem=3, srcComponent=4)
+    v1.WIRE_PROTOCOL_VERSION = "1.0"
+    hb = mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 4, 3)
+    assert fmt.mavlink_frame_fields(bytes(hb.pack(v1, force_mavlink1=True)))[:3] == (0, 3, 4)
+    for bad in (b"", b"\x00" * 20, plain[:-5]):
+        with pytest.raises(ValueError):
+            fmt.mavlink_frame_fields(bad)
 
 
 # ---- record → replay, in process -----------------------------------------------------------
 
+GUIDED = 4
+SMALL = CameraModel(width_px=160, height_px=120)  # fast matcher; same field of view
 
-def _fly_and_record(path, n_frames=24, tamper=None):
-    """The service's hook sequence for a short flight toward the paper's obstacle: MAVLink
-    telemetry in, decoded (float32 on the wire) into a pose history as the service does,
-    a frame, the pipeline at the interpolated pose, the setpoint out; recorded to ``path``."""
-    config = CompanionConfig()
+
+class _Flight:
+    """A :class:`CompanionCore` and a scripted ArduCopter in GUIDED, flying south at 1 m/s
+    from (17, 0, −7) toward the paper's obstacle, with frames rendered at the true pose.
+
+    Every 10 ms of host time a tick, every 20 ms telemetry, every 1/30 s a frame, every
+    second a heartbeat; commands are ACKed and TIMESYNC answered. As in the service, the
+    outputs of a step are "sent" (packed by a link encoder with its own sequence numbers)
+    before the observers see the step. ``tamper``: the n-th setpoint's x is moved 1 mm
+    on the wire.
+    """
+
+    def __init__(self, observers: Observers, tamper: int | None = None) -> None:
+        self.config = CompanionConfig()
+        self.core = CompanionCore(self.config, 0x5EED, report_pipeline=observers.wants_pipeline)
+        self.observers = observers
+        self.tamper = tamper
+        self.ap = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+        self.link = mavlink.MAVLink(None, srcSystem=1, srcComponent=196)
+        self.renderer = StereoCameraRenderer(SMALL)
+        self.world = paper_world()
+        self.now_ns = 1_000_000_000
+        self.boot_offset_ns = 400_000_000
+        self.setpoints_sent = 0
+        self.frames_processed = 0
+        self._seq = 0
+
+    @property
+    def boot_ms(self) -> int:
+        return (self.now_ns - self.boot_offset_ns) // 1_000_000
+
+    def pos_ned_m(self, boot_ms: int) -> tuple[float, float, float]:
+        return (17.0 - 1.0 * (boot_ms * 1e-3 - 0.6), 0.0, -7.0)
+
+    def step(self, event) -> None:
+        outputs = self.core.step(event)
+        for o in outputs:
+            if isinstance(o, SendSetpoint):
+                self.setpoints_sent += 1
+                if self.setpoints_sent == self.tamper:
+                    o.message.x += 1e-3
+            if isinstance(o, SendMavlink | SendSetpoint):
+                o.message.pack(self.link)
+        self.observers.on_step(event, outputs)
+        for o in outputs:
+            if isinstance(o, SendMavlink):
+                self._answer(o.message)
+
+    def receive(self, msg) -> None:
+        got = self.ap.decode(bytearray(msg.pack(self.ap)))
+        self.step(MavlinkReceived(got, self.now_ns))
+
+    def _answer(self, msg) -> None:
+        if msg.get_type() == "COMMAND_LONG":
+            self.receive(mavlink.MAVLink_command_ack_message(msg.command, 0))
+        elif msg.get_type() == "TIMESYNC" and msg.tc1 == 0:
+            autopilot_ns = self.now_ns - self.boot_offset_ns
+            self.receive(mavlink.MAVLink_timesync_message(autopilot_ns, msg.ts1))
+
+    def run(self, seconds: float) -> None:
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        for tick in range(1, round(seconds / 0.01) + 1):
+            self.now_ns += 10_000_000
+            if tick % 100 == 1:
+                self.receive(
+                    mavlink.MAVLink_heartbeat_message(
+                        mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                        base, GUIDED, mavlink.MAV_STATE_ACTIVE, 3,
+                    )
+                )  # fmt: skip
+            if tick % 2 == 0:
+                p = self.pos_ned_m(self.boot_ms)
+                self.receive(
+                    mavlink.MAVLink_local_position_ned_message(self.boot_ms, *p, -1.0, 0, 0)
+                )
+                self.receive(mavlink.MAVLink_attitude_message(self.boot_ms, 0, 0, math.pi, 0, 0, 0))
+            if tick % 3 == 0:
+                self.step(FrameReceived(self._frame(), self.now_ns, self.now_ns))
+            self.step(Tick(self.now_ns))
+        self.frames_processed = self.core.counters["frames_processed"]
+
+    def _frame(self) -> StereoFrame:
+        capture_ns = self.boot_ms * 1_000_000
+        pos = np.array(self.pos_ned_m(self.boot_ms))
+        pair = self.renderer.render(
+            self.world, pos, rotation_321(0.0, 0.0, math.pi), noise_seed=self._seq
+        )
+        frame = StereoFrame(self._seq, capture_ns, SMALL.intrinsics, pair.left, pair.right)
+        self._seq += 1
+        return frame
+
+
+def _record(path, seconds=4.0, tamper=None) -> _Flight:
     recorder = McapRecorder(path)
-    recorder.on_start(config)
-    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
-    mav_us = mavlink.MAVLink(None, srcSystem=1, srcComponent=196)
-    wire = mavlink.MAVLink(None)
-    poses = PoseHistory()
-    renderer = StereoCameraRenderer(CameraModel())
-    world = paper_world()
-    pipeline = AvoidancePipeline(config.waypoints_ned_m[0])
-    speed = 1.0
-    now_s = 100.0
-    sent = []
-    for i in range(n_frames):
-        t_s = 1.0 + i / 30.0
-        # telemetry bracketing the frame (ms resolution: the frame is stamped on a ms)
-        for dt in (-0.02, 0.0, 0.02):
-            tb = t_s + dt
-            pos = (14.0 - speed * tb, 0.0, -7.0)
-            boot_ms = round(tb * 1000)
-            for msg in (
-                mavlink.MAVLink_local_position_ned_message(boot_ms, *pos, -speed, 0.0, 0.0),
-                mavlink.MAVLink_attitude_message(boot_ms, 0.0, 0.0, math.pi, 0, 0, 0),
-            ):
-                (got,) = wire.parse_buffer(msg.pack(mav))
-                recorder.on_mavlink_in(got, now_s, 1.0)
-                if got.get_type() == "ATTITUDE":
-                    poses.add_attitude(boot_ms * 1_000_000, got.roll, got.pitch, got.yaw)
-                else:
-                    p_v = (got.x, got.y, got.z), (got.vx, got.vy, got.vz)
-                    poses.add_position(boot_ms * 1_000_000, *p_v)
-            now_s += 0.001
-        capture_ns = round(t_s * 1000) * 1_000_000
-        pos = np.array([14.0 - speed * capture_ns * 1e-9, 0.0, -7.0])
-        R = rotation_321(0.0, 0.0, math.pi)
-        pair = renderer.render(world, pos, R, noise_seed=i)
-        from protocols.stereo_frame import StereoFrame
-
-        frame = StereoFrame(i, capture_ns, renderer.camera.intrinsics, pair.left, pair.right)
-        recorder.on_frame(frame, 0)
-        pose = poses.at(capture_ns).pose
-        out = pipeline.process(frame, pose)
-        sp = out.setpoint_ned_m
-        msg = mavlink.MAVLink_set_position_target_local_ned_message(
-            capture_ns // 1_000_000, 1, 1, 1, 2552, *map(float, sp), 0, 0, 0, 0, 0, 0,
-            math.remainder(float(out.yaw_rad), math.tau), 0,
-        )  # fmt: skip
-        if tamper == i:
-            msg.x += 1e-3
-        msg.pack(mav_us)
-        recorder.on_mavlink_out(msg, 0)
-        recorder.on_output(frame, pose, out, True, pipeline)
-        sent.append(sp.copy())
+    flight = _Flight(Observers([recorder]), tamper)
+    recorder.on_start(flight.config, flight.core.instance_id)
+    flight.run(seconds)
     recorder.close()
     assert recorder.stats.dropped == 0 and recorder.stats.write_errors == 0
-    return sent
+    assert recorder.stats.frames == round(seconds * 100) // 3
+    return flight
 
 
-def test_recording_replays_bit_for_bit(tmp_path):
-    path = tmp_path / "flight.mcap"
-    sent = _fly_and_record(path)
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    path = tmp_path_factory.mktemp("rec") / "flight.mcap"
+    return path, _record(path)
+
+
+def test_recording_replays_bit_for_bit(flight):
+    path, flown = flight
     with path.open("rb") as fh:  # a valid MCAP file with our topics (what Foxglove opens)
         reader = make_reader(fh)
-        topics = {c.topic for c in reader.get_summary().channels.values()}
-    assert {fmt.TOPIC_STEREO, fmt.TOPIC_LEFT, fmt.TOPIC_MAVLINK_IN, fmt.TOPIC_OUTPUT} <= topics
-    frames = []
-    result = replay(path, on_frame=frames.append)
+        summary = reader.get_summary()
+        topics = {c.topic: c.message_encoding for c in summary.channels.values()}
+        counts = {
+            summary.channels[cid].topic: n
+            for cid, n in summary.statistics.channel_message_counts.items()
+        }
+    assert topics[fmt.TOPIC_LEFT] == "json" and topics[fmt.TOPIC_MAVLINK_OUT] == "mavlink2"
+    assert counts[fmt.TOPIC_TICK] == 400 and counts[fmt.TOPIC_STEREO] == 133
+    assert 0 < counts[fmt.TOPIC_LEFT] <= 41  # the Foxglove preview: at most 10 Hz
+    done: list[FrameProcessed] = []
+    result = replay(path, on_frame=done.append)
     assert result.identical, result.summary()
-    assert result.frames_recorded == result.frames_replayed == len(sent) == len(frames)
-    assert result.setpoints_on_wire == len(sent)
-    for got, want in zip(frames, sent, strict=True):
-        assert got.setpoint_ned_m.tobytes() == want.tobytes()
-    # the flight saw the obstacle: the replay exercises perception, not an empty scene
-    assert any(f.output.perception.obstacles for f in frames)
-    # and the pose came from the recorded telemetry (float32 yaw): facing south
-    np.testing.assert_allclose(
-        frames[0].pose.R_ned_from_frd, rotation_321(0.0, 0.0, math.pi), atol=1e-6
-    )
+    assert result.setpoints_compared == flown.setpoints_sent > 10
+    assert result.mavlink_compared == counts[fmt.TOPIC_MAVLINK_OUT]
+    assert result.inputs == sum(counts[t] for t in (fmt.TOPIC_TICK, fmt.TOPIC_MAVLINK_IN,
+                                                    fmt.TOPIC_STEREO))  # fmt: skip
+    # the replayed core processed the same frames; the flight saw the obstacle and avoided
+    assert len(done) == flown.frames_processed > 60
+    assert any(d.step.output.perception.obstacles for d in done)
+    assert any(d.step.output.guidance.avoidance_flag for d in done)
+    assert all(d.setpoint_sent for d in done[-10:])
+
+
+def test_the_core_reports_processed_frames_only_for_viewers():
+    quiet = _Flight(Observers([_Count()]))
+    quiet.run(0.7)
+    steps = quiet.observers._observers[0].steps
+    assert not any(isinstance(o, FrameProcessed) for _, outs in steps for o in outs)
+
+    class Viewer(_Count):
+        wants_pipeline = True
+
+    viewer = Viewer()
+    shown = _Flight(Observers([viewer]))
+    shown.run(0.7)
+    done = [o for _, outs in viewer.steps for o in outs if isinstance(o, FrameProcessed)]
+    assert len(done) == shown.frames_processed > 0
+    assert all(d.frame.sequence == i for i, d in enumerate(done))
+    assert all(d.known_space is shown.core.mission.pipeline.known_space for d in done)
 
 
 def test_replay_reports_a_setpoint_that_differs_on_the_wire(tmp_path):
     path = tmp_path / "tampered.mcap"
-    _fly_and_record(path, n_frames=6, tamper=3)
+    _record(path, seconds=3.2, tamper=3)
     result = replay(path)
     assert not result.identical
-    assert len(result.mismatches) == 1 and "frame 3" in result.mismatches[0]
+    assert len(result.mismatches) == 1, result.mismatches
+    assert (
+        f"message {mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED}" in (result.mismatches[0])
+    )
 
 
 def test_replay_refuses_files_that_are_not_recordings(tmp_path):
@@ -309,14 +431,23 @@ def test_replay_refuses_files_that_are_not_recordings(tmp_path):
         w.finish()
     with pytest.raises(RecordingError, match="not a companion recording"):
         replay(other)
+    old = tmp_path / "old.mcap"
+    with old.open("wb") as fh:
+        w = Writer(fh)
+        w.start()
+        w.add_metadata(fmt.METADATA, {"format": "1"})
+        w.finish()
+    with pytest.raises(RecordingError, match="format '1'"):
+        replay(old)
 
 
-def test_stereo_avoid_replay_dispatches_on_the_argument(tmp_path, capsys):
+def test_stereo_avoid_replay_dispatches_on_the_argument(flight, tmp_path, capsys):
     from plant_sim.lockstep.cli import main
 
-    path = tmp_path / "flight.mcap"
-    _fly_and_record(path, n_frames=4)
+    path, flown = flight
     assert main(["replay", str(path), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
-    assert summary["identical"] and summary["frames_replayed"] == 4
+    assert summary["identical"] and summary["setpoints_compared"] == flown.setpoints_sent
     assert main(["replay", str(tmp_path / "missing.mcap")]) == 2
+    assert main(["replay", "not-a-seed"]) == 2
+    assert "neither a seed" in capsys.readouterr().err
