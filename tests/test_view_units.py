@@ -451,3 +451,67 @@ def test_stereo_avoid_replay_dispatches_on_the_argument(flight, tmp_path, capsys
     assert main(["replay", str(tmp_path / "missing.mcap")]) == 2
     assert main(["replay", "not-a-seed"]) == 2
     assert "neither a seed" in capsys.readouterr().err
+
+
+# ---- Rerun: what the companion's view and the lockstep view log ---------------------------
+
+
+def _rrd_chunks(path):
+    from rerun.chunk import RrdReader
+
+    return RrdReader(path).store().stream().to_chunks()
+
+
+def _rows(chunks, entity: str) -> int:
+    return sum(c.num_rows for c in chunks if c.entity_path == entity and not c.is_static)
+
+
+def test_companion_rerun_view_logs_the_scene_per_frame(tmp_path):
+    """The core's FrameProcessed outputs, drawn by the observer ``companion --rerun``
+    uses: every processed frame logged, skipped (the view lags) or decimated (≤ 10 Hz)."""
+    rrd = tmp_path / "view.rrd"
+    view = RerunObserver(RerunTarget.parse(str(rrd)))
+    flight = _Flight(Observers([view]))
+    view.on_start(flight.config, flight.core.instance_id)
+    flight.run(3.6)
+    view.close()
+    chunks = _rrd_chunks(rrd)
+    entities = {c.entity_path for c in chunks}
+    for entity in (
+        "/world/vehicle",
+        "/world/vehicle/camera/image",
+        "/world/vehicle/camera/depth",
+        "/world/vehicle/camera/classes",
+        "/world/obstacle_points",
+        "/world/boundaries",
+        "/world/tracks",
+        "/world/cones",
+        "/world/aiming_point",
+        "/world/setpoint",
+        "/world/goal",
+        "/world/known_space",
+        "/status/avoidance_flag",
+        "/status/mode",
+    ):
+        assert entity in entities, (entity, sorted(entities))
+    frames = flight.frames_processed
+    assert view.logged + view.skipped + view.decimated == frames > 60
+    assert 0 < view.logged <= frames // 3 + 1  # 30 Hz camera, ≤ 10 Hz view
+    assert _rows(chunks, "/world/vehicle") == _rows(chunks, "/world/setpoint") == view.logged
+    assert _rows(chunks, "/world/vehicle/camera/depth") == view.logged
+
+
+def test_lockstep_rerun_view_adds_ground_truth(tmp_path):
+    from plant_sim.lockstep.harness import RunConfig, run_scene
+    from plant_sim.lockstep.scenes import paper_scene
+    from plant_sim.lockstep.view import LockstepView
+
+    rrd = tmp_path / "paper.rrd"
+    cfg = RunConfig(max_time_s=0.3)
+    view = LockstepView(str(rrd), paper_scene(), cfg)
+    result = run_scene(paper_scene(), cfg, on_step=view.on_step)
+    view.close()
+    chunks = _rrd_chunks(rrd)
+    assert "/world/truth/spheres" in {c.entity_path for c in chunks}
+    assert _rows(chunks, "/world/vehicle") == result.verdict.frames
+    assert _rows(chunks, "/world/vehicle/camera/depth") == result.verdict.frames
