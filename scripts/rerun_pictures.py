@@ -59,13 +59,13 @@ def main() -> int:
     view = LockstepView(f"serve:{port}", scene, cfg)
     avoid_since = None
 
-    def on_step(frame, pose, out, pipeline) -> None:
+    def on_step(frame, pose, step, mission) -> None:
         nonlocal avoid_since
         # log only the approach: the software-rendered viewer ingests slowly
         if pose.pos_ned_m[0] < args.log_from_north_m:
-            view.on_step(frame, pose, out, pipeline)
+            view.on_step(frame, pose, step, mission)
         t = frame.capture_ns * 1e-9
-        if out.guidance.avoidance_flag and avoid_since is None:
+        if step.output.guidance.avoidance_flag and avoid_since is None:
             avoid_since = t
         if avoid_since is not None and t - avoid_since >= args.after_avoid_s:
             raise _EnoughFlownError
