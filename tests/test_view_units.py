@@ -156,7 +156,7 @@ def test_companion_refuses_bad_view_flags(tmp_path, capsys):
 def test_without_the_view_extra_the_flags_name_it(tmp_path, capsys, monkeypatch):
     """rerun-sdk and mcap are an optional extra: a missing one is a clear error, exit 2."""
     real = importlib.util.find_spec
-    missing = {"rerun", "mcap"}
+    missing = {"rerun", "mcap", "rosbags"}
     monkeypatch.setattr(
         importlib.util, "find_spec", lambda name, *a: None if name in missing else real(name, *a)
     )
@@ -172,6 +172,12 @@ def test_without_the_view_extra_the_flags_name_it(tmp_path, capsys, monkeypatch)
     assert "stereo-avoid[view]" in capsys.readouterr().err
     assert stereo_avoid(["replay", str(tmp_path / "x.mcap")]) == 2
     assert "stereo-avoid[view]" in capsys.readouterr().err
+    from companion.camera.__main__ import build_parser as camera_parser
+    from companion.camera.__main__ import config_from_args as camera_config
+
+    bag_args = camera_parser().parse_args(["replay", "bag", "--left", "/l", "--right", "/r"])
+    with pytest.raises(ViewOptionError, match=r"needs rosbags.*stereo-avoid\[view\]"):
+        camera_config(bag_args)
 
 
 class _Boom(CompanionObserver):

@@ -305,6 +305,10 @@ def config_from_args(args: argparse.Namespace) -> CameraConfig:
             raise ValueError("a ROS 2 bag needs both --left TOPIC and --right TOPIC")
         if args.left is None and (args.left_info or args.right_info):
             raise ValueError("--left-info/--right-info need --left and --right (a ROS 2 bag)")
+        if args.left is not None:
+            from companion.viz.options import require_extra
+
+            require_extra("a ROS 2 bag (--left/--right)", "rosbags", "rosbags")
         source = SourceConfig(
             kind,
             folder=args.folder,
