@@ -37,10 +37,17 @@ Outputs
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from companion.link.setpoints import PositionTarget
 from protocols.stereo_frame import StereoFrame
+
+if TYPE_CHECKING:  # mission.py imports this module
+    from companion.core.mission import MissionStep
+    from companion.known_space import KnownSpace
+    from companion.pipeline import PoseAtCapture
 
 __all__ = [
     "Event",
@@ -132,10 +139,10 @@ class FrameProcessed:
     """
 
     frame: StereoFrame
-    pose: Any
-    step: Any
-    goal_ned_m: Any
-    known_space: Any
+    pose: PoseAtCapture
+    step: MissionStep
+    goal_ned_m: np.ndarray
+    known_space: KnownSpace
     setpoint_sent: bool
 
 

@@ -139,8 +139,8 @@ def read_recording(path: str | Path) -> Recording:
     return Recording(config, instance_id, records())
 
 
-def _input(record: Record, parser) -> Input | None:
-    """The core input a record holds (None: not an input, or unreadable)."""
+def _input(record: Record, parser) -> Input:
+    """The core input an input record holds; raises RecordingError when unreadable."""
     if record.topic == fmt.TOPIC_TICK:
         return Tick(fmt.NS.unpack_from(record.data)[0])
     if record.topic == fmt.TOPIC_MAVLINK_IN:
