@@ -454,6 +454,10 @@ def test_stereo_avoid_replay_dispatches_on_the_argument(flight, tmp_path, capsys
     assert main(["replay", str(path), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["identical"] and summary["setpoints_compared"] == flown.setpoints_sent
+    rrd = tmp_path / "replay.rrd"
+    assert main(["replay", str(path), "--rerun", str(rrd)]) == 0
+    assert "IDENTICAL" in capsys.readouterr().out
+    assert _rows(_rrd_chunks(rrd), "/world/vehicle") == flown.frames_processed
     assert main(["replay", str(tmp_path / "missing.mcap")]) == 2
     assert main(["replay", "not-a-seed"]) == 2
     assert "neither a seed" in capsys.readouterr().err

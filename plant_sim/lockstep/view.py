@@ -112,7 +112,12 @@ def replay_recording(path: Path, rerun: str | None, as_json: bool) -> int:
         print(f"inputs               {summary['inputs']} ({summary['frames']} frames)")
         print(f"MAVLink compared     {summary['mavlink_compared']}")
         print(f"setpoints compared   {summary['setpoints_compared']}")
-        verdict = "IDENTICAL" if result.identical else f"DIFFERENT ({len(result.mismatches)})"
+        if result.mismatches:
+            verdict = f"DIFFERENT ({len(result.mismatches)})"
+        elif result.identical:
+            verdict = "IDENTICAL"
+        else:
+            verdict = "NOT SHOWN: the recording holds no setpoint to compare"
         print(f"outputs              {verdict}")
         for line in summary["first_mismatches"]:
             print(f"  {line}")
