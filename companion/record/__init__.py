@@ -1,1 +1,1 @@
-"""Record the companion's inputs to MCAP and replay them through the same pipeline."""
+"""Record the companion core's inputs and outputs to MCAP; replay them through a fresh core."""

@@ -1,7 +1,7 @@
 """Geometry for drawing what the companion sees: pure numpy, no viewer, no I/O.
 
 Everything is LOCAL_NED [m] unless a name says otherwise. Used by
-:mod:`companion.viz.rerun_log`; tested against closed forms in ``tests/test_view.py``.
+:mod:`companion.viz.rerun_log`; tested against closed forms in ``tests/test_view_units.py``.
 """
 
 from __future__ import annotations
