@@ -28,17 +28,23 @@ from protocols.process import run_until_signalled
 __all__ = ["main", "run"]
 
 
-def run(config, ready_file: Path | None = None, health_file: Path | None = None) -> int:
+def run(
+    config,
+    ready_file: Path | None = None,
+    health_file: Path | None = None,
+    observers: Sequence = (),
+) -> int:
     """Open the service, print the readiness line, run until SIGINT/SIGTERM, print stats.
 
     With ``ready_file`` the readiness line is also written there (sockets bound); it is
     removed at exit. With ``health_file`` the service rewrites it every second
-    (:mod:`companion.health`: can it steer now?).
+    (:mod:`companion.health`: can it steer now?). ``observers``: recorders and viewers
+    (:mod:`companion.observe`).
     """
     from companion.health import HealthFile
     from companion.service import CompanionService
 
-    service = CompanionService(config)
+    service = CompanionService(config, observers=observers)
     if health_file is not None:
         service.health = HealthFile(health_file)
     stats = run_until_signalled(service, log_name="companion", ready_file=ready_file)
@@ -64,7 +70,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"companion: configuration error: {exc}", file=sys.stderr)
         return 2
     try:
-        return run(config, args.ready_file, args.health_file)
+        from companion.viz.options import ViewOptionError, observers_from_args
+
+        observers = observers_from_args(args.record, args.rerun)
+    except ViewOptionError as exc:
+        print(f"companion: configuration error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return run(config, args.ready_file, args.health_file, observers)
     except OSError as exc:
         print(f"companion: {exc}", file=sys.stderr)
         return 1

@@ -359,6 +359,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--log-file", type=Path, help="also copy stdout and stderr to this file (appended)"
     )
+    # [observe] recording and viewing (companion.record, companion.viz); off by default
+    p.add_argument(
+        "--record",
+        type=Path,
+        metavar="FILE.mcap",
+        help="record the core's inputs (frames, MAVLink in, clock ticks) and MAVLink out "
+        "(MCAP) for `stereo-avoid replay FILE.mcap`; Foxglove opens it (needs the [view] extra)",
+    )
+    p.add_argument(
+        "--rerun",
+        metavar="FILE.rrd|serve[:PORT]",
+        help="log depth, obstacles, cones, setpoints to Rerun: a .rrd file, or 'serve' for "
+        "a live web viewer on http://127.0.0.1:PORT (default 9090); needs the [view] extra",
+    )
     return p
 
 

@@ -7,6 +7,8 @@ message received, a clock tick and the newest frame, and carries out what it ret
 MAVLink messages and setpoints onto the link, ``COMPANION EVENT <name> {json}`` lines on
 stdout, status documents on Zenoh. Around that, reporting only: the health file, the
 progress log, signing refusals and "no frames on our key" hints. The log goes to stderr.
+Recorders and viewers (``--record``, ``--rerun``) see every step's input and outputs
+through :mod:`companion.observe`.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import random
 import select
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, TextIO
 
 import zenoh
@@ -27,6 +29,7 @@ from companion.core import (
     CompanionCore,
     Event,
     FrameReceived,
+    Input,
     MavlinkReceived,
     Output,
     SendMavlink,
@@ -38,6 +41,7 @@ from companion.frames_sub import LatestFrameSlot
 from companion.health import HealthFile, HealthInputs
 from companion.intake import FrameIntake
 from companion.link.connection import MavlinkConnection
+from companion.observe import CompanionObserver, Observers
 from companion.status import StatusPublisher
 from protocols.keys import companion_status_key, stereo_key
 from protocols.zenoh_session import zenoh_config
@@ -54,11 +58,18 @@ class CompanionService:
     ----------
     config : CompanionConfig
     events : text stream for ``COMPANION EVENT`` lines (default stdout).
+    observers : recorders and viewers (:mod:`companion.observe`); none by default.
     """
 
-    def __init__(self, config: CompanionConfig, events: TextIO | None = None) -> None:
+    def __init__(
+        self,
+        config: CompanionConfig,
+        events: TextIO | None = None,
+        observers: Sequence[CompanionObserver] = (),
+    ) -> None:
         self.config = config
         self._events = events if events is not None else sys.stdout
+        self.observers = Observers(observers)
         link = config.link
         self.link = MavlinkConnection(
             link.url,
@@ -67,7 +78,11 @@ class CompanionService:
             baud=link.baud,
             signing_key=link.signing_key,
         )
-        self.core = CompanionCore(config, random.SystemRandom().getrandbits(32))
+        self.core = CompanionCore(
+            config,
+            random.SystemRandom().getrandbits(32),
+            report_pipeline=self.observers.wants_pipeline,
+        )
         self.frame_key = stereo_key(config.vehicle_id)
         self.status_key = companion_status_key(config.vehicle_id)
         self.slot = LatestFrameSlot()
@@ -96,6 +111,8 @@ class CompanionService:
         self.intake.open(self._session, time.monotonic())
         self._status = StatusPublisher(self._session, self.status_key)
         self._status.open()
+        if self.observers:
+            self.observers.on_start(self.config, self.core.instance_id)
 
     def readiness_line(self) -> str:
         return (
@@ -117,6 +134,7 @@ class CompanionService:
             self._session = None
         self.link.close()
         self.slot.close()
+        self.observers.close()
         return stats
 
     def stats(self) -> dict[str, Any]:
@@ -145,13 +163,20 @@ class CompanionService:
             except InterruptedError:
                 continue
             for msg in self.link.poll():
-                self._carry_out(self.core.step(MavlinkReceived(msg, time.monotonic_ns())))
-            self._carry_out(self.core.step(Tick(time.monotonic_ns())))
+                self._step(MavlinkReceived(msg, time.monotonic_ns()))
+            self._step(Tick(time.monotonic_ns()))
             frame = self.slot.take()
             if frame is not None:
                 now_ns = time.monotonic_ns()
-                self._carry_out(self.core.step(FrameReceived(frame, now_ns, now_ns)))
+                self._step(FrameReceived(frame, now_ns, now_ns))
             self._report(time.monotonic())
+
+    def _step(self, event: Input) -> None:
+        """One core step: carry its outputs out, then show both to the observers."""
+        outputs = self.core.step(event)
+        self._carry_out(outputs)
+        if self.observers:
+            self.observers.on_step(event, outputs)
 
     def _carry_out(self, outputs: Iterable[Output]) -> None:
         """Do what the core asked, in order; stamp when setpoints went on the wire."""

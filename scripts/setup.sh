@@ -8,7 +8,29 @@ if [ ! -x .venv/bin/python ]; then
     "$PYTHON" -m venv .venv
 fi
 .venv/bin/python -m pip install --quiet --disable-pip-version-check --upgrade pip
+# .[dev] = tests + the optional [view] extra (Rerun, MCAP, rosbags: issue 15's tests)
 .venv/bin/python -m pip install --quiet --disable-pip-version-check -e '.[dev]'
 # A real ground station for the integration tests. --no-deps: MAVProxy's requirements
 # would replace opencv-python-headless with the GUI opencv-python 5.x (see pyproject).
 .venv/bin/python -m pip install --quiet --disable-pip-version-check --no-deps 'mavproxy==1.8.75'
+# Headless Chromium for the live web-view test (tests/test_view_sil.py): Debian's package,
+# installed when missing and apt is usable (root, or passwordless sudo); otherwise say so.
+if ! command -v chromium >/dev/null 2>&1 && ! command -v chromium-browser >/dev/null 2>&1; then
+    if command -v apt-get >/dev/null 2>&1; then
+        SUDO=""
+        if [ "$(id -u)" -ne 0 ]; then
+            if command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
+                SUDO="sudo -n"
+            fi
+        fi
+        if [ "$(id -u)" -eq 0 ] || [ -n "$SUDO" ]; then
+            echo "setup: installing chromium (apt) for the web-view test" >&2
+            $SUDO apt-get update -qq
+            DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends chromium
+        else
+            echo "setup: chromium missing and apt needs root: install Debian's 'chromium' package" >&2
+        fi
+    else
+        echo "setup: chromium missing (no apt): install Chromium for tests/test_view_sil.py" >&2
+    fi
+fi

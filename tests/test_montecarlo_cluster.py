@@ -79,8 +79,11 @@ def test_twenty_seeds_on_a_two_worker_cluster_match_the_single_process_run(tmp_p
 
 
 def test_replay_dispatches_on_an_integer_seed(capsys):
-    assert main(["replay", "flight.mcap"]) == 2
-    assert "not a seed" in capsys.readouterr().err
+    assert main(["replay", "flight"]) == 2
+    assert "neither a seed" in capsys.readouterr().err
+    # a .mcap is a companion recording (issue 15), not a seed: a missing one is refused
+    assert main(["replay", "missing-flight.mcap"]) == 2
+    assert "cannot open recording" in capsys.readouterr().err
 
 
 def _lines(path: Path) -> list[dict]:

@@ -10,6 +10,7 @@ drop-in replacement for plant-sim's synthetic camera. Examples::
     stereo-camera sbs /dev/video0 --calibration intrinsics.yml --calibration extrinsics.yml \\
         --size 640x480 --output-size 320x240
     stereo-camera replay recording/ --rate 10 --zenoh-connect tcp/192.168.1.5:7447
+    stereo-camera replay flight_bag/ --left /stereo/left/image_rect --right /stereo/right/image_rect
 
 Once the source delivers and the Zenoh publisher is declared it prints one line on stdout::
 
@@ -97,6 +98,11 @@ class SourceConfig:
         Requested camera pixel format (e.g. MJPG).
     rate_hz : float or None
         Replay rate [Hz]; None = recorded timestamps.
+    left_topic, right_topic : str or None
+        With REPLAY: ``folder`` is a ROS 2 bag and these are its image topics
+        (:mod:`companion.camera.rosbag_source`).
+    left_info_topic, right_info_topic : str or None
+        CameraInfo topics of the bag (default: ``camera_info`` beside the images).
     """
 
     kind: SourceKind
@@ -106,6 +112,10 @@ class SourceConfig:
     fps: float | None = None
     fourcc: str | None = None
     rate_hz: float | None = None
+    left_topic: str | None = None
+    right_topic: str | None = None
+    left_info_topic: str | None = None
+    right_info_topic: str | None = None
 
 
 @dataclass(frozen=True)
@@ -255,9 +265,22 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("right", help="right camera: index or /dev/videoN")
     s = sub.add_parser("sbs", parents=[cam, common], help="one side-by-side stereo camera")
     s.add_argument("device", help="index or /dev/videoN")
-    r = sub.add_parser("replay", parents=[common], help="folder of recorded pairs")
-    r.add_argument("folder", type=Path, help="recording (manifest.json or left_*/right_* files)")
+    r = sub.add_parser("replay", parents=[common], help="folder of recorded pairs, or a ROS 2 bag")
+    r.add_argument(
+        "folder",
+        type=Path,
+        help="recording (manifest.json or left_*/right_* files), or with --left/--right a "
+        "ROS 2 bag (folder, .db3 or .mcap)",
+    )
     r.add_argument("--rate", type=_positive, metavar="HZ", help="replay rate (default: recorded)")
+    r.add_argument("--left", metavar="TOPIC", help="ROS 2 bag: left sensor_msgs/Image topic")
+    r.add_argument("--right", metavar="TOPIC", help="ROS 2 bag: right sensor_msgs/Image topic")
+    r.add_argument(
+        "--left-info", metavar="TOPIC", help="ROS 2 bag: left CameraInfo (default: beside image)"
+    )
+    r.add_argument(
+        "--right-info", metavar="TOPIC", help="ROS 2 bag: right CameraInfo (default: beside)"
+    )
     return p
 
 
@@ -278,7 +301,23 @@ def config_from_args(args: argparse.Namespace) -> CameraConfig:
 
     kind = SourceKind(args.kind)
     if kind is SourceKind.REPLAY:
-        source = SourceConfig(kind, folder=args.folder, rate_hz=args.rate)
+        if (args.left is None) != (args.right is None):
+            raise ValueError("a ROS 2 bag needs both --left TOPIC and --right TOPIC")
+        if args.left is None and (args.left_info or args.right_info):
+            raise ValueError("--left-info/--right-info need --left and --right (a ROS 2 bag)")
+        if args.left is not None:
+            from companion.viz.options import require_extra
+
+            require_extra("a ROS 2 bag (--left/--right)", "rosbags", "rosbags")
+        source = SourceConfig(
+            kind,
+            folder=args.folder,
+            rate_hz=args.rate,
+            left_topic=args.left,
+            right_topic=args.right,
+            left_info_topic=args.left_info,
+            right_info_topic=args.right_info,
+        )
     else:
         devices = (args.left, args.right) if kind is SourceKind.V4L2_PAIR else (args.device,)
         if args.fourcc is not None and len(args.fourcc) != 4:
@@ -332,6 +371,17 @@ def make_source(config: SourceConfig):
     if config.kind is SourceKind.SIDE_BY_SIDE:
         return sources.SideBySideCamera(
             config.devices[0], config.size_px, config.fps, config.fourcc
+        )
+    if config.left_topic is not None and config.right_topic is not None:
+        from companion.camera.rosbag_source import Ros2BagReplay
+
+        return Ros2BagReplay(
+            config.folder,
+            config.left_topic,
+            config.right_topic,
+            left_info_topic=config.left_info_topic,
+            right_info_topic=config.right_info_topic,
+            rate_hz=config.rate_hz,
         )
     return sources.FolderReplay(config.folder, config.rate_hz)
 

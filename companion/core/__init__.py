@@ -8,6 +8,7 @@ lockstep harness runs too); their inputs and outputs are in :mod:`companion.core
 from companion.core.companion_core import STREAMS, CompanionCore
 from companion.core.events import (
     Event,
+    FrameProcessed,
     FrameReceived,
     Input,
     MavlinkReceived,
@@ -23,6 +24,7 @@ __all__ = [
     "STREAMS",
     "CompanionCore",
     "Event",
+    "FrameProcessed",
     "FrameReceived",
     "Input",
     "MavlinkReceived",

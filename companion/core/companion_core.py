@@ -40,6 +40,7 @@ from companion.clock_model import (
 from companion.config import CompanionConfig
 from companion.core.events import (
     Event,
+    FrameProcessed,
     FrameReceived,
     Input,
     MavlinkReceived,
@@ -141,10 +142,16 @@ class CompanionCore:
     instance_id : int
         This companion's random 32-bit id (in its heartbeat's ``custom_mode``; see
         :mod:`companion.takeover`). Passed in so that a replay is deterministic.
+    report_pipeline : bool
+        Also return a :class:`~companion.core.events.FrameProcessed` per processed frame
+        (a viewer is attached); off: nothing is built for it.
     """
 
-    def __init__(self, config: CompanionConfig, instance_id: int) -> None:
+    def __init__(
+        self, config: CompanionConfig, instance_id: int, *, report_pipeline: bool = False
+    ) -> None:
         self.config = config
+        self.report_pipeline = report_pipeline
         link = config.link
         self._signing = link.signing_key is not None
         self.clock = ClockModel(link.frame_clock)
@@ -803,6 +810,11 @@ class CompanionCore:
             setpoint_sent=sent,
         )
         self._out.append(Status(document, recv_ns, self._now_ns, host_capture))
+        if self.report_pipeline:  # a viewer is attached (companion.viz)
+            pipeline = self.mission.pipeline
+            self._out.append(
+                FrameProcessed(frame, pose, result, pipeline.goal_ned_m, pipeline.known_space, sent)
+            )
 
     def _state_speed_limit(self, limit_mps: float, now_s: float) -> None:
         """ArduPilot: the envelope's speed limit as MAV_CMD_DO_CHANGE_SPEED (see

@@ -29,18 +29,29 @@ Outputs
     Something worth a test's or an operator's attention (``COMPANION EVENT <name>``).
 :class:`Status`
     The status document of one processed frame (published on Zenoh).
+:class:`FrameProcessed`
+    Only from a core built with ``report_pipeline=True`` (a viewer is attached): the
+    frame, its pose and the pipeline's whole output, for drawing (never carried out).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from companion.link.setpoints import PositionTarget
 from protocols.stereo_frame import StereoFrame
 
+if TYPE_CHECKING:  # mission.py imports this module
+    from companion.core.mission import MissionStep
+    from companion.known_space import KnownSpace
+    from companion.pipeline import PoseAtCapture
+
 __all__ = [
     "Event",
+    "FrameProcessed",
     "FrameReceived",
     "Input",
     "MavlinkReceived",
@@ -116,4 +127,23 @@ class Status:
     host_capture_ns: int | None
 
 
-Output = SendMavlink | SendSetpoint | Event | Status
+@dataclass(frozen=True, eq=False)
+class FrameProcessed:
+    """A frame went through the mission (for viewers; see :mod:`companion.viz`).
+
+    ``pose`` (:class:`~companion.pipeline.PoseAtCapture`) gave ``step``
+    (:class:`~companion.core.mission.MissionStep`: the pipeline output and waypoint);
+    ``goal_ned_m`` is the waypoint flown to [m, NED]; ``known_space`` the pipeline's live
+    known-space model (read it on another thread only as a picture: it keeps changing);
+    ``setpoint_sent``: the frame's setpoint went to the autopilot. Read-only.
+    """
+
+    frame: StereoFrame
+    pose: PoseAtCapture
+    step: MissionStep
+    goal_ned_m: np.ndarray
+    known_space: KnownSpace
+    setpoint_sent: bool
+
+
+Output = SendMavlink | SendSetpoint | Event | Status | FrameProcessed

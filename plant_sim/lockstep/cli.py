@@ -17,9 +17,16 @@ Subcommands
     stereo matcher (``plant_sim.lockstep.truth_perception``).
 ``stereo-avoid replay SEED [--family F] [--perception P] [--out DIR] [--json]``
     One random scene, with figures, exactly as Monte Carlo flew it (same verdict).
+``stereo-avoid replay FILE.mcap [--rerun FILE.rrd|serve] [--json]``
+    A companion recording (``companion --record``) through a fresh companion core with the
+    recorded inputs and clock; exit 0 when every MAVLink output (setpoints included) is
+    bit for bit the recorded one (:mod:`companion.record.replay`).
 ``stereo-avoid sil [--scenario FILE] [--speedup N] [--out DIR] [--json]``
     plant-sim and the companion as two processes over MAVLink and Zenoh on loopback;
     the same verdict and figures, from plant-sim's ground-truth log.
+
+``paper``, ``replay`` and ``sil`` take ``--rerun FILE.rrd|serve[:PORT]``: the run in Rerun
+(:mod:`plant_sim.lockstep.view`; needs the optional ``view`` extra).
 ``stereo-avoid sil --autopilot arducopter-sitl [--autopilot-params FILE] [--speedup K]``
     the paper's scene (north from home at 7 m) on ArduPilot's ArduCopter SITL, taken off
     by the companion, plant-sim as the camera only (:mod:`plant_sim.lockstep.sitl`).
@@ -56,12 +63,32 @@ def _progress(stream):
 
 
 def _fly_and_report(
-    scene: Scene, out_dir: Path, as_json: bool, cfg: RunConfig | None = None
+    scene: Scene,
+    out_dir: Path,
+    as_json: bool,
+    cfg: RunConfig | None = None,
+    rerun: str | None = None,
 ) -> int:
     cfg = cfg or RunConfig()
     log = sys.stderr if as_json else sys.stdout
     print(f"flying scene '{scene.name}' in lockstep (simulation time)", file=log)
-    result: RunResult = run_scene(scene, cfg, progress=_progress(log))
+    view = None
+    if rerun is not None:
+        from plant_sim.lockstep.view import LockstepView, ViewOptionError
+
+        try:
+            view = LockstepView(rerun, scene, cfg)
+        except ViewOptionError as exc:
+            print(f"stereo-avoid: {exc}", file=sys.stderr)
+            return 2
+        print(f"Rerun: {view.target.describe()}", file=log)
+    try:
+        result: RunResult = run_scene(
+            scene, cfg, progress=_progress(log), on_step=None if view is None else view.on_step
+        )
+    finally:
+        if view is not None:
+            view.close()
     return write_run_report(
         result.verdict,
         result.history,
@@ -152,20 +179,25 @@ def _montecarlo(args: argparse.Namespace) -> int:
 
 
 def _replay(args: argparse.Namespace) -> int:
-    """``replay TARGET``: an integer is a Monte Carlo seed (flown again in lockstep)."""
+    """``replay TARGET``: an integer is a Monte Carlo seed (flown again in lockstep), a
+    ``.mcap`` file a companion recording (replayed through a fresh core)."""
+    if args.target.endswith(".mcap"):
+        from plant_sim.lockstep.view import replay_recording
+
+        return replay_recording(Path(args.target), args.rerun, args.json)
     try:
         seed = int(args.target)
     except ValueError:
         print(
-            f"stereo-avoid replay: {args.target!r} is not a seed (an integer); this build "
-            "replays Monte Carlo seeds only",
+            f"stereo-avoid replay: {args.target!r} is neither a seed (an integer) nor a "
+            "companion recording (FILE.mcap)",
             file=sys.stderr,
         )
         return 2
     single_threaded()  # as every Monte Carlo worker flies it: the same verdict
     out = args.out or Path(f"runs/replay-{seed}")
     cfg = run_config(args.perception, args.max_time_s)
-    return _fly_and_report(scene_of(seed, args.family), out, args.json, cfg)
+    return _fly_and_report(scene_of(seed, args.family), out, args.json, cfg, args.rerun)
 
 
 _FAMILIES = ["mixed", *FAMILIES]
@@ -181,8 +213,14 @@ def _parser() -> argparse.ArgumentParser:
     paper.add_argument("--out", type=Path, default=Path("runs/paper"), help="output folder")
     paper.add_argument("--json", action="store_true", help="print the verdict as JSON")
     _add_montecarlo(sub.add_parser("montecarlo", help="random scenes on a Dask cluster"))
-    replay = sub.add_parser("replay", help="fly one Monte Carlo scene again by its seed")
-    replay.add_argument("target", metavar="SEED", help="Monte Carlo seed (an integer)")
+    replay = sub.add_parser(
+        "replay", help="fly one Monte Carlo scene again by its seed, or replay FILE.mcap"
+    )
+    replay.add_argument(
+        "target",
+        metavar="SEED|FILE.mcap",
+        help="Monte Carlo seed (an integer), or a recording of `companion --record`",
+    )
     replay.add_argument("--out", type=Path, default=None, help="output folder")
     replay.add_argument("--json", action="store_true", help="print the verdict as JSON")
     replay.add_argument("--family", choices=_FAMILIES, default="mixed", help="scene family")
@@ -192,7 +230,15 @@ def _parser() -> argparse.ArgumentParser:
     replay.add_argument(
         "--max-time-s", type=float, default=None, help="as in montecarlo (default 90 s)"
     )
-    _add_sil(sub.add_parser("sil", help="plant-sim + companion as processes on loopback"))
+    sil = sub.add_parser("sil", help="plant-sim + companion as processes on loopback")
+    _add_sil(sil)
+    for p in (paper, replay, sil):
+        p.add_argument(
+            "--rerun",
+            metavar="FILE.rrd|serve[:PORT]",
+            help="log the run to Rerun: a .rrd file or a live web viewer (default port 9090); "
+            "needs the optional 'view' extra",
+        )
     return parser
 
 
@@ -268,7 +314,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``stereo-avoid`` console script."""
     args = _parser().parse_args(argv)
     if args.command == "paper":
-        return _fly_and_report(paper_scene(), args.out, args.json)
+        return _fly_and_report(paper_scene(), args.out, args.json, rerun=args.rerun)
     if args.command == "sil":
         from plant_sim.lockstep.sil_report import fly_sil_and_report, fly_sitl_and_report
 
@@ -282,7 +328,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             print("stereo-avoid sil: --autopilot-params needs --autopilot", file=sys.stderr)
             return 2
         plant_args = ("--autopilot-flavour", "px4") if args.autopilot == "plant-sim-px4" else ()
-        return fly_sil_and_report(args.scenario, args.speedup, args.out, args.json, plant_args)
+        companion_args = ("--rerun", args.rerun) if args.rerun else ()
+        return fly_sil_and_report(
+            args.scenario, args.speedup, args.out, args.json, plant_args, companion_args
+        )
     if args.command == "replay":
         return _replay(args)
     if args.n < 1 or args.jobs < 1:

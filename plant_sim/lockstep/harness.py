@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion.core.mission import Mission
+from companion.core.mission import Mission, MissionStep
 from companion.guidance import GuidanceConfig, Mode
 from companion.guidance.envelope import EnvelopeConfig
 from companion.known_space import KnownSpaceConfig
@@ -143,6 +143,7 @@ def run_scene(
     progress: Callable[[float, float], None] | None = None,
     kill_times_s: Sequence[float] = (),
     record_history: bool = True,
+    on_step: Callable[[StereoFrame, PoseAtCapture, MissionStep, Mission], None] | None = None,
 ) -> RunResult:
     """Fly ``scene`` in lockstep until the goal, a collision or ``max_time_s``.
 
@@ -157,6 +158,9 @@ def run_scene(
     record_history : bool
         Keep the per-frame time history (figures, CSV); False leaves ``RunResult.history``
         empty (Monte Carlo keeps only the verdict).
+    on_step : callable(frame, pose, step, mission), optional
+        Called after every mission step (a Rerun view, :mod:`plant_sim.lockstep.view`);
+        ``pose`` is the plant's true pose at capture.
     """
     cfg = config or RunConfig()
     wall_start = time.perf_counter()
@@ -189,7 +193,11 @@ def run_scene(
     while True:
         state = quad.snapshot()
         pose = PoseAtCapture(state.pos_ned_m, state.vel_ned_mps, state.R_ned_from_frd)
-        out = mission.step(shoot(state, seq), pose).output
+        frame = shoot(state, seq)
+        step = mission.step(frame, pose)
+        if on_step is not None:
+            on_step(frame, pose, step, mission)
+        out = step.output
         quad.set_setpoint(Setpoint(pos_ned_m=tuple(out.setpoint_ned_m), yaw_rad=out.yaw_rad))
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
         if record_history:

@@ -20,6 +20,7 @@ def fly_sil_and_report(
     out_dir: Path,
     as_json: bool,
     plant_args: tuple[str, ...] = (),
+    companion_args: tuple[str, ...] = (),
 ) -> int:
     """Fly, report, write files; exit status 0 when passed, 1 otherwise, 2 on bad input."""
     log = sys.stderr if as_json else sys.stdout
@@ -35,7 +36,11 @@ def fly_sil_and_report(
     try:
         result = run_sil(
             SilOptions(
-                scenario_path=scenario, speedup=speedup, out_dir=out_dir, plant_args=plant_args
+                scenario_path=scenario,
+                speedup=speedup,
+                out_dir=out_dir,
+                plant_args=plant_args,
+                companion_args=companion_args,
             ),
             progress,
         )

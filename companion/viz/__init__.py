@@ -1,0 +1,1 @@
+"""Viewing what the companion sees: Rerun logging and the geometry it draws."""
