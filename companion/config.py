@@ -320,29 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="waypoints in LOCAL_NED [m] as one argument, e.g. '0,0,-7' or '20,0,-7;40,0,-7' "
         "(for environment variables; instead of --goal/--waypoint)",
     )
-    p.add_argument("--threshold-m", type=float, help="obstacle detection range [m]")
-    p.add_argument("--safety-margin-m", type=float, help="boundary inflation margin [m]")
-    add_signing_arguments(p)
-    p.add_argument(
-        "--takeoff-alt",
-        type=float,
-        metavar="M",
-        help="if on the ground: (GUIDED,) arm and take off to M metres before steering "
-        "(waits for EKF origin/GPS, pre-arm checks and camera frames)",
-    )
-    p.add_argument(
-        "--takeoff-wait-s",
-        type=float,
-        metavar="S",
-        help="with --takeoff-alt: give up after S wall seconds without a local position, "
-        "pre-arm checks or frames (default 180)",
-    )
-    p.add_argument("--no-request-mode", action="store_true", help="never request GUIDED/OFFBOARD")
-    p.add_argument("--frame-clock", choices=[c.value for c in FrameClock])
-    p.add_argument("--telemetry-rate-hz", type=float)
-    p.add_argument("--frame-timeout-s", type=float, help="hold if frames are older [s]")
-    p.add_argument("--telemetry-timeout-s", type=float, help="hold if poses are older [s]")
-    p.add_argument("--obstacle-distance", action="store_true", help="send OBSTACLE_DISTANCE")
+    _add_behaviour_arguments(p)
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     p.add_argument(
         "--ready-file",
@@ -374,6 +352,33 @@ def build_parser() -> argparse.ArgumentParser:
         "a live web viewer on http://127.0.0.1:PORT (default 9090); needs the [view] extra",
     )
     return p
+
+
+def _add_behaviour_arguments(p: argparse.ArgumentParser) -> None:
+    """Detection, signing, take-off, mode requests, clocks, failsafe timeouts."""
+    p.add_argument("--threshold-m", type=float, help="obstacle detection range [m]")
+    p.add_argument("--safety-margin-m", type=float, help="boundary inflation margin [m]")
+    add_signing_arguments(p)
+    p.add_argument(
+        "--takeoff-alt",
+        type=float,
+        metavar="M",
+        help="if on the ground: (GUIDED,) arm and take off to M metres before steering "
+        "(waits for EKF origin/GPS, pre-arm checks and camera frames)",
+    )
+    p.add_argument(
+        "--takeoff-wait-s",
+        type=float,
+        metavar="S",
+        help="with --takeoff-alt: give up after S wall seconds without a local position, "
+        "pre-arm checks or frames (default 180)",
+    )
+    p.add_argument("--no-request-mode", action="store_true", help="never request GUIDED/OFFBOARD")
+    p.add_argument("--frame-clock", choices=[c.value for c in FrameClock])
+    p.add_argument("--telemetry-rate-hz", type=float)
+    p.add_argument("--frame-timeout-s", type=float, help="hold if frames are older [s]")
+    p.add_argument("--telemetry-timeout-s", type=float, help="hold if poses are older [s]")
+    p.add_argument("--obstacle-distance", action="store_true", help="send OBSTACLE_DISTANCE")
 
 
 def parse_waypoints(text: str) -> list[list[float]]:

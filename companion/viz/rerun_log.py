@@ -256,31 +256,10 @@ class RerunLogger:
         pos = np.asarray(pose.pos_ned_m, dtype=float)
         vel = np.asarray(pose.vel_ned_mps, dtype=float)
         R = np.asarray(pose.R_ned_from_frd, dtype=float)
-        rec.log(
-            "world/vehicle",
-            rr.Transform3D(translation=pos, mat3x3=R),
-        )
-        self._trail.append(pos.tolist())
-        self._steps += 1
-        if len(self._trail) >= 2 and self._steps % self.trail_every == 0:
-            rec.log(
-                "world/trail", rr.LineStrips3D([list(self._trail)], colors=[_BLUE], radii=[0.03])
-            )
-        rec.log("world/velocity", rr.Arrows3D(origins=[pos], vectors=[vel], colors=[_BLUE]))
-
-        seen = out.perception
-        depth = seen.depth_m
+        self._log_vehicle(pos, vel, R)
         if heavy:
-            rec.log(f"{_CAM}/image", rr.Image(frame.left))
-        if heavy and depth is not None:
-            with np.errstate(invalid="ignore"):
-                mm = np.where(np.isfinite(depth), np.clip(depth * 1000.0, 0, 65535), 0.0)
-            rec.log(f"{_CAM}/depth", rr.DepthImage(mm.astype(np.uint16), meter=1000.0))
-            classes = depth_classes(depth, self.threshold_m)
-            rec.log(f"{_CAM}/classes", rr.SegmentationImage(classes, opacity=0.5))
-            pts = near_points_ned_m(depth, self.threshold_m, frame.intrinsics, pos, R)
-            rec.log("world/obstacle_points", rr.Points3D(pts, colors=[_ORANGE], radii=[0.03]))
-        obstacles = seen.obstacles
+            self._log_images(frame, out.perception.depth_m, pos, R)
+        obstacles = out.perception.obstacles
         rec.log(
             "world/boundaries",
             rr.Ellipsoids3D(
@@ -289,21 +268,8 @@ class RerunLogger:
                 colors=[_ORANGE],
             ),
         )
-        g = out.guidance
-        active = g.active_obstacle.track_id if g.active_obstacle is not None else None
-        centers, sizes, colors, cones, cone_colors = [], [], [], [], []
-        for t in g.tracks:
-            c, r = np.asarray(t.sphere.center_ned_m, dtype=float), float(t.sphere.radius_m)
-            centers.append(c)
-            sizes.append([r, r, r])
-            colors.append(_RED if t.track_id == active else _GREEN)
-            lines = cone_lines_ned_m(pos, c, r)
-            critical = velocity_in_cone(pos, vel, c, r)
-            cones.extend(lines)
-            cone_colors.extend([_RED if critical else _GREEN] * len(lines))
-        rec.log("world/tracks", rr.Ellipsoids3D(centers=centers, half_sizes=sizes, colors=colors))
-        rec.log("world/cones", rr.LineStrips3D(cones, colors=cone_colors, radii=[0.01]))
-        aim = g.aiming_point_ned_m
+        self._log_tracks(out.guidance, pos, vel)
+        aim = out.guidance.aiming_point_ned_m
         rec.log(
             "world/aiming_point",
             rr.Points3D([] if aim is None else [aim], colors=[_RED], radii=[0.12]),
@@ -317,7 +283,56 @@ class RerunLogger:
         if heavy and known_space is not None:
             occ = known_space.occupied_points_ned_m()
             rec.log("world/known_space", rr.Points3D(occ, colors=[(*_GREY, 90)], radii=[0.08]))
-        env = out.envelope
+        self._log_status(out)
+
+    def _log_vehicle(self, pos: np.ndarray, vel: np.ndarray, R: np.ndarray) -> None:
+        """The vehicle's pose, its trail (every ``trail_every`` steps) and its velocity."""
+        rr, rec = self.rr, self.rec
+        rec.log("world/vehicle", rr.Transform3D(translation=pos, mat3x3=R))
+        self._trail.append(pos.tolist())
+        self._steps += 1
+        if len(self._trail) >= 2 and self._steps % self.trail_every == 0:
+            rec.log(
+                "world/trail", rr.LineStrips3D([list(self._trail)], colors=[_BLUE], radii=[0.03])
+            )
+        rec.log("world/velocity", rr.Arrows3D(origins=[pos], vectors=[vel], colors=[_BLUE]))
+
+    def _log_images(self, frame: StereoFrame, depth, pos: np.ndarray, R: np.ndarray) -> None:
+        """The left image, the depth map, its near/unknown classes and the near points."""
+        rr, rec = self.rr, self.rec
+        rec.log(f"{_CAM}/image", rr.Image(frame.left))
+        if depth is None:
+            return
+        with np.errstate(invalid="ignore"):
+            mm = np.where(np.isfinite(depth), np.clip(depth * 1000.0, 0, 65535), 0.0)
+        rec.log(f"{_CAM}/depth", rr.DepthImage(mm.astype(np.uint16), meter=1000.0))
+        classes = depth_classes(depth, self.threshold_m)
+        rec.log(f"{_CAM}/classes", rr.SegmentationImage(classes, opacity=0.5))
+        pts = near_points_ned_m(depth, self.threshold_m, frame.intrinsics, pos, R)
+        rec.log("world/obstacle_points", rr.Points3D(pts, colors=[_ORANGE], radii=[0.03]))
+
+    def _log_tracks(self, g, pos: np.ndarray, vel: np.ndarray) -> None:
+        """Guidance's confirmed tracks (the active one red) and their collision cones (red
+        where the velocity lies inside)."""
+        rr, rec = self.rr, self.rec
+        active = g.active_obstacle.track_id if g.active_obstacle is not None else None
+        centers, sizes, colors, cones, cone_colors = [], [], [], [], []
+        for t in g.tracks:
+            c, r = np.asarray(t.sphere.center_ned_m, dtype=float), float(t.sphere.radius_m)
+            centers.append(c)
+            sizes.append([r, r, r])
+            colors.append(_RED if t.track_id == active else _GREEN)
+            lines = cone_lines_ned_m(pos, c, r)
+            critical = velocity_in_cone(pos, vel, c, r)
+            cones.extend(lines)
+            cone_colors.extend([_RED if critical else _GREEN] * len(lines))
+        rec.log("world/tracks", rr.Ellipsoids3D(centers=centers, half_sizes=sizes, colors=colors))
+        rec.log("world/cones", rr.LineStrips3D(cones, colors=cone_colors, radii=[0.01]))
+
+    def _log_status(self, out) -> None:
+        """The avoidance flag, speed and its limit, the free distance, the mode."""
+        rr, rec = self.rr, self.rec
+        g, env = out.guidance, out.envelope
         rec.log("status/avoidance_flag", rr.Scalars([1.0 if g.avoidance_flag else 0.0]))
         rec.log("status/speed_mps", rr.Scalars([float(env.speed_mps)]))
         rec.log("status/speed_limit_mps", rr.Scalars([float(env.speed_limit_mps)]))

@@ -164,21 +164,7 @@ def run_scene(
     """
     cfg = config or RunConfig()
     wall_start = time.perf_counter()
-    quad = Quadrotor(
-        cfg.vehicle,
-        cfg.control,
-        pos_ned_m=scene.start_ned_m,
-        yaw_rad=scene.start_yaw_rad,
-        ground_down_m=None if scene.world.ground is None else scene.world.ground.down_m,
-    )
-    mission = Mission(
-        scene.waypoints_ned_m,
-        cfg.goal_tolerance_m,
-        cfg.perception,
-        cfg.guidance,
-        cfg.known_space,
-        cfg.envelope,
-    )
+    quad, mission = _start(scene, cfg)
     shoot = _camera(scene, cfg, mission)
     centres_ned_m = np.array([s.center_ned_m for s in scene.world.spheres]).reshape(-1, 3)
     radii_m = np.array([s.radius_m for s in scene.world.spheres])
@@ -224,6 +210,26 @@ def run_scene(
         tally.min_surface = min(tally.min_surface, surface_min)
     verdict = tally.verdict(scene, quad, goal, frames=seq + 1, wall_start_s=wall_start)
     return RunResult(verdict=verdict, history=history, kills=tuple(kills))
+
+
+def _start(scene: Scene, cfg: RunConfig) -> tuple[Quadrotor, Mission]:
+    """The plant at the scene's start and the companion's mission to its waypoints."""
+    quad = Quadrotor(
+        cfg.vehicle,
+        cfg.control,
+        pos_ned_m=scene.start_ned_m,
+        yaw_rad=scene.start_yaw_rad,
+        ground_down_m=None if scene.world.ground is None else scene.world.ground.down_m,
+    )
+    mission = Mission(
+        scene.waypoints_ned_m,
+        cfg.goal_tolerance_m,
+        cfg.perception,
+        cfg.guidance,
+        cfg.known_space,
+        cfg.envelope,
+    )
+    return quad, mission
 
 
 def _camera(
