@@ -125,7 +125,8 @@ def instrumented(clock: StageClock) -> Iterator[None]:
         (KnownSpace, "mark_vehicle", "known space"),
         (companion.pipeline, "map_boundaries", "map boundaries"),
         (avoidance, "update_memory", "guidance: memory"),
-        (avoidance, "collision_cone", "guidance: cones"),
+        (avoidance, "collision_cone", "guidance: cones"),  # before issue 17's speed work
+        (avoidance, "_collision_cone", "guidance: cones"),
         (avoidance, "overlapping_cluster", "guidance: planner"),
         (avoidance, "choose_aiming_point", "guidance: planner"),
         (Guidance, "step", "guidance (rest)"),

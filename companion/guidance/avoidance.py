@@ -460,15 +460,13 @@ def _same_obstacle(tracks, seed: int) -> list[int]:
     velocity, turning back to the goal, entered that piece's cone and the avoidance
     restarted (the flag of Fig. 11 chattered).
     """
+    centers = [np.asarray(t.sphere.center_ned_m) for t in tracks]
+    radii = [float(t.sphere.radius_m) for t in tracks]
     group, frontier = {seed}, [seed]
     while frontier:
-        a = tracks[frontier.pop()].sphere
-        for j, t in enumerate(tracks):
-            if j in group:
-                continue
-            b = t.sphere
-            gap = norm3(np.asarray(a.center_ned_m) - np.asarray(b.center_ned_m))
-            if gap <= float(a.radius_m) + float(b.radius_m):
+        a = frontier.pop()
+        for j in range(len(tracks)):
+            if j not in group and norm3(centers[a] - centers[j]) <= radii[a] + radii[j]:
                 group.add(j)
                 frontier.append(j)
     return sorted(group)

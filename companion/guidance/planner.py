@@ -156,7 +156,7 @@ def choose_aiming_point(
     for cone in cones:
         if cone.apex_inside:
             raise ValueError("the vehicle is inside a boundary sphere: escape first")
-        if not np.array_equal(cone.apex_ned_m, apex):
+        if cone.apex_ned_m is not apex and not np.array_equal(cone.apex_ned_m, apex):
             raise ValueError("all cones must share the vehicle position as apex")
     if n_candidates < 1:
         raise ValueError(f"n_candidates must be >= 1, got {n_candidates}")
