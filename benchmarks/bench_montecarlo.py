@@ -51,7 +51,7 @@ from plant_sim.lockstep import harness
 from plant_sim.lockstep.harness import RunConfig, run_scene
 from plant_sim.lockstep.montecarlo import run_config, scene_of
 from plant_sim.lockstep.scenes import Scene, paper_scene
-from plant_sim.lockstep.truth_perception import TruthPerception
+from plant_sim.lockstep.truth_perception import TruthDepthSource
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.vehicle import Quadrotor
 
@@ -118,7 +118,7 @@ def instrumented(clock: StageClock) -> Iterator[None]:
         (StereoCameraRenderer, "render_depth", "render"),  # ground truth: depth only
         (PaddedStereoBM, "disparity_fixed", "matcher"),
         (PaddedStereoBM, "coarse_disparity_fixed", "matcher"),
-        (TruthPerception, "disparity_fixed", "matcher"),  # ground truth: depth → disparity
+        (TruthDepthSource, "disparity_fixed", "matcher"),  # ground truth: depth → disparity
         (PaddedStereoBM, "compute", "depth map (rest)"),  # prefilter, merge, depth
         (StereoPerception, "process", "perception (rest)"),
         (KnownSpace, "integrate", "known space"),

@@ -24,9 +24,10 @@ from __future__ import annotations
 import numpy as np
 
 from companion.perception import PerceptionConfig, StereoPerception
+from companion.stereo_bm import PaddedStereoBM
 from protocols.stereo_frame import StereoFrame
 
-__all__ = ["TruthPerception", "truth_disparity_fixed"]
+__all__ = ["TruthDepthSource", "TruthPerception", "truth_disparity_fixed"]
 
 _DISP_SCALE = 16  # OpenCV's fixed-point disparity: 1/16 px
 _INT16_MAX = np.iinfo(np.int16).max
@@ -63,17 +64,21 @@ def truth_disparity_fixed(depth_m: np.ndarray, focal_baseline_m_px: float) -> np
     return disp16
 
 
-class TruthPerception(StereoPerception):
-    """:class:`~companion.perception.StereoPerception` on true disparities (module docstring).
+class TruthDepthSource(PaddedStereoBM):
+    """The companion's default depth source on true disparities (module docstring).
+
+    :class:`~companion.stereo_bm.PaddedStereoBM` with its two matcher passes replaced:
+    the disparity is :func:`truth_disparity_fixed` of the depth handed over with
+    :meth:`provide`, and there is no coarse pass. The depth map, its validity counts and
+    the blind band are made by the companion's own code (``PaddedStereoBM.compute``).
 
     Parameters
     ----------
-    config : PerceptionConfig, optional
-        The companion's detector settings (threshold, blob and sphere parameters); the
-        matcher's settings are unused.
+    config : PerceptionConfig
+        The companion's perception settings (range and far-island gates).
     """
 
-    def __init__(self, config: PerceptionConfig | None = None) -> None:
+    def __init__(self, config: PerceptionConfig) -> None:
         super().__init__(config)
         self._truth: tuple[int, np.ndarray] | None = None
 
@@ -94,6 +99,35 @@ class TruthPerception(StereoPerception):
         if depth.shape != (k.height_px, k.width_px):
             raise ValueError(f"true depth shape {depth.shape} != frame {(k.height_px, k.width_px)}")
         return truth_disparity_fixed(depth, k.focal_baseline_m_px)
+
+    def coarse_disparity_fixed(self, frame: StereoFrame) -> None:
+        """No coarse pass: the true disparity ranges every distance already."""
+        return None
+
+
+class TruthPerception(StereoPerception):
+    """:class:`~companion.perception.StereoPerception` on true disparities (module docstring):
+    its depth source is a :class:`TruthDepthSource`.
+
+    Parameters
+    ----------
+    config : PerceptionConfig, optional
+        The companion's detector settings (threshold, blob and sphere parameters); the
+        matcher's settings are unused.
+    """
+
+    def __init__(self, config: PerceptionConfig | None = None) -> None:
+        config = config if config is not None else PerceptionConfig()
+        self._truth_source = TruthDepthSource(config)
+        super().__init__(config, source=self._truth_source)
+
+    def provide(self, sequence: int, depth_left_m: np.ndarray) -> None:
+        """The true depth of the left image of frame ``sequence`` (next to be processed)."""
+        self._truth_source.provide(sequence, depth_left_m)
+
+    def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
+        """True disparity of ``frame`` (int16, 1/16 px, -16 where a perfect matcher fails)."""
+        return self._truth_source.disparity_fixed(frame)
 
     def coarse_disparity_fixed(self, frame: StereoFrame) -> None:
         """No coarse pass: the true disparity ranges every distance already."""
