@@ -388,14 +388,26 @@ def circle_units(axis_ned: np.ndarray, first_ned: np.ndarray, n_points: int) -> 
     """Unit vectors ``⊥ axis`` at angles 0, +δ, -δ, +2δ, … from ``first_ned`` (δ = 2π/n).
 
     Positive angles turn right-handed about the axis. Shared by
-    :func:`tangent_circle_points` and the planner; returns an ``(n_points, 3)`` array.
+    :func:`tangent_circle_points` and the planner; returns an ``(n_points, 3)`` array, or
+    ``(..., n_points, 3)`` for stacks of axes and first vectors ``(..., 3)`` (the planner's
+    circles at once, the same numbers as one at a time).
     """
     k = np.arange(n_points)
     steps = (k + 1) // 2
     signs = np.where(k % 2 == 1, 1.0, -1.0)
     phi = signs * steps * (2.0 * math.pi / n_points)
-    second = cross3(axis_ned, first_ned)
-    return np.cos(phi)[:, None] * first_ned[None, :] + np.sin(phi)[:, None] * second[None, :]
+    a, f = axis_ned, first_ned
+    second = np.stack(  # a × first, as cross3, over the leading axes
+        [
+            a[..., 1] * f[..., 2] - a[..., 2] * f[..., 1],
+            a[..., 2] * f[..., 0] - a[..., 0] * f[..., 2],
+            a[..., 0] * f[..., 1] - a[..., 1] * f[..., 0],
+        ],
+        axis=-1,
+    ).astype(float)
+    return (
+        np.cos(phi)[:, None] * first_ned[..., None, :] + np.sin(phi)[:, None] * second[..., None, :]
+    )
 
 
 def tangent_circle_points(

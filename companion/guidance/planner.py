@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.guidance.cone import CollisionCone, _aiming_direction
+from companion.guidance.cone import CollisionCone, _aiming_direction, circle_units
 
 __all__ = ["AimChoice", "choose_aiming_point", "overlapping_cluster"]
 
@@ -180,7 +180,9 @@ def choose_aiming_point(
     generators = range(len(cones)) if candidate_indices is None else list(candidate_indices)
     if len(generators) == 0:
         raise ValueError("candidate_indices must name at least one cone")
-    units = _candidate_units(cones, generators, ref_hat, n_candidates, tie_angle_rad)
+    # every generator's samples at once, (generators, n_candidates, 3)
+    firsts = np.array([_aiming_direction(cones[i], ref_hat, tie_angle_rad) for i in generators])
+    units = circle_units(np.array([cones[i].axis_ned for i in generators]), firsts, n_candidates)
     # tangent circle of each generator: centre apex + a L²/D, radius R L / D
     circle_centers = np.array([cones[i].circle_center_ned_m for i in generators])
     circle_radii = np.array([cones[i].circle_radius_m for i in generators])
@@ -255,36 +257,4 @@ def choose_aiming_point(
         distance_m=float(dists[best]),
         cone_index=int(owner[best]),
         n_rejected=rank,
-    )
-
-
-def _candidate_units(
-    cones: Sequence[CollisionCone],
-    generators: Sequence[int],
-    ref_hat: np.ndarray,
-    n_candidates: int,
-    tie_angle_rad: float,
-) -> np.ndarray:
-    """Unit vectors ``⊥ axis`` of every generator's samples, ``(len(generators), n, 3)``.
-
-    Per generator, :func:`~companion.guidance.cone.circle_units` from its Eq. (28)
-    direction (:func:`~companion.guidance.cone.aiming_direction`; the reference is a
-    float array already), all at once: the same
-    element-wise arithmetic, so the same numbers.
-    """
-    firsts = np.array([_aiming_direction(cones[i], ref_hat, tie_angle_rad) for i in generators])
-    axes = np.array([cones[i].axis_ned for i in generators])
-    seconds = np.stack(
-        [
-            axes[:, 1] * firsts[:, 2] - axes[:, 2] * firsts[:, 1],
-            axes[:, 2] * firsts[:, 0] - axes[:, 0] * firsts[:, 2],
-            axes[:, 0] * firsts[:, 1] - axes[:, 1] * firsts[:, 0],
-        ],
-        axis=1,
-    )
-    k = np.arange(n_candidates)
-    phi = np.where(k % 2 == 1, 1.0, -1.0) * ((k + 1) // 2) * (2.0 * math.pi / n_candidates)
-    return (
-        np.cos(phi)[None, :, None] * firsts[:, None, :]
-        + np.sin(phi)[None, :, None] * seconds[:, None, :]
     )
