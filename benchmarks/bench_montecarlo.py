@@ -2,13 +2,17 @@
 
 Prints figures; asserts nothing. Run::
 
-    .venv/bin/python benchmarks/bench_montecarlo.py [--scenes 20] [--jobs 2] [--profile-seeds 3]
+    .venv/bin/python benchmarks/bench_montecarlo.py [--scenes 20] [--jobs 2] [--seeds 2 13 18]
 
-1. **Per-frame breakdown** of lockstep scenes flown in this process with one numba and
-   one OpenCV thread (as a Monte Carlo worker runs): exclusive time per stage — render,
-   the stereo matcher (OpenCV's block matchers, both passes), the rest of perception,
-   the known-space update, guidance, the envelope, the plant's physics, the history and
-   the harness's own bookkeeping (everything else inside ``run_scene``) — in CPU time
+1. **Per-frame breakdown** of the §6 scene and of cluttered Monte Carlo scenes (several
+   obstacles: many map pieces, boundary spheres and cones per frame), flown in this
+   process with one numba and one OpenCV thread (as a Monte Carlo worker runs):
+   exclusive time per stage — render,
+   the stereo matcher (OpenCV's block matchers, both passes), the rest of the depth map
+   (prefilter, merge, depth), the rest of perception, the known-space update, the map's
+   boundary spheres, guidance (obstacle memory, collision cones, aiming-point planner,
+   the rest), the envelope, the plant's physics, the history and the harness's own
+   bookkeeping (everything else inside ``run_scene``) — in CPU time
    (``time.thread_time``: what the machine's load does not inflate) and wall time.
    Stages are measured by wrapping the named functions for the duration of the run.
    With ground-truth perception, "render" is the depth-only ray cast and "matcher" the
@@ -39,28 +43,37 @@ import cv2
 import numba
 
 import companion.pipeline
-from companion.guidance import Guidance
+from companion.guidance import Guidance, avoidance
 from companion.known_space import KnownSpace
 from companion.perception import StereoPerception
+from companion.stereo_bm import PaddedStereoBM
 from plant_sim.lockstep import harness
 from plant_sim.lockstep.harness import RunConfig, run_scene
 from plant_sim.lockstep.montecarlo import run_config, scene_of
-from plant_sim.lockstep.scenes import paper_scene
-from plant_sim.lockstep.truth_perception import TruthPerception
+from plant_sim.lockstep.scenes import Scene, paper_scene
+from plant_sim.lockstep.truth_perception import TruthDepthSource
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.vehicle import Quadrotor
 
 STAGES = (
     "render",
     "matcher",
+    "depth map (rest)",
     "perception (rest)",
     "known space",
-    "guidance",
+    "map boundaries",
+    "guidance: memory",
+    "guidance: cones",
+    "guidance: planner",
+    "guidance (rest)",
     "envelope",
     "physics",
     "history",
     "harness bookkeeping",
 )
+
+#: Cluttered Monte Carlo seeds (3–4 obstacles: goal_near-2, climb-13, goal_near-18).
+CLUTTERED_SEEDS = (2, 13, 18)
 
 
 class StageClock:
@@ -103,15 +116,21 @@ def instrumented(clock: StageClock) -> Iterator[None]:
     targets = [
         (StereoCameraRenderer, "render", "render"),
         (StereoCameraRenderer, "render_depth", "render"),  # ground truth: depth only
-        (StereoPerception, "disparity_fixed", "matcher"),
-        (StereoPerception, "coarse_disparity_fixed", "matcher"),
-        (TruthPerception, "disparity_fixed", "matcher"),  # ground truth: depth → disparity
+        (PaddedStereoBM, "disparity_fixed", "matcher"),
+        (PaddedStereoBM, "coarse_disparity_fixed", "matcher"),
+        (TruthDepthSource, "disparity_fixed", "matcher"),  # ground truth: depth → disparity
+        (PaddedStereoBM, "compute", "depth map (rest)"),  # prefilter, merge, depth
         (StereoPerception, "process", "perception (rest)"),
         (KnownSpace, "integrate", "known space"),
         (KnownSpace, "mark_vehicle", "known space"),
-        (KnownSpace, "free_distance_m", "known space"),
-        (Guidance, "step", "guidance"),
-        (companion.pipeline, "envelope_step", "envelope"),
+        (companion.pipeline, "map_boundaries", "map boundaries"),
+        (avoidance, "update_memory", "guidance: memory"),
+        (avoidance, "collision_cone", "guidance: cones"),  # before issue 17's speed work
+        (avoidance, "_collision_cone", "guidance: cones"),
+        (avoidance, "overlapping_cluster", "guidance: planner"),
+        (avoidance, "choose_aiming_point", "guidance: planner"),
+        (Guidance, "step", "guidance (rest)"),
+        (companion.pipeline, "envelope_step", "envelope"),  # with its free-distance query
         (Quadrotor, "step", "physics"),
         (Quadrotor, "step_watching", "physics"),  # physics + per-step clearance and tilt
         (harness, "_record", "history"),
@@ -130,14 +149,13 @@ def instrumented(clock: StageClock) -> Iterator[None]:
             setattr(owner, attr, original)
 
 
-def profile_scenes(seeds: list[int], config: RunConfig) -> tuple[StageClock, int, float]:
-    """Fly ``seeds`` under :func:`instrumented`; (clock, frames, simulated seconds)."""
+def profile_scenes(scenes: list[Scene], config: RunConfig) -> tuple[StageClock, int, float]:
+    """Fly ``scenes`` under :func:`instrumented`; (clock, frames, simulated seconds)."""
     clock = StageClock()
     frames = 0
     sim_s = 0.0
     with instrumented(clock):
-        for seed in seeds:
-            scene = scene_of(seed)
+        for scene in scenes:
             with clock.stage("harness bookkeeping"):
                 verdict = run_scene(scene, config, record_history=False).verdict
             frames += verdict.frames
@@ -168,7 +186,13 @@ def print_breakdown(title: str, clock: StageClock, frames: int, sim_s: float) ->
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--profile-seeds", type=int, default=3, help="scenes to profile")
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        nargs="*",
+        default=list(CLUTTERED_SEEDS),
+        help="Monte Carlo seeds to profile (default: cluttered ones)",
+    )
     parser.add_argument(
         "--scenes", type=int, default=20, help="scenes for the throughput (0: skip it)"
     )
@@ -184,12 +208,17 @@ def main() -> None:
     cv2.setNumThreads(1)
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 
-    seeds = list(range(1000, 1000 + args.profile_seeds))
+    run_scene(paper_scene(), RunConfig(max_time_s=1.0))  # caches, imports
+    clock, frames, sim_s = profile_scenes([paper_scene()], RunConfig())
+    print_breakdown("§6 paper scene, stereo perception", clock, frames, sim_s)
     for perception in ("stereo", "truth") if args.perception == "both" else (args.perception,):
+        if not args.seeds:
+            break
         cfg = run_config(perception)
         run_scene(scene_of(0), dataclasses.replace(cfg, max_time_s=1.0))  # caches, imports
-        clock, frames, sim_s = profile_scenes(seeds, cfg)
-        print_breakdown(f"{perception} perception, seeds {seeds}", clock, frames, sim_s)
+        scenes = [scene_of(seed) for seed in args.seeds]
+        clock, frames, sim_s = profile_scenes(scenes, cfg)
+        print_breakdown(f"{perception} perception, seeds {args.seeds}", clock, frames, sim_s)
 
     t0 = time.perf_counter()
     verdict = run_scene(paper_scene(), RunConfig()).verdict

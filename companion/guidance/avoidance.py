@@ -79,6 +79,7 @@ about to travel), so the forward camera looks where it goes; in HOLD and within
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -89,8 +90,8 @@ import numpy as np
 from companion.guidance._vec import norm3
 from companion.guidance.cone import (
     SphereLike,
-    collision_cone,
-    contains_direction,
+    _collision_cone,
+    _contains_direction,
     escape_point,
     segment_intersects_sphere,
 )
@@ -286,7 +287,8 @@ def guidance_step(
         config=cfg,
     )
     tracks = tuple(t for t in memory.tracks if t.confirmed)
-    cones = [collision_cone(pos, t.sphere) for t in tracks]
+    apex = pos.copy()  # one read-only apex shared by this step's cones
+    cones = [_collision_cone(apex, t.sphere) for t in tracks]
     # Unreachable goal (inside a confirmed boundary): the goal becomes the stop point just
     # outside it; once there (or once held for this reason) the vehicle holds, reported.
     blocking = [t for t in tracks if _inside_ball(goal, t.sphere)]
@@ -331,19 +333,25 @@ class _Frame:
     tracks: tuple[TrackedObstacle, ...]
     cones: list
 
-    @property
+    _blocked: dict[int, bool] = field(default_factory=dict, repr=False)
+
+    @functools.cached_property
     def goal_dist(self) -> float:
         return norm3(self.goal - self.pos)
 
-    @property
+    @functools.cached_property
     def has_ref(self) -> bool:
         return bool(np.any(self.ref != 0.0))
 
     def goal_blocked(self, i: int) -> bool:
-        """The straight path to the goal crosses track ``i``'s sphere."""
-        return self.goal_dist > 1e-9 and segment_intersects_sphere(
-            self.pos, self.goal, self.tracks[i].sphere
-        )
+        """The straight path to the goal crosses track ``i``'s sphere (asked once per
+        track and step, remembered)."""
+        blocked = self._blocked.get(i)
+        if blocked is None:
+            blocked = self._blocked[i] = self.goal_dist > 1e-9 and segment_intersects_sphere(
+                self.pos, self.goal, self.tracks[i].sphere
+            )
+        return blocked
 
 
 @dataclass(eq=False)
@@ -397,7 +405,7 @@ def _avoid_threats(state, f: _Frame, d: _Decision, cfg) -> None:
         for i, c in enumerate(cones)
         if f.has_ref
         and (c.surface_distance_m <= f.goal_dist + cfg.goal_clearance_m or f.goal_blocked(i))
-        and contains_direction(c, f.ref)
+        and _contains_direction(c, f.ref, 0.0)
         and (tracks[i].track_id not in d.cleared or f.goal_blocked(i))
     ]
     kept, kept_reason = _keep_active(state, f, threats, d, cfg)
@@ -431,7 +439,7 @@ def _keep_active(state, f: _Frame, threats: list[int], d: _Decision, cfg):
     elif behind:
         d.cleared.update(f.tracks[i].track_id for i in obstacle)
         kept = None
-    elif contains_direction(cone, f.ref, margin_rad=cfg.exit_margin_rad):
+    elif _contains_direction(cone, f.ref, cfg.exit_margin_rad):
         kept_reason = Reason.HYSTERESIS
     else:
         since = f.time_s if state.clear_since_s is None else state.clear_since_s
@@ -452,15 +460,13 @@ def _same_obstacle(tracks, seed: int) -> list[int]:
     velocity, turning back to the goal, entered that piece's cone and the avoidance
     restarted (the flag of Fig. 11 chattered).
     """
+    centers = [np.asarray(t.sphere.center_ned_m) for t in tracks]
+    radii = [float(t.sphere.radius_m) for t in tracks]
     group, frontier = {seed}, [seed]
     while frontier:
-        a = tracks[frontier.pop()].sphere
-        for j, t in enumerate(tracks):
-            if j in group:
-                continue
-            b = t.sphere
-            gap = norm3(np.asarray(a.center_ned_m) - np.asarray(b.center_ned_m))
-            if gap <= float(a.radius_m) + float(b.radius_m):
+        a = frontier.pop()
+        for j in range(len(tracks)):
+            if j not in group and norm3(centers[a] - centers[j]) <= radii[a] + radii[j]:
                 group.add(j)
                 frontier.append(j)
     return sorted(group)

@@ -102,18 +102,21 @@ class BoundarySphere:
     radius_m: float
 
     def __post_init__(self) -> None:
-        message = f"center_ned_m must be 3 finite numbers, got {self.center_ned_m!r}"
         try:
             center = tuple(float(x) for x in self.center_ned_m)
         except (TypeError, ValueError) as exc:
-            raise ValueError(message) from exc
+            raise ValueError(self._bad_center()) from exc
         if len(center) != 3 or not all(math.isfinite(x) for x in center):
-            raise ValueError(message)
+            raise ValueError(self._bad_center())
         radius = float(self.radius_m)
         if not (math.isfinite(radius) and radius > 0.0):
             raise ValueError(f"radius_m must be finite and positive, got {self.radius_m!r}")
         object.__setattr__(self, "center_ned_m", center)
         object.__setattr__(self, "radius_m", radius)
+
+    def _bad_center(self) -> str:
+        # formatted only on failure: a repr per sphere and frame is most of the cost
+        return f"center_ned_m must be 3 finite numbers, got {self.center_ned_m!r}"
 
     @classmethod
     def of(cls, sphere: SphereLike) -> BoundarySphere:
@@ -204,7 +207,12 @@ def collision_cone(apex_ned_m, sphere: SphereLike) -> CollisionCone:
         Half-angle ``asin(R / D)``; when ``D ≤ R`` the cone is flagged ``apex_inside``
         with half-angle ``π``.
     """
-    apex = np.array(vec3(apex_ned_m, "apex_ned_m"))
+    return _collision_cone(np.array(vec3(apex_ned_m, "apex_ned_m")), sphere)
+
+
+def _collision_cone(apex: np.ndarray, sphere: SphereLike) -> CollisionCone:
+    """:func:`collision_cone` for an apex already checked: a float array of shape (3,),
+    owned by the cone (frozen here)."""
     center = np.asarray(sphere.center_ned_m, dtype=float)
     radius = float(sphere.radius_m)
     offset = center - apex
@@ -230,7 +238,11 @@ def contains_direction(cone: CollisionCone, direction_ned, *, margin_rad: float 
     (a generator itself is not inside). A zero direction is never inside; any non-zero
     direction is inside when the apex is inside the sphere.
     """
-    d = np.array(vec3(direction_ned, "direction_ned"))
+    return _contains_direction(cone, np.array(vec3(direction_ned, "direction_ned")), margin_rad)
+
+
+def _contains_direction(cone: CollisionCone, d: np.ndarray, margin_rad: float) -> bool:
+    """:func:`contains_direction` for a direction already checked (float, shape (3,))."""
     norm = norm3(d)
     if norm <= 0.0:
         return False
@@ -325,8 +337,12 @@ def aiming_direction(
     ndarray, shape (3,)
         Unit vector normal to ``cone.axis_ned``.
     """
+    return _aiming_direction(cone, np.array(vec3(reference_ned, "reference_ned")), tie_angle_rad)
+
+
+def _aiming_direction(cone: CollisionCone, v: np.ndarray, tie_angle_rad: float) -> np.ndarray:
+    """:func:`aiming_direction` for a reference already checked (float, shape (3,))."""
     axis = cone.axis_ned
-    v = np.array(vec3(reference_ned, "reference_ned"))
     speed = norm3(v)
     if speed <= _EPS:
         return side_step_direction(axis, axis)
@@ -372,14 +388,26 @@ def circle_units(axis_ned: np.ndarray, first_ned: np.ndarray, n_points: int) -> 
     """Unit vectors ``⊥ axis`` at angles 0, +δ, -δ, +2δ, … from ``first_ned`` (δ = 2π/n).
 
     Positive angles turn right-handed about the axis. Shared by
-    :func:`tangent_circle_points` and the planner; returns an ``(n_points, 3)`` array.
+    :func:`tangent_circle_points` and the planner; returns an ``(n_points, 3)`` array, or
+    ``(..., n_points, 3)`` for stacks of axes and first vectors ``(..., 3)`` (the planner's
+    circles at once, the same numbers as one at a time).
     """
     k = np.arange(n_points)
     steps = (k + 1) // 2
     signs = np.where(k % 2 == 1, 1.0, -1.0)
     phi = signs * steps * (2.0 * math.pi / n_points)
-    second = cross3(axis_ned, first_ned)
-    return np.cos(phi)[:, None] * first_ned[None, :] + np.sin(phi)[:, None] * second[None, :]
+    a, f = axis_ned, first_ned
+    second = np.stack(  # a × first, as cross3, over the leading axes
+        [
+            a[..., 1] * f[..., 2] - a[..., 2] * f[..., 1],
+            a[..., 2] * f[..., 0] - a[..., 0] * f[..., 2],
+            a[..., 0] * f[..., 1] - a[..., 1] * f[..., 0],
+        ],
+        axis=-1,
+    ).astype(float)
+    return (
+        np.cos(phi)[:, None] * first_ned[..., None, :] + np.sin(phi)[:, None] * second[..., None, :]
+    )
 
 
 def tangent_circle_points(

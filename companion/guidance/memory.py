@@ -180,9 +180,9 @@ def update_memory(
     pos = np.asarray(pos_ned_m, dtype=float)
     vel = np.asarray(vel_ned_mps, dtype=float)
     goal = None if goal_ned_m is None else np.asarray(goal_ned_m, dtype=float)
-    detections = list(detections)
-    keyed = _keyed_tracks(memory, [d for d in detections if _key(d) is not None], time_s)
-    spheres = [BoundarySphere.of(d) for d in detections if _key(d) is None]
+    keys_detections = [(_key(d), d) for d in detections]
+    keyed = _keyed_tracks(memory, [kd for kd in keys_detections if kd[0] is not None], time_s)
+    spheres = [BoundarySphere.of(d) for key, d in keys_detections if key is None]
 
     tracks = [t for t in memory.tracks if not t.keyed]
     next_id = memory.next_id
@@ -270,13 +270,13 @@ def _key(detection) -> int | None:
 
 
 def _keyed_tracks(
-    memory: ObstacleMemory, detections: list, time_s: float
+    memory: ObstacleMemory, keyed_detections: list[tuple[int, SphereLike]], time_s: float
 ) -> tuple[TrackedObstacle, ...]:
-    """This update's map pieces as tracks (see "Map pieces"), ordered by key."""
+    """This update's map pieces, ``(track_key, detection)``, as tracks (see "Map
+    pieces"), ordered by key."""
     previous = {t.track_id: t for t in memory.tracks if t.keyed}
     by_key: dict[int, TrackedObstacle] = {}
-    for det in detections:
-        key = _key(det)
+    for key, det in keyed_detections:
         if key in by_key:
             raise ValueError(f"two detections share track_key {key}")
         old = previous.get(key)

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.guidance.cone import CollisionCone, aiming_direction, circle_units
+from companion.guidance.cone import CollisionCone, _aiming_direction, circle_units
 
 __all__ = ["AimChoice", "choose_aiming_point", "overlapping_cluster"]
 
@@ -82,14 +82,18 @@ def overlapping_cluster(
     """
     cluster = set(seeds)
     frontier = list(seeds)
+    if not cones:
+        return sorted(cluster)
+    # every pair at once: the angle between the axes and the overlap limit, (n, n)
+    axes = np.array([cone.axis_ned for cone in cones])
+    half_angles = np.array([cone.half_angle_rad for cone in cones])
+    axis_angle_rad = np.arccos(np.clip(axes @ axes.T, -1.0, 1.0))
+    limit_rad = half_angles[:, None] + half_angles[None, :] + margin_rad
+    overlaps = (limit_rad >= math.pi) | (axis_angle_rad < limit_rad)
     while frontier:
         i = frontier.pop()
-        for j, cone in enumerate(cones):
-            if j in cluster:
-                continue
-            cos_axes = min(max(float(cones[i].axis_ned @ cone.axis_ned), -1.0), 1.0)
-            limit = cones[i].half_angle_rad + cone.half_angle_rad + margin_rad
-            if limit >= math.pi or math.acos(cos_axes) < limit:
+        for j in np.flatnonzero(overlaps[i]).tolist():
+            if j not in cluster:
                 cluster.add(j)
                 frontier.append(j)
     return sorted(cluster)
@@ -152,7 +156,7 @@ def choose_aiming_point(
     for cone in cones:
         if cone.apex_inside:
             raise ValueError("the vehicle is inside a boundary sphere: escape first")
-        if not np.array_equal(cone.apex_ned_m, apex):
+        if cone.apex_ned_m is not apex and not np.array_equal(cone.apex_ned_m, apex):
             raise ValueError("all cones must share the vehicle position as apex")
     if n_candidates < 1:
         raise ValueError(f"n_candidates must be >= 1, got {n_candidates}")
@@ -176,29 +180,38 @@ def choose_aiming_point(
     generators = range(len(cones)) if candidate_indices is None else list(candidate_indices)
     if len(generators) == 0:
         raise ValueError("candidate_indices must name at least one cone")
-    points, units, owners = [], [], []
-    for i in generators:
-        cone = cones[i]
-        first = aiming_direction(cone, ref_hat, tie_angle_rad=tie_angle_rad)
-        u = circle_units(cone.axis_ned, first, n_candidates)
-        points.append(cone.circle_center_ned_m[None, :] + cone.circle_radius_m * u)
-        units.append(u)
-        owners.append(np.full(n_candidates, i))
-    pts = np.concatenate(points)
-    owner = np.concatenate(owners)
-    sample = np.tile(np.arange(n_candidates), len(owners))
+    # every generator's samples at once, (generators, n_candidates, 3)
+    firsts = np.array([_aiming_direction(cones[i], ref_hat, tie_angle_rad) for i in generators])
+    units = circle_units(np.array([cones[i].axis_ned for i in generators]), firsts, n_candidates)
+    # tangent circle of each generator: centre apex + a L²/D, radius R L / D
+    circle_centers = np.array([cones[i].circle_center_ned_m for i in generators])
+    circle_radii = np.array([cones[i].circle_radius_m for i in generators])
+    pts = (circle_centers[:, None, :] + circle_radii[:, None, None] * units).reshape(-1, 3)
+    units = units.reshape(-1, 3)
+    owner = np.repeat(np.asarray(generators), n_candidates)
+    sample = np.tile(np.arange(n_candidates), len(generators))
     offsets = pts - apex[None, :]
-    dists = np.sqrt(np.einsum("ij,ij->i", offsets, offsets))
+    dists_sq = np.einsum("ij,ij->i", offsets, offsets)
+    dists = np.sqrt(dists_sq)
     dirs = offsets / dists[:, None]
 
-    free = np.ones(len(pts), dtype=bool)
-    for j, cone in enumerate(cones):
-        other = owner != j
-        limit = cone.half_angle_rad + cone_margin_rad
-        in_cone = (dirs @ cone.axis_ned) > math.cos(limit) if limit < math.pi else other
-        rel = pts - cone.center_ned_m[None, :]
-        in_ball = np.einsum("ij,ij->i", rel, rel) < cone.radius_m**2
-        free &= ~(other & (in_cone | in_ball))
+    # Rejection by every other cone at once, (candidates, cones): direction inside its
+    # (widened) cone, or point inside its ball. Both from the apex: with o = x - p and
+    # q = c - p, |x - c|² = |o|² - 2 o·q + |q|² (a few metres, so exact to ~1e-15 m²).
+    axes = np.array([cone.axis_ned for cone in cones])
+    to_centers = np.array([cone.center_ned_m for cone in cones]) - apex[None, :]
+    radii = np.array([cone.radius_m for cone in cones])
+    limits = np.array([cone.half_angle_rad for cone in cones]) + cone_margin_rad
+    other = owner[:, None] != np.arange(len(cones))[None, :]
+    wide = limits >= math.pi  # covers every direction
+    in_cone = ((dirs @ axes.T) > np.cos(np.where(wide, 0.0, limits))[None, :]) | wide[None, :]
+    dist_sq = (
+        dists_sq[:, None]
+        - 2.0 * (offsets @ to_centers.T)
+        + np.einsum("ij,ij->i", to_centers, to_centers)[None, :]
+    )
+    in_ball = dist_sq < (radii**2)[None, :]
+    free = ~np.any(other & (in_cone | in_ball), axis=1)
     if max_elevation_rad is not None:
         free &= np.abs(dirs[:, 2]) <= math.sin(max_elevation_rad) + 1e-12
 
@@ -210,7 +223,7 @@ def choose_aiming_point(
         cos_q = np.round((dirs_w @ (ref_w / np.linalg.norm(ref_w))) * 1e9)
     else:
         cos_q = np.round((dirs @ ref_hat) * 1e9)
-    vert_q = np.round(np.abs(np.concatenate(units)[:, 2]) * 1e9)
+    vert_q = np.round(np.abs(units[:, 2]) * 1e9)
     left = np.zeros(len(pts), dtype=np.int8)
     if cluster_tie and ref_norm > 1e-9:
         weights = [1.0 - math.cos(min(cones[i].half_angle_rad, 0.5 * math.pi)) for i in generators]

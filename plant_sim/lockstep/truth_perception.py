@@ -8,8 +8,7 @@ disparity map comes from the left eye's true depth (:meth:`StereoCameraRenderer.
 <plant_sim.stereo_camera.StereoCameraRenderer.render_depth>`, the exact ray-cast geometry)
 as ``round(16 · f·b / depth)`` instead of OpenCV's block matchers. Everything downstream —
 obstacle pixels, blobs, boundary spheres, the depth map the known-space model folds in —
-is the companion's own code, unchanged: :class:`TruthDepthSource` is a depth source of
-:mod:`companion.depth_source`'s contract, plugged into the companion's perception.
+is the companion's own code, unchanged.
 
 What a perfect stereo matcher still cannot do, this does not do either: a pixel whose
 match would lie left of the right image (``x − d < 0``: outside the right camera's view)
@@ -24,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from companion.depth_source import DepthMap, depth_from_disparity
 from companion.perception import PerceptionConfig, StereoPerception
+from companion.stereo_bm import PaddedStereoBM
 from protocols.stereo_frame import StereoFrame
 
 __all__ = ["TruthDepthSource", "TruthPerception", "truth_disparity_fixed"]
@@ -65,28 +64,30 @@ def truth_disparity_fixed(depth_m: np.ndarray, focal_baseline_m_px: float) -> np
     return disp16
 
 
-class TruthDepthSource:
-    """A depth source (:mod:`companion.depth_source` contract) that returns the renderer's
-    true depth of each frame instead of matching the pair.
+class TruthDepthSource(PaddedStereoBM):
+    """The companion's default depth source on true disparities (module docstring).
+
+    :class:`~companion.stereo_bm.PaddedStereoBM` with its two matcher passes replaced:
+    the disparity is :func:`truth_disparity_fixed` of the depth handed over with
+    :meth:`provide`, and there is no coarse pass. The depth map, its validity counts and
+    the blind band are made by the companion's own code (``PaddedStereoBM.compute``).
 
     Parameters
     ----------
     config : PerceptionConfig
-        Uses ``max_range_m`` (beyond it a surface is "+inf, nothing nearer", as the matcher
-        reports it).
+        The companion's perception settings (range and far-island gates).
     """
 
     def __init__(self, config: PerceptionConfig) -> None:
-        self.config = config
+        super().__init__(config)
         self._truth: tuple[int, np.ndarray] | None = None
 
     def provide(self, sequence: int, depth_left_m: np.ndarray) -> None:
         """The true depth of the left image of frame ``sequence`` (next to be processed)."""
         self._truth = (int(sequence), depth_left_m)
 
-    def compute(self, frame: StereoFrame) -> DepthMap:
-        """The contract's depth map of the true disparity (no blind band: a perfect matcher
-        tells every column it can see from one it cannot)."""
+    def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
+        """True disparity of ``frame`` (int16, 1/16 px, -16 where a perfect matcher fails)."""
         if self._truth is None or self._truth[0] != frame.sequence:
             have = None if self._truth is None else self._truth[0]
             raise RuntimeError(
@@ -97,15 +98,16 @@ class TruthDepthSource:
         k = frame.intrinsics
         if depth.shape != (k.height_px, k.width_px):
             raise ValueError(f"true depth shape {depth.shape} != frame {(k.height_px, k.width_px)}")
-        disparity = truth_disparity_fixed(depth, k.focal_baseline_m_px)
-        return depth_from_disparity(
-            disparity, k.focal_baseline_m_px, self.config.max_range_m, blind_band_px=0
-        )
+        return truth_disparity_fixed(depth, k.focal_baseline_m_px)
+
+    def coarse_disparity_fixed(self, frame: StereoFrame) -> None:
+        """No coarse pass: the true disparity ranges every distance already."""
+        return None
 
 
 class TruthPerception(StereoPerception):
     """:class:`~companion.perception.StereoPerception` on true disparities (module docstring):
-    the companion's perception with :class:`TruthDepthSource` as its depth source.
+    its depth source is a :class:`TruthDepthSource`.
 
     Parameters
     ----------
@@ -115,9 +117,18 @@ class TruthPerception(StereoPerception):
     """
 
     def __init__(self, config: PerceptionConfig | None = None) -> None:
-        self.truth_source = TruthDepthSource(PerceptionConfig() if config is None else config)
-        super().__init__(self.truth_source.config, source=self.truth_source)
+        config = config if config is not None else PerceptionConfig()
+        self._truth_source = TruthDepthSource(config)
+        super().__init__(config, source=self._truth_source)
 
     def provide(self, sequence: int, depth_left_m: np.ndarray) -> None:
         """The true depth of the left image of frame ``sequence`` (next to be processed)."""
-        self.truth_source.provide(sequence, depth_left_m)
+        self._truth_source.provide(sequence, depth_left_m)
+
+    def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
+        """True disparity of ``frame`` (int16, 1/16 px, -16 where a perfect matcher fails)."""
+        return self._truth_source.disparity_fixed(frame)
+
+    def coarse_disparity_fixed(self, frame: StereoFrame) -> None:
+        """No coarse pass: the true disparity ranges every distance already."""
+        return None
