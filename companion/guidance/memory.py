@@ -185,11 +185,39 @@ def update_memory(
     spheres = [BoundarySphere.of(d) for key, d in keys_detections if key is None]
 
     tracks = [t for t in memory.tracks if not t.keyed]
-    next_id = memory.next_id
-    seen: set[int] = set()  # indices into ``tracks`` updated in this call
+    n_remembered = len(tracks)
+    next_id, seen = _associate(tracks, spheres, memory.next_id, time_s, config)
+    _confirm(tracks, seen, n_remembered, pos, config)
 
-    # Each detection updates the nearest overlapping remembered obstacle (by centre gap),
-    # so association does not depend on the detection order.
+    def far(trk: TrackedObstacle) -> bool:
+        centre = np.asarray(trk.sphere.center_ned_m)
+        return norm3(centre - pos) - trk.sphere.radius_m > config.forget_distance_m
+
+    kept = [
+        trk
+        for i, trk in enumerate(tracks)
+        if i in seen
+        or not (
+            (time_s - trk.last_seen_s > config.memory_timeout_s and far(trk))
+            or _is_passed(trk.sphere, pos, vel, goal, config)
+            or (not trk.confirmed and trk.recent == 0)
+        )
+    ]
+    if len(kept) > config.max_tracks:
+        kept.sort(key=lambda t: (-t.last_seen_s, t.track_id))
+        kept = kept[: config.max_tracks]
+    kept.sort(key=lambda t: t.track_id)
+    return ObstacleMemory(tracks=tuple(kept) + keyed, next_id=next_id)
+
+
+def _associate(
+    tracks: list[TrackedObstacle], spheres, next_id: int, time_s: float, config: GuidanceConfig
+) -> tuple[int, set[int]]:
+    """Merge ``spheres`` into ``tracks`` (in place): each updates the nearest overlapping
+    remembered obstacle (by centre gap), so association does not depend on the detection
+    order; the others become new tracks. Returns the next free id and the indices of the
+    tracks updated or added."""
+    seen: set[int] = set()
     matched_det: set[int] = set()
     n_remembered = len(tracks)
     for i_det, det in enumerate(spheres):
@@ -226,7 +254,15 @@ def update_memory(
             )
         )
         next_id += 1
+    return next_id, seen
 
+
+def _confirm(
+    tracks: list[TrackedObstacle], seen: set[int], n_remembered: int, pos, config: GuidanceConfig
+) -> None:
+    """N-of-M confirmation (in place): the detection history shifts, a track seen in
+    ``confirm_n`` of the last ``confirm_m`` updates, or within ``confirm_immediate_m`` of the
+    vehicle, is confirmed for good."""
     mask = (1 << config.confirm_m) - 1
     for i, trk in enumerate(tracks):
         recent = ((trk.recent << 1) | (1 if i in seen else 0)) & mask
@@ -238,26 +274,6 @@ def update_memory(
             and (recent.bit_count() >= config.confirm_n or surface < config.confirm_immediate_m)
         )
         tracks[i] = replace(trk, recent=recent, confirmed=confirmed)
-
-    def far(trk: TrackedObstacle) -> bool:
-        centre = np.asarray(trk.sphere.center_ned_m)
-        return norm3(centre - pos) - trk.sphere.radius_m > config.forget_distance_m
-
-    kept = [
-        trk
-        for i, trk in enumerate(tracks)
-        if i in seen
-        or not (
-            (time_s - trk.last_seen_s > config.memory_timeout_s and far(trk))
-            or _is_passed(trk.sphere, pos, vel, goal, config)
-            or (not trk.confirmed and trk.recent == 0)
-        )
-    ]
-    if len(kept) > config.max_tracks:
-        kept.sort(key=lambda t: (-t.last_seen_s, t.track_id))
-        kept = kept[: config.max_tracks]
-    kept.sort(key=lambda t: t.track_id)
-    return ObstacleMemory(tracks=tuple(kept) + keyed, next_id=next_id)
 
 
 def _key(detection) -> int | None:

@@ -150,6 +150,51 @@ def choose_aiming_point(
     ValueError
         No cones, cones with different apexes, or an apex inside a sphere.
     """
+    apex = _check_cones(cones, n_candidates, vertical_weight)
+    ref = np.asarray(reference_ned, dtype=float)
+    ref_norm = math.sqrt(float(ref @ ref))
+    ref_hat = _reference_direction(cones, ref, ref_norm, tie_angle_rad)
+    generators = range(len(cones)) if candidate_indices is None else list(candidate_indices)
+    if len(generators) == 0:
+        raise ValueError("candidate_indices must name at least one cone")
+    c = _Candidates.on(cones, generators, ref_hat, tie_angle_rad, n_candidates)
+    free = _free(cones, apex, c, cone_margin_rad, max_elevation_rad)
+
+    cos_q = _closeness_q(c.dirs, ref_hat, vertical_weight)
+    vert_q = np.round(np.abs(c.units[:, 2]) * 1e9)
+    left = np.zeros(len(c.pts), dtype=np.int8)
+    if cluster_tie and ref_norm > 1e-9 and _head_on(cones, generators, ref, tie_angle_rad):
+        right = np.array([-ref[1], ref[0], 0.0]) / math.hypot(float(ref[0]), float(ref[1]))
+        left = (c.dirs @ right < -1e-9).astype(np.int8)
+    order = np.lexsort((c.sample, c.owner, vert_q, -cos_q, left))
+    free_ranked = np.flatnonzero(free[order])
+    if free_ranked.size == 0:
+        return None
+    rank = int(free_ranked[0])
+    best = int(order[rank])
+    return AimChoice(
+        aiming_point_ned_m=c.pts[best],
+        direction_ned=c.dirs[best],
+        distance_m=float(c.dists[best]),
+        cone_index=int(c.owner[best]),
+        n_rejected=rank,
+    )
+
+
+def _closeness_q(dirs: np.ndarray, ref_hat: np.ndarray, vertical_weight: float) -> np.ndarray:
+    """Cosine of each direction with the reference, vertical deviation weighted by
+    ``vertical_weight`` (1: Eq. 28 exactly), quantised to 1e-9 so that ties are exact."""
+    if vertical_weight == 1.0:
+        return np.round((dirs @ ref_hat) * 1e9)
+    scale = np.array([1.0, 1.0, vertical_weight])
+    dirs_w = dirs * scale
+    dirs_w /= np.linalg.norm(dirs_w, axis=1)[:, None]
+    ref_w = ref_hat * scale
+    return np.round((dirs_w @ (ref_w / np.linalg.norm(ref_w))) * 1e9)
+
+
+def _check_cones(cones, n_candidates: int, vertical_weight: float) -> np.ndarray:
+    """The shared apex of ``cones``; ValueError for what :func:`choose_aiming_point` refuses."""
     if not cones:
         raise ValueError("choose_aiming_point needs at least one collision cone")
     apex = cones[0].apex_ned_m
@@ -162,99 +207,99 @@ def choose_aiming_point(
         raise ValueError(f"n_candidates must be >= 1, got {n_candidates}")
     if not (math.isfinite(vertical_weight) and vertical_weight > 0.0):
         raise ValueError(f"vertical_weight must be finite and > 0, got {vertical_weight!r}")
+    return apex
 
+
+def _reference_direction(cones, ref: np.ndarray, ref_norm: float, tie_angle_rad: float):
+    """Unit reference: the velocity, or the axis of the most urgent cone it is head-on to
+    (within ``tie_angle_rad``), or with no velocity that cone's axis."""
     by_urgency = sorted(range(len(cones)), key=lambda i: (cones[i].surface_distance_m, i))
-    ref = np.asarray(reference_ned, dtype=float)
-    ref_norm = math.sqrt(float(ref @ ref))
     if ref_norm <= 1e-9:
-        ref_hat = cones[by_urgency[0]].axis_ned
-    else:
-        ref_hat = ref / ref_norm
-        cos_tie = math.cos(tie_angle_rad)
-        for i in by_urgency:
-            cos_axis = float(ref_hat @ cones[i].axis_ned)
-            if cos_axis >= cos_tie and cos_axis > math.cos(cones[i].half_angle_rad):
-                ref_hat = cones[i].axis_ned
-                break
+        return cones[by_urgency[0]].axis_ned
+    ref_hat = ref / ref_norm
+    cos_tie = math.cos(tie_angle_rad)
+    for i in by_urgency:
+        cos_axis = float(ref_hat @ cones[i].axis_ned)
+        if cos_axis >= cos_tie and cos_axis > math.cos(cones[i].half_angle_rad):
+            return cones[i].axis_ned
+    return ref_hat
 
-    generators = range(len(cones)) if candidate_indices is None else list(candidate_indices)
-    if len(generators) == 0:
-        raise ValueError("candidate_indices must name at least one cone")
-    # every generator's samples at once, (generators, n_candidates, 3)
-    firsts = np.array([_aiming_direction(cones[i], ref_hat, tie_angle_rad) for i in generators])
-    units = circle_units(np.array([cones[i].axis_ned for i in generators]), firsts, n_candidates)
-    # tangent circle of each generator: centre apex + a L²/D, radius R L / D
-    circle_centers = np.array([cones[i].circle_center_ned_m for i in generators])
-    circle_radii = np.array([cones[i].circle_radius_m for i in generators])
-    pts = (circle_centers[:, None, :] + circle_radii[:, None, None] * units).reshape(-1, 3)
-    units = units.reshape(-1, 3)
-    owner = np.repeat(np.asarray(generators), n_candidates)
-    sample = np.tile(np.arange(n_candidates), len(generators))
-    offsets = pts - apex[None, :]
-    dists_sq = np.einsum("ij,ij->i", offsets, offsets)
-    dists = np.sqrt(dists_sq)
-    dirs = offsets / dists[:, None]
 
-    # Rejection by every other cone at once, (candidates, cones): direction inside its
-    # (widened) cone, or point inside its ball. Both from the apex: with o = x - p and
-    # q = c - p, |x - c|² = |o|² - 2 o·q + |q|² (a few metres, so exact to ~1e-15 m²).
+@dataclass(frozen=True, eq=False)
+class _Candidates:
+    """Samples of every generator's tangent circle, flattened (generator-major)."""
+
+    pts: np.ndarray  # points on the circles [m, NED]
+    units: np.ndarray  # their unit offsets from the circle centres
+    owner: np.ndarray  # cone index of each sample
+    sample: np.ndarray  # sample index on its circle
+    offsets: np.ndarray  # apex to point [m]
+    dists_sq: np.ndarray
+    dists: np.ndarray
+    dirs: np.ndarray  # unit directions from the apex
+
+    @classmethod
+    def on(cls, cones, generators, ref_hat, tie_angle_rad: float, n: int) -> _Candidates:
+        firsts = np.array([_aiming_direction(cones[i], ref_hat, tie_angle_rad) for i in generators])
+        units = circle_units(np.array([cones[i].axis_ned for i in generators]), firsts, n)
+        # tangent circle of each generator: centre apex + a L²/D, radius R L / D
+        circle_centers = np.array([cones[i].circle_center_ned_m for i in generators])
+        circle_radii = np.array([cones[i].circle_radius_m for i in generators])
+        pts = (circle_centers[:, None, :] + circle_radii[:, None, None] * units).reshape(-1, 3)
+        offsets = pts - cones[0].apex_ned_m[None, :]
+        dists_sq = np.einsum("ij,ij->i", offsets, offsets)
+        dists = np.sqrt(dists_sq)
+        return cls(
+            pts=pts,
+            units=units.reshape(-1, 3),
+            owner=np.repeat(np.asarray(generators), n),
+            sample=np.tile(np.arange(n), len(generators)),
+            offsets=offsets,
+            dists_sq=dists_sq,
+            dists=dists,
+            dirs=offsets / dists[:, None],
+        )
+
+
+def _free(
+    cones, apex: np.ndarray, c: _Candidates, cone_margin_rad: float, max_elevation_rad
+) -> np.ndarray:
+    """Candidates no other cone rejects and, with ``max_elevation_rad``, not steeper than
+    that. Rejection by every other cone at once, (candidates, cones): a direction inside
+    its (widened) cone, or a point inside its ball. Both from the apex: with o = x - p and
+    q = c - p, |x - c|² = |o|² - 2 o·q + |q|² (a few metres, so exact to ~1e-15 m²)."""
     axes = np.array([cone.axis_ned for cone in cones])
     to_centers = np.array([cone.center_ned_m for cone in cones]) - apex[None, :]
     radii = np.array([cone.radius_m for cone in cones])
     limits = np.array([cone.half_angle_rad for cone in cones]) + cone_margin_rad
-    other = owner[:, None] != np.arange(len(cones))[None, :]
+    other = c.owner[:, None] != np.arange(len(cones))[None, :]
     wide = limits >= math.pi  # covers every direction
-    in_cone = ((dirs @ axes.T) > np.cos(np.where(wide, 0.0, limits))[None, :]) | wide[None, :]
+    in_cone = ((c.dirs @ axes.T) > np.cos(np.where(wide, 0.0, limits))[None, :]) | wide[None, :]
     dist_sq = (
-        dists_sq[:, None]
-        - 2.0 * (offsets @ to_centers.T)
+        c.dists_sq[:, None]
+        - 2.0 * (c.offsets @ to_centers.T)
         + np.einsum("ij,ij->i", to_centers, to_centers)[None, :]
     )
     in_ball = dist_sq < (radii**2)[None, :]
     free = ~np.any(other & (in_cone | in_ball), axis=1)
     if max_elevation_rad is not None:
-        free &= np.abs(dirs[:, 2]) <= math.sin(max_elevation_rad) + 1e-12
+        free &= np.abs(c.dirs[:, 2]) <= math.sin(max_elevation_rad) + 1e-12
+    return free
 
-    if vertical_weight != 1.0:
-        scale = np.array([1.0, 1.0, vertical_weight])
-        dirs_w = dirs * scale
-        dirs_w /= np.linalg.norm(dirs_w, axis=1)[:, None]
-        ref_w = ref_hat * scale
-        cos_q = np.round((dirs_w @ (ref_w / np.linalg.norm(ref_w))) * 1e9)
-    else:
-        cos_q = np.round((dirs @ ref_hat) * 1e9)
-    vert_q = np.round(np.abs(units[:, 2]) * 1e9)
-    left = np.zeros(len(pts), dtype=np.int8)
-    if cluster_tie and ref_norm > 1e-9:
-        weights = [1.0 - math.cos(min(cones[i].half_angle_rad, 0.5 * math.pi)) for i in generators]
-        mean_axis = sum(w * cones[i].axis_ned for w, i in zip(weights, generators, strict=True))
-        horizontal = math.hypot(float(ref[0]), float(ref[1]))
-        mean_h = math.hypot(float(mean_axis[0]), float(mean_axis[1]))
-        if horizontal > 1e-9 and mean_h > 1e-9:
-            azimuth = math.atan2(
-                float(ref[0] * mean_axis[1] - ref[1] * mean_axis[0]),
-                float(ref[0] * mean_axis[0] + ref[1] * mean_axis[1]),
-            )
-            elevation = math.atan2(-float(mean_axis[2]), mean_h) - math.atan2(
-                -float(ref[2]), horizontal
-            )
-            widest = max(cones[i].half_angle_rad for i in generators)
-            head_on = abs(azimuth) <= tie_angle_rad and abs(elevation) < widest
-        else:
-            head_on = False
-        if head_on:
-            right = np.array([-ref[1], ref[0], 0.0]) / horizontal
-            left = (dirs @ right < -1e-9).astype(np.int8)
-    order = np.lexsort((sample, owner, vert_q, -cos_q, left))
-    free_ranked = np.flatnonzero(free[order])
-    if free_ranked.size == 0:
-        return None
-    rank = int(free_ranked[0])
-    best = int(order[rank])
-    return AimChoice(
-        aiming_point_ned_m=pts[best],
-        direction_ned=dirs[best],
-        distance_m=float(dists[best]),
-        cone_index=int(owner[best]),
-        n_rejected=rank,
+
+def _head_on(cones, generators, ref: np.ndarray, tie_angle_rad: float) -> bool:
+    """The velocity points at the generators' cluster (its half-angle-weighted mean axis)
+    within ``tie_angle_rad`` in azimuth and within the widest cone in elevation."""
+    weights = [1.0 - math.cos(min(cones[i].half_angle_rad, 0.5 * math.pi)) for i in generators]
+    mean_axis = sum(w * cones[i].axis_ned for w, i in zip(weights, generators, strict=True))
+    horizontal = math.hypot(float(ref[0]), float(ref[1]))
+    mean_h = math.hypot(float(mean_axis[0]), float(mean_axis[1]))
+    if horizontal <= 1e-9 or mean_h <= 1e-9:
+        return False
+    azimuth = math.atan2(
+        float(ref[0] * mean_axis[1] - ref[1] * mean_axis[0]),
+        float(ref[0] * mean_axis[0] + ref[1] * mean_axis[1]),
     )
+    elevation = math.atan2(-float(mean_axis[2]), mean_h) - math.atan2(-float(ref[2]), horizontal)
+    widest = max(cones[i].half_angle_rad for i in generators)
+    return abs(azimuth) <= tie_angle_rad and abs(elevation) < widest
