@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from companion.depth_source import DISP_SCALE, DepthMap, depth_from_disparity
-from companion.stereo_bm import speckle_window_px
+from companion.stereo_bm import configured_bm
 from protocols.stereo_frame import PixelEncoding, StereoFrame
 
 if TYPE_CHECKING:
@@ -83,11 +83,5 @@ class BareStereoBM:
         key = (n_disp, block, width_px)
         matcher = self._matchers.get(key)
         if matcher is None:
-            matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=block)
-            matcher.setTextureThreshold(cfg.texture_threshold)
-            matcher.setUniquenessRatio(cfg.uniqueness_ratio)
-            matcher.setSpeckleWindowSize(speckle_window_px(cfg.speckle_window_px, width_px))
-            matcher.setSpeckleRange(cfg.speckle_range_px)
-            matcher.setDisp12MaxDiff(cfg.lr_max_diff_px)
-            self._matchers[key] = matcher
+            matcher = self._matchers[key] = configured_bm(cfg, n_disp, block, width_px)
         return matcher

@@ -390,10 +390,13 @@ def _integrate_depth(
                 if n_matched == 0 and bv + stride <= sky_rows and -dz >= sky_min_sin_elev:
                     # ... and no farther out than the column's topmost matched point (a
                     # textureless wall stands behind the last ground seen before it)
+                    limit = reach - hit_clear  # > 0 before any division below
                     horizontal = math.sqrt(dx * dx + dy * dy)
                     length = max_range
-                    if horizontal * max_range > reach - hit_clear:
-                        length = (reach - hit_clear) / horizontal
+                    if limit <= 0.0:
+                        length = 0.0
+                    elif horizontal * max_range > limit:
+                        length = limit / horizontal
                     if length > 0.0:
                         _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
                                   dx, dy, dz, length, False)  # fmt: skip

@@ -36,7 +36,7 @@ from protocols.stereo_frame import PixelEncoding, StereoFrame
 if TYPE_CHECKING:
     from companion.perception import PerceptionConfig
 
-__all__ = ["PaddedStereoBM", "noise_sigma", "speckle_window_px"]
+__all__ = ["PaddedStereoBM", "configured_bm", "noise_sigma", "speckle_window_px"]
 
 _REFERENCE_WIDTH_PX = 320  # the paper's camera; block size scales from it
 _PREFILTER_BASE_PX = 1.0  # Gaussian prefilter sigma on a clean image [px]
@@ -95,6 +95,20 @@ def _horizontal_edges(image: np.ndarray, block: int, ratio: float) -> np.ndarray
     # ax < ratio·ay as ax / ratio < ay in uint8: where ax / ratio saturates, ay (<= 255)
     # cannot exceed it, which is the right answer.
     return cv2.compare(cv2.convertScaleAbs(ax, alpha=1.0 / ratio), ay, cv2.CMP_LT).view(bool)
+
+
+def configured_bm(
+    config: PerceptionConfig, n_disp: int, block_px: int, width_px: int
+) -> cv2.StereoBM:
+    """``cv2.StereoBM`` with the perception config's gates (texture, uniqueness, speckle
+    window scaled to ``width_px``, left/right check) for ``n_disp`` disparities."""
+    matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=block_px)
+    matcher.setTextureThreshold(config.texture_threshold)
+    matcher.setUniquenessRatio(config.uniqueness_ratio)
+    matcher.setSpeckleWindowSize(speckle_window_px(config.speckle_window_px, width_px))
+    matcher.setSpeckleRange(config.speckle_range_px)
+    matcher.setDisp12MaxDiff(config.lr_max_diff_px)
+    return matcher
 
 
 def _auto_block_size(width_px: int) -> int:
@@ -209,13 +223,7 @@ class PaddedStereoBM:
         width = intrinsics.width_px
         matcher = self._matchers.get(key)
         if matcher is None:
-            matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=block)
-            matcher.setTextureThreshold(cfg.texture_threshold)
-            matcher.setUniquenessRatio(cfg.uniqueness_ratio)
-            matcher.setSpeckleWindowSize(speckle_window_px(cfg.speckle_window_px, width))
-            matcher.setSpeckleRange(cfg.speckle_range_px)
-            matcher.setDisp12MaxDiff(cfg.lr_max_diff_px)
-            self._matchers[key] = matcher
+            matcher = self._matchers[key] = configured_bm(cfg, n_disp, block, width)
         return matcher, n_disp, block
 
     def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
