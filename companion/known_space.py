@@ -81,6 +81,7 @@ import numba
 import numpy as np
 
 from protocols.camera import R_FRD_FROM_CAM, StereoIntrinsics, eye_offset_frd_m
+from protocols.config import check_numbers
 
 __all__ = [
     "FREE",
@@ -161,19 +162,10 @@ class KnownSpaceConfig:
             raise ValueError("grid sizes must be >= 8 voxels and pixel_stride >= 1")
         if self.piece_vox < 2 or self.piece_vox % 2:
             raise ValueError(f"piece_vox must be even and >= 2, got {self.piece_vox}")
-        for name in ("voxel_m", "max_range_m"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be finite and positive, got {value!r}")
-        for name in (
-            "hit_clear_m",
-            "ego_clear_radius_m",
-            "start_free_radius_m",
-            "blind_depth_m",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        check_numbers(self, ("voxel_m", "max_range_m"), positive=True)
+        check_numbers(
+            self, ("hit_clear_m", "ego_clear_radius_m", "start_free_radius_m", "blind_depth_m")
+        )
         if not 0.0 < self.block_min_matched <= 1.0:
             raise ValueError(f"block_min_matched must be in (0, 1], got {self.block_min_matched}")
         if not -90.0 <= self.sky_min_elevation_deg <= 90.0:

@@ -60,6 +60,7 @@ from companion.depth_source import DISP_SCALE as _DISP_SCALE
 from companion.depth_source import DepthMap, DepthSource, ValidityCounts
 from companion.stereo_bm import PaddedStereoBM
 from protocols.camera import StereoIntrinsics, points_ned_from_cam
+from protocols.config import check_numbers
 from protocols.stereo_frame import StereoFrame
 
 __all__ = [
@@ -207,20 +208,17 @@ class PerceptionConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "matcher", Matcher(self.matcher))
         positive = ("threshold_m", "min_range_m", "min_blob_fraction", "continuity_rel")
-        for name in positive:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be finite and positive, got {value!r}")
-        for name in (
-            "extent_margin_m",
-            "vehicle_radius_m",
-            "safety_margin_m",
-            "cap_depth_m",
-            "min_obstacle_size_m",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        check_numbers(self, positive, positive=True)
+        check_numbers(
+            self,
+            (
+                "extent_margin_m",
+                "vehicle_radius_m",
+                "safety_margin_m",
+                "cap_depth_m",
+                "min_obstacle_size_m",
+            ),
+        )
         if not (math.isfinite(self.max_range_m) and self.max_range_m > self.threshold_m):
             raise ValueError(
                 f"max_range_m {self.max_range_m!r} must be finite and above threshold_m "

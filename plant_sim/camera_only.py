@@ -43,7 +43,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from plant_sim.autopilot.modes import FlightMode
-from plant_sim.camera_publisher import StereoPublisher
+from plant_sim.camera_publisher import StereoPublisher, readiness_fields
 from plant_sim.pose_track import PoseTrack
 from plant_sim.scenario import Scenario
 from plant_sim.truth_log import TruthLogWriter
@@ -182,17 +182,13 @@ class CameraOnlyService:
                 self.config.log_dir / "truth.csv", sc.world, sc.vehicle.body_radius_m
             )
         if self.publisher is not None:
-            self.publisher.warm_up()
             self.publisher.open()
 
     def readiness_line(self) -> str:
         """``PLANT_SIM READY mode=camera-only pose-from=URL zenoh=... key=KEY``."""
-        zenoh_desc, key = "off", "-"
-        if self.publisher is not None:
-            zenoh_desc, key = self.config.zenoh.describe(), self.publisher.key
         return (
             f"PLANT_SIM READY mode=camera-only pose-from={self.config.pose_from} "
-            f"zenoh={zenoh_desc} key={key}"
+            f"{readiness_fields(self.publisher)}"
         )
 
     def close(self) -> dict:

@@ -18,7 +18,7 @@ from plant_sim.world import World
 from protocols.frame_publisher import FramePublisher
 from protocols.zenoh_session import ZenohSettings, zenoh_config
 
-__all__ = ["StereoPublisher"]
+__all__ = ["StereoPublisher", "readiness_fields"]
 
 
 class StereoPublisher:
@@ -46,7 +46,9 @@ class StereoPublisher:
         return 0 if self._publisher is None else self._publisher.publish_errors
 
     def open(self) -> None:
-        """Open the Zenoh session and declare the publisher."""
+        """Compile the renderer (one frame, so the JIT is done before the first deadline),
+        open the Zenoh session and declare the publisher."""
+        self.warm_up()
         self._session = zenoh.open(zenoh_config(self.settings))
         self._publisher = FramePublisher(self._session, self.key, drop=True)
 
@@ -76,3 +78,11 @@ class StereoPublisher:
         if self._session is not None:
             self._session.close()
             self._session = None
+
+
+def readiness_fields(publisher: StereoPublisher | None) -> str:
+    """The camera's part of a ``PLANT_SIM READY`` line: ``zenoh=ENDPOINTS key=KEY``, or
+    ``zenoh=off key=-`` without a camera."""
+    if publisher is None:
+        return "zenoh=off key=-"
+    return f"zenoh={publisher.settings.describe()} key={publisher.key}"

@@ -56,7 +56,7 @@ from plant_sim.autopilot.telemetry import (
     TelemetryBuilder,
     VehicleIdentity,
 )
-from plant_sim.camera_publisher import StereoPublisher
+from plant_sim.camera_publisher import StereoPublisher, readiness_fields
 from plant_sim.clock import Pacer
 from plant_sim.scenario import Scenario
 from plant_sim.tlog import TlogWriter
@@ -245,17 +245,13 @@ class PlantService:
                         spec.url,
                     )
         if self.publisher is not None:
-            self.publisher.warm_up()
             self.publisher.open()
 
     def readiness_line(self) -> str:
         """``PLANT_SIM READY mavlink=URL[,URL] zenoh=ENDPOINTS|off key=KEY speedup=N``."""
-        zenoh_desc, key = "off", "-"
-        if self.publisher is not None:
-            zenoh_desc, key = self.config.zenoh.describe(), self.publisher.key
         return (
-            f"PLANT_SIM READY mavlink={','.join(self.link.bound_urls)} zenoh={zenoh_desc} "
-            f"key={key} speedup={self.config.speedup:g}"
+            f"PLANT_SIM READY mavlink={','.join(self.link.bound_urls)} "
+            f"{readiness_fields(self.publisher)} speedup={self.config.speedup:g}"
         )
 
     def close(self) -> dict:

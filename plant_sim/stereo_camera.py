@@ -24,6 +24,7 @@ import numpy as np
 
 from plant_sim.world import World
 from protocols.camera import R_FRD_FROM_CAM, CameraModel
+from protocols.config import check_numbers
 
 __all__ = ["RenderParams", "StereoCameraRenderer", "StereoRender"]
 
@@ -73,14 +74,8 @@ class RenderParams:
     jpeg_quality: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("texture_cell_m", "ground_cell_m", "gain_right"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be finite and positive, got {value!r}")
-        for name in ("noise_std", "sky_cloud_amplitude", "blur_h_px", "blur_v_px"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        check_numbers(self, ("texture_cell_m", "ground_cell_m", "gain_right"), positive=True)
+        check_numbers(self, ("noise_std", "sky_cloud_amplitude", "blur_h_px", "blur_v_px"))
         if not (isinstance(self.misrect_v_px, int | float) and math.isfinite(self.misrect_v_px)):
             raise ValueError(f"misrect_v_px must be finite, got {self.misrect_v_px!r}")
         if not (

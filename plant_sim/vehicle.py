@@ -16,7 +16,7 @@ import numpy as np
 
 from plant_sim import flight_control as fc
 from plant_sim import paper_frames
-from plant_sim.dynamics import STATE_SIZE, PhysicsConstants, physics_constants, rk4_step
+from plant_sim.dynamics import STATE_SIZE, physics_constants, rk4_step
 from plant_sim.lq import design_tracker
 from plant_sim.params import ControlParams, QuadrotorParams
 from protocols import frames
@@ -86,26 +86,30 @@ def _advance(
     ctrl_out: np.ndarray,
     n_steps: int,
     phase: int,
-    steps_per_control: int,
-    dt_s: float,
-    pos_sp_m: np.ndarray,
-    vel_sp_mps: np.ndarray,
     yaw_sp_ned_rad: float,
-    yaw_rate_sp_radps: float,
-    gains_pos: np.ndarray,
-    gains_att: np.ndarray,
-    max_tilt_rad: float,
-    min_vertical_accel_mps2: float,
-    k: PhysicsConstants,
-    armed: bool,
-    ground_z_m: float,
+    loop: tuple,
 ) -> tuple[np.ndarray, int, float, bool]:
     """Advance ``n_steps`` RK4 steps with the controller every ``steps_per_control`` steps.
 
     Returns the new state, the control phase, the (possibly turning) yaw target and
     whether the vehicle rests on the ground. Ground contact is inelastic: the vehicle
-    stops on the plane ``z = ground_z_m`` (paper frame) and sits level there.
+    stops on the plane ``z = ground_z_m`` (paper frame) and sits level there. ``loop``
+    holds what the steps do not change (:meth:`Quadrotor._loop_args`).
     """
+    (
+        steps_per_control,
+        dt_s,
+        pos_sp_m,
+        vel_sp_mps,
+        yaw_rate_sp_radps,
+        gains_pos,
+        gains_att,
+        max_tilt_rad,
+        min_vertical_accel_mps2,
+        k,
+        armed,
+        ground_z_m,
+    ) = loop
     on_ground = False
     for _ in range(n_steps):
         if phase == 0:
@@ -140,25 +144,7 @@ def _advance(
 
 @numba.njit(cache=True)
 def _advance_watching(
-    state,
-    ctrl_out,
-    n_steps,
-    phase,
-    steps_per_control,
-    dt_s,
-    pos_sp_m,
-    vel_sp_mps,
-    yaw_sp_ned_rad,
-    yaw_rate_sp_radps,
-    gains_pos,
-    gains_att,
-    max_tilt_rad,
-    min_vertical_accel_mps2,
-    k,
-    armed,
-    ground_z_m,
-    centres_paper_m,
-    radii_m,
+    state, ctrl_out, n_steps, phase, yaw_sp_ned_rad, loop, centres_paper_m, radii_m
 ):
     """:func:`_advance` one step at a time, watching after each step the commanded tilt
     (MAVLink roll and pitch, as :meth:`Quadrotor.tilt_cmd_rad`) and the distance from the
@@ -173,23 +159,7 @@ def _advance_watching(
     on_ground = False
     for _ in range(n_steps):
         state, phase, yaw_sp_ned_rad, on_ground = _advance(
-            state,
-            ctrl_out,
-            1,
-            phase,
-            steps_per_control,
-            dt_s,
-            pos_sp_m,
-            vel_sp_mps,
-            yaw_sp_ned_rad,
-            yaw_rate_sp_radps,
-            gains_pos,
-            gains_att,
-            max_tilt_rad,
-            min_vertical_accel_mps2,
-            k,
-            armed,
-            ground_z_m,
+            state, ctrl_out, 1, phase, yaw_sp_ned_rad, loop
         )
         phi = ctrl_out[fc.OUT_PHI_D]
         theta = ctrl_out[fc.OUT_THETA_D]
@@ -310,15 +280,13 @@ class Quadrotor:
         return self._dt_s
 
     def _loop_args(self) -> tuple:
-        """The compiled loop's arguments after (state, control output, steps): control phase,
-        rates, setpoints, gains, limits, parameters, arming and ground."""
+        """What the compiled loop does not change: control rate, step, setpoints, gains,
+        limits, parameters, arming and ground (``loop`` of :func:`_advance`)."""
         return (
-            self._phase,
             self.control.steps_per_control,
             self._dt_s,
             self._pos_sp,
             self._vel_sp,
-            self._yaw_sp_rad,
             self._yaw_rate_sp,
             self._gains_pos,
             self._gains_att,
@@ -336,7 +304,12 @@ class Quadrotor:
         if n_steps == 0:
             return
         self._state, self._phase, self._yaw_sp_rad, self._on_ground = _advance(
-            self._state, self._ctrl_out, int(n_steps), *self._loop_args()
+            self._state,
+            self._ctrl_out,
+            int(n_steps),
+            self._phase,
+            self._yaw_sp_rad,
+            self._loop_args(),
         )
         self._steps += int(n_steps)
         if not np.all(np.isfinite(self._state)):
@@ -379,7 +352,14 @@ class Quadrotor:
             max_pitch,
             min_surface,
         ) = _advance_watching(
-            self._state, self._ctrl_out, int(n_steps), *self._loop_args(), centres_paper, radii
+            self._state,
+            self._ctrl_out,
+            int(n_steps),
+            self._phase,
+            self._yaw_sp_rad,
+            self._loop_args(),
+            centres_paper,
+            radii,
         )
         self._steps += int(n_steps)
         if not np.all(np.isfinite(self._state)):

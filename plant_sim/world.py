@@ -14,7 +14,7 @@ import enum
 import math
 from dataclasses import dataclass
 
-from protocols.config import vec3
+from protocols.config import check_numbers, vec3
 
 __all__ = ["Box", "Cylinder", "GroundPlane", "Material", "Sphere", "World", "paper_world"]
 
@@ -133,10 +133,7 @@ class Cylinder:
     def __post_init__(self) -> None:
         object.__setattr__(self, "center_ned_m", vec3(self.center_ned_m, "center_ned_m"))
         object.__setattr__(self, "material", Material(self.material))
-        for name in ("radius_m", "height_m"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be finite and positive, got {value!r}")
+        check_numbers(self, ("radius_m", "height_m"), positive=True)
 
     def surface_distance_m(self, point_ned_m) -> float:
         """Distance from ``point_ned_m`` to the cylinder's surface [m] (negative inside)."""

@@ -4,14 +4,15 @@ One error type, :class:`ConfigError`, that names the file (when there is one), t
 (dotted: ``link.rate``) and the reason; an unknown key raises :class:`UnknownKeyError`,
 which is also a ``TypeError`` (like an unknown keyword argument). One builder,
 :func:`dataclass_from_mapping`, for frozen parameter dataclasses, and one 3-vector
-validator, :func:`vec3`. Pure.
+validator, :func:`vec3`, and one check of numeric fields, :func:`check_numbers`. Pure.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+import numbers
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -19,6 +20,7 @@ __all__ = [
     "ConfigError",
     "UnknownKeyError",
     "check_keys",
+    "check_numbers",
     "dataclass_from_mapping",
     "vec3",
 ]
@@ -106,3 +108,21 @@ def vec3(value: Any, where: str) -> tuple[float, float, float]:
     if len(out) != 3 or not all(math.isfinite(x) for x in out):
         raise ConfigError(f"must be 3 finite numbers, got {value!r}", key=where)
     return out  # type: ignore[return-value]
+
+
+def check_numbers(
+    obj: Any, names: Iterable[str], *, positive: bool = False, as_float: bool = False
+) -> None:
+    """Check the fields ``names`` of ``obj`` (a dataclass, in its ``__post_init__``): each a
+    finite real number (not a bool), ``>= 0``, or ``> 0`` with ``positive``; else a
+    ``ValueError`` naming the field. With ``as_float`` each is stored as a ``float`` (also
+    on a frozen dataclass)."""
+    for name in names:
+        value = getattr(obj, name)
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            raise ValueError(f"{name} must be a number, got {value!r}")
+        if not (math.isfinite(value) and (value > 0.0 if positive else value >= 0.0)):
+            bound = "positive" if positive else ">= 0"
+            raise ValueError(f"{name} must be finite and {bound}, got {value!r}")
+        if as_float:
+            object.__setattr__(obj, name, float(value))

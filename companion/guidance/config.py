@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from protocols.config import UnknownKeyError, dataclass_from_mapping
+from protocols.config import UnknownKeyError, check_numbers, dataclass_from_mapping
 
 __all__ = ["GuidanceConfig", "UnknownGuidanceKeyError"]
 
@@ -126,11 +126,7 @@ class GuidanceConfig:
                 if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                     raise ValueError(f"{field.name} must be an integer >= 1, got {value!r}")
                 continue
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"{field.name} must be a number, got {value!r}")
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{field.name} must be finite and >= 0, got {value!r}")
-            object.__setattr__(self, field.name, float(value))
+            check_numbers(self, (field.name,), as_float=True)
         if self.vertical_weight <= 0.0:
             raise ValueError(f"vertical_weight must be > 0, got {self.vertical_weight!r}")
         if self.tie_angle_rad >= 0.5 * math.pi:

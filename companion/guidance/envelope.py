@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from protocols.config import dataclass_from_mapping
+from protocols.config import check_numbers, dataclass_from_mapping
 
 __all__ = [
     "EnvelopeConfig",
@@ -107,13 +107,7 @@ class EnvelopeConfig:
     overspeed_tolerance_mps: float = 0.3
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"{f.name} must be a number, got {value!r}")
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{f.name} must be finite and >= 0, got {value!r}")
-            object.__setattr__(self, f.name, float(value))
+        check_numbers(self, (f.name for f in dataclasses.fields(self)), as_float=True)
         if self.accel_mps2 <= 0.0:
             raise ValueError(f"accel_mps2 must be > 0, got {self.accel_mps2!r}")
         if not 0.0 < self.max_path_elevation_deg <= 90.0:

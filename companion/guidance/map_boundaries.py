@@ -57,6 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.known_space import FREE, KnownSpace, Pieces
+from protocols.config import check_numbers
 
 __all__ = ["MapBoundary", "MapBoundaryConfig", "map_boundaries", "track_key"]
 
@@ -91,12 +92,7 @@ class MapBoundaryConfig:
     inflate_m: float = 0.65
 
     def __post_init__(self) -> None:
-        for name in ("detect_range_m", "inflate_m"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"{name} must be a number, got {value!r}")
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be finite and positive, got {value!r}")
+        check_numbers(self, ("detect_range_m", "inflate_m"), positive=True)
 
 
 @dataclass(frozen=True)

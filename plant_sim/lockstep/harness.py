@@ -34,6 +34,7 @@ from plant_sim.stereo_camera import RenderParams, StereoCameraRenderer
 from plant_sim.vehicle import Quadrotor, Setpoint, VehicleState
 from plant_sim.world import World
 from protocols.camera import CameraModel
+from protocols.config import check_numbers
 from protocols.stereo_frame import StereoFrame
 
 __all__ = [
@@ -72,10 +73,7 @@ class RunConfig:
     truth_perception: bool = False
 
     def __post_init__(self) -> None:
-        for name in ("camera_rate_hz", "max_time_s", "goal_tolerance_m"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be finite and positive, got {value!r}")
+        check_numbers(self, ("camera_rate_hz", "max_time_s", "goal_tolerance_m"), positive=True)
 
 
 @dataclass(frozen=True)
