@@ -660,3 +660,77 @@ def test_an_obstacle_beside_the_vehicle_is_not_timed_out():
     far = START_NED_M + np.array([0.0, 6.0, 0.0])  # surface 5 m away: timed out
     state, _ = _fly_detections([1] + [0] * 90, far, cfg)
     assert state.memory.tracks == ()
+
+
+# --- no progress ----------------------------------------------------------------------
+
+
+def _fly_positions(positions, goals, config, t0=0.0):
+    """Step guidance at 30 Hz through ``positions`` toward ``goals`` (no obstacles)."""
+    state, outs = GuidanceState(), []
+    for k, (pos, goal) in enumerate(zip(positions, goals, strict=True)):
+        state, out = _step(state, t0 + k * DT_S, pos, [0.0, 0.0, 0.0], goal, (), config)
+        outs.append(out)
+    return outs
+
+
+def test_no_progress_ends_in_a_latched_reported_hold_where_the_vehicle_is():
+    """Circling at a constant distance from the goal (a detour that never gets nearer):
+    HOLD (NO_PROGRESS) once stall_timeout_s has passed since the best distance, at the
+    position where it began, latched while the goal stays; a new goal releases it."""
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=10.0, stall_progress_m=0.5)
+    goal = np.array([0.0, 0.0, -7.0])
+    n = round(15.0 / DT_S)
+    angles = np.linspace(0.0, 2.0 * math.pi, n)
+    circle = [goal + 5.0 * np.array([math.cos(a), math.sin(a), 0.0]) for a in angles]
+    outs = _fly_positions(circle, [goal] * n, cfg)
+    k_stall = next(k for k, o in enumerate(outs) if o.mode is Mode.HOLD)
+    assert k_stall * DT_S == pytest.approx(10.0, abs=1.5 * DT_S)
+    assert all(o.reason is Reason.NO_PROGRESS for o in outs[k_stall:])
+    assert all(o.mode is Mode.NAVIGATE for o in outs[:k_stall])
+    for o in outs[k_stall:]:  # held where it stalled, whatever the vehicle does after
+        np.testing.assert_array_equal(o.setpoint_ned_m, circle[k_stall])
+    # A new goal (the next waypoint, or the pilot's) is flown to again.
+    state, _ = GuidanceState(), None
+    for k, p in enumerate(circle):
+        state, out = _step(state, k * DT_S, p, [0.0, 0.0, 0.0], goal, (), cfg)
+    state, out = _step(state, n * DT_S, circle[-1], [0.0, 0.0, 0.0], goal + 3.0, (), cfg)
+    assert out.mode is Mode.NAVIGATE
+
+
+def test_slow_steady_progress_never_stalls():
+    """0.1 m/s toward the goal (0.5 m every 5 s, well inside a 10 s timeout) flies on."""
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=10.0, stall_progress_m=0.5)
+    goal = np.array([0.0, 0.0, -7.0])
+    n = round(60.0 / DT_S)
+    positions = [goal + np.array([20.0 - 0.1 * k * DT_S, 0.0, 0.0]) for k in range(n)]
+    outs = _fly_positions(positions, [goal] * n, cfg)
+    assert all(o.mode is Mode.NAVIGATE for o in outs)
+
+
+def test_no_progress_timer_pauses_in_another_hold_and_can_be_disabled():
+    """Time spent in a reported HOLD of another reason does not count as stalling, and
+    stall_timeout_s = 0 turns the check off."""
+    pos = np.array([0.0, 0.0, -10.0])
+    goal = [20.0, 0.0, -10.0]
+    spheres = _surrounded(pos)
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=5.0)
+    state = GuidanceState()
+    for k in range(round(8.0 / DT_S)):  # boxed in for longer than the stall timeout
+        state, out = _step(state, k * DT_S, pos, [0.0, 0.0, 0.0], goal, spheres, cfg)
+        assert out.mode is Mode.HOLD and out.reason is Reason.NO_FREE_DIRECTION
+        # the stall timer restarts at every step of the other HOLD
+        assert state.progress.since_s == pytest.approx(k * DT_S)
+        assert not state.progress.stalled
+    off = GuidanceConfig(**ONE_SHOT, stall_timeout_s=0.0)
+    n = round(100.0 / DT_S)
+    outs = _fly_positions([pos] * n, [np.array(goal)] * n, off)
+    assert all(o.mode is Mode.NAVIGATE for o in outs)
+
+
+def test_hovering_at_the_goal_is_not_a_stall():
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=5.0, stall_progress_m=0.5)
+    goal = np.array([0.0, 0.0, -7.0])
+    n = round(20.0 / DT_S)
+    outs = _fly_positions([goal + np.array([0.3, 0.0, 0.0])] * n, [goal] * n, cfg)
+    assert all(o.mode is Mode.NAVIGATE for o in outs)

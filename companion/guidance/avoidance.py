@@ -34,6 +34,12 @@ Each step
    None → NAVIGATE (setpoint = goal). A threat whose sphere holds the goal → HOLD
    (``GOAL_INSIDE_BOUNDARY``): the goal cannot be reached safely.
 
+No progress: when the distance to the goal has not fallen ``stall_progress_m`` below its
+best for ``stall_timeout_s`` outside a HOLD, guidance holds where the vehicle is
+(``NO_PROGRESS``, latched until the goal changes): a way that stays unseen or a detour
+that circles never ends in wandering until the battery runs out. The timer runs from the
+first step toward a goal and pauses in any other HOLD.
+
 Unreachable goal: when the goal lies inside a confirmed boundary sphere, guidance steers
 to the *stop point* instead, ``goal_standoff_m`` before the straight path to the goal
 enters that sphere, and holds there (``GOAL_UNREACHABLE``, latched while the goal stays
@@ -79,6 +85,7 @@ about to travel), so the forward camera looks where it goes; in HOLD and within
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Iterable
@@ -105,6 +112,7 @@ __all__ = [
     "GuidanceOutput",
     "GuidanceState",
     "Mode",
+    "Progress",
     "Reason",
     "guidance_step",
 ]
@@ -133,6 +141,8 @@ class Reason(Enum):
     GOAL_INSIDE_BOUNDARY = "goal_inside_boundary"
     GOAL_UNREACHABLE = "goal_unreachable"
     """The goal lies inside a confirmed boundary: holding at the stop point outside it."""
+    NO_PROGRESS = "no_progress"
+    """No progress toward the goal for ``stall_timeout_s``: holding where it is."""
 
 
 @dataclass(frozen=True)
@@ -161,6 +171,8 @@ class GuidanceState:
         Unit direction to the aiming point chosen at the last step (AVOID only).
     unreachable : bool
         HOLD was entered because the goal is unreachable (latched while it stays so).
+    progress : Progress or None
+        The goal being flown to, the best distance to it and since when [m, s].
     """
 
     mode: Mode = Mode.NAVIGATE
@@ -173,6 +185,18 @@ class GuidanceState:
     cleared_ids: frozenset[int] = frozenset()
     aim_dir_ned: tuple[float, float, float] | None = None
     unreachable: bool = False
+    progress: Progress | None = None
+
+
+@dataclass(frozen=True)
+class Progress:
+    """Progress toward one goal: the best distance to it so far and when it was reached,
+    and whether guidance gave up (``NO_PROGRESS``, latched until the goal changes)."""
+
+    goal_ned_m: tuple[float, float, float]
+    best_distance_m: float
+    since_s: float
+    stalled: bool = False
 
 
 def _stop_short(pos: np.ndarray, goal: np.ndarray, blocking, standoff_m: float) -> np.ndarray:
@@ -276,7 +300,8 @@ def guidance_step(
     time_s = _check_time(state, time_s)
     pos = np.array(vec3(pos_ned_m, "pos_ned_m"))
     vel = np.array(vec3(vel_ned_mps, "vel_ned_mps"))
-    goal = np.array(vec3(goal_ned_m, "goal_ned_m"))
+    goal_in = vec3(goal_ned_m, "goal_ned_m")
+    goal = np.array(goal_in)
     memory = update_memory(
         state.memory,
         detections,
@@ -308,9 +333,10 @@ def guidance_step(
     ):
         d.mode, d.reason = Mode.HOLD, Reason.GOAL_UNREACHABLE
         d.aim, d.aim_dir = None, None
+    progress = _watch_progress(state.progress, f, tuple(goal_in), d, cfg)
     hold = _latch_hold(state, f, d)
     yaw = _yaw(state, f, d, yaw_rad, cfg)
-    return _outputs(f, d, memory, hold, yaw)
+    return _outputs(f, d, memory, hold, yaw, progress)
 
 
 def _check_time(state: GuidanceState, time_s: float) -> float:
@@ -510,6 +536,29 @@ def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
     d.setpoint = f.pos + choice.direction_ned * reach
 
 
+def _watch_progress(
+    progress: Progress | None, f: _Frame, goal: tuple[float, float, float], d: _Decision, cfg
+) -> Progress:
+    """No progress toward ``goal`` for ``stall_timeout_s`` outside a HOLD → HOLD
+    (``NO_PROGRESS``), latched until the goal changes; the timer pauses in other HOLDs and
+    within ``2 · stall_progress_m`` of the goal (hovering there is arriving, not stalling)."""
+    dist = norm3(np.asarray(goal) - f.pos)
+    if progress is None or progress.goal_ned_m != goal:
+        return Progress(goal, dist, f.time_s)
+    if progress.stalled:
+        d.mode, d.reason = Mode.HOLD, Reason.NO_PROGRESS
+        d.aim, d.aim_dir = None, None
+        return progress
+    arrived = dist <= 2.0 * cfg.stall_progress_m  # at the goal: nothing left to give up on
+    if dist <= progress.best_distance_m - cfg.stall_progress_m or d.mode is Mode.HOLD or arrived:
+        return Progress(goal, min(dist, progress.best_distance_m), f.time_s)
+    if cfg.stall_timeout_s > 0.0 and f.time_s - progress.since_s >= cfg.stall_timeout_s:
+        d.mode, d.reason = Mode.HOLD, Reason.NO_PROGRESS
+        d.aim, d.aim_dir = None, None
+        return dataclasses.replace(progress, stalled=True)
+    return progress
+
+
 def _latch_hold(state, f: _Frame, d: _Decision) -> tuple[float, float, float] | None:
     """HOLD latches the position where it was entered; the setpoint is that point."""
     if d.mode is not Mode.HOLD:
@@ -534,7 +583,7 @@ def _yaw(state, f: _Frame, d: _Decision, yaw_rad: float | None, cfg) -> float:
     return 0.0 if previous_yaw is None else float(previous_yaw)
 
 
-def _outputs(f: _Frame, d: _Decision, memory, hold, yaw: float):
+def _outputs(f: _Frame, d: _Decision, memory, hold, yaw: float, progress: Progress):
     """The next state and this step's output, arrays frozen."""
     setpoint = np.array(d.setpoint, dtype=float)
     setpoint.setflags(write=False)
@@ -554,6 +603,7 @@ def _outputs(f: _Frame, d: _Decision, memory, hold, yaw: float):
         cleared_ids=frozenset(d.cleared),
         aim_dir_ned=d.aim_dir,
         unreachable=d.mode is Mode.HOLD and d.reason is Reason.GOAL_UNREACHABLE,
+        progress=progress,
     )
     output = GuidanceOutput(
         time_s=f.time_s,

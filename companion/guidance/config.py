@@ -94,6 +94,15 @@ class GuidanceConfig:
         angle; 1 is Eq. 28 exactly). Several spheres per obstacle (the map's pieces) make
         the free direction nearest the velocity tilt by where the pieces fall; a
         multirotor keeps its altitude unless climbing is clearly shorter.
+    stall_timeout_s : float
+        No progress toward the goal for this long outside a HOLD → a latched, reported
+        HOLD (``NO_PROGRESS``) where the vehicle is [s, simulation time]; 0 disables.
+        A detour that never gets nearer (circling a goal next to an obstacle, a way ahead
+        that stays unseen) ends in a stop the pilot is told of, not endless wandering.
+        30 s: a long detour (round a 10 m wall at 0.85 m/s) gets nearer within ~15 s.
+    stall_progress_m : float
+        Progress is the distance to the goal falling this far below its best so far [m];
+        within twice this distance of the goal the vehicle has arrived (no stall).
     """
 
     n_candidates: int = 72
@@ -118,6 +127,8 @@ class GuidanceConfig:
     confirm_immediate_m: float = 2.0
     max_aim_elevation_rad: float = math.radians(12.0)
     vertical_weight: float = 3.0
+    stall_timeout_s: float = 30.0
+    stall_progress_m: float = 0.5
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
