@@ -719,9 +719,8 @@ def test_no_progress_timer_pauses_in_another_hold_and_can_be_disabled():
     for k in range(round(8.0 / DT_S)):  # boxed in for longer than the stall timeout
         state, out = _step(state, k * DT_S, pos, [0.0, 0.0, 0.0], goal, spheres, cfg)
         assert out.mode is Mode.HOLD and out.reason is Reason.NO_FREE_DIRECTION
-        # the stall timer restarts at every step of the other HOLD
-        assert state.progress.since_s == pytest.approx(k * DT_S)
-        assert not state.progress.stalled
+        # the stall count restarts at every step of the other HOLD
+        assert state.progress.stuck_s == 0.0 and not state.progress.stalled
     off = GuidanceConfig(**ONE_SHOT, stall_timeout_s=0.0)
     n = round(100.0 / DT_S)
     outs = _fly_positions([pos] * n, [np.array(goal)] * n, off)
@@ -734,3 +733,15 @@ def test_hovering_at_the_goal_is_not_a_stall():
     n = round(20.0 / DT_S)
     outs = _fly_positions([goal + np.array([0.3, 0.0, 0.0])] * n, [goal] * n, cfg)
     assert all(o.mode is Mode.NAVIGATE for o in outs)
+
+
+def test_time_without_guidance_steps_is_not_a_stall():
+    """Frames stopped for a minute (the failsafe held the vehicle): when they resume, the
+    time in between does not count toward the stall timeout."""
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=10.0)
+    pos, goal = np.array([20.0, 0.0, -7.0]), [0.0, 0.0, -7.0]
+    state, out = _step(GuidanceState(), 0.0, pos, [0.0, 0.0, 0.0], goal, (), cfg)
+    for k in range(round(5.0 / DT_S)):
+        state, out = _step(state, 60.0 + k * DT_S, pos, [0.0, 0.0, 0.0], goal, (), cfg)
+        assert out.mode is Mode.NAVIGATE
+    assert state.progress.stuck_s == pytest.approx(5.0 - DT_S, abs=1e-6)

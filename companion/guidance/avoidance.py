@@ -85,7 +85,6 @@ about to travel), so the forward camera looks where it goes; in HOLD and within
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 from collections.abc import Iterable
@@ -172,7 +171,8 @@ class GuidanceState:
     unreachable : bool
         HOLD was entered because the goal is unreachable (latched while it stays so).
     progress : Progress or None
-        The goal being flown to, the best distance to it and since when [m, s].
+        The goal being flown to, the best distance to it and the time spent since without
+        getting nearer [m, s].
     """
 
     mode: Mode = Mode.NAVIGATE
@@ -188,14 +188,18 @@ class GuidanceState:
     progress: Progress | None = None
 
 
+_MAX_STEP_GAP_S = 0.5  # a longer gap between steps is time guidance did not steer
+
+
 @dataclass(frozen=True)
 class Progress:
-    """Progress toward one goal: the best distance to it so far and when it was reached,
-    and whether guidance gave up (``NO_PROGRESS``, latched until the goal changes)."""
+    """Progress toward one goal: the best distance to it so far, the guidance time spent
+    since without getting ``stall_progress_m`` nearer, and whether guidance gave up
+    (``NO_PROGRESS``, latched until the goal changes)."""
 
     goal_ned_m: tuple[float, float, float]
     best_distance_m: float
-    since_s: float
+    stuck_s: float = 0.0
     stalled: bool = False
 
 
@@ -333,7 +337,7 @@ def guidance_step(
     ):
         d.mode, d.reason = Mode.HOLD, Reason.GOAL_UNREACHABLE
         d.aim, d.aim_dir = None, None
-    progress = _watch_progress(state.progress, f, tuple(goal_in), d, cfg)
+    progress = _watch_progress(state, f, tuple(goal_in), d, cfg)
     hold = _latch_hold(state, f, d)
     yaw = _yaw(state, f, d, yaw_rad, cfg)
     return _outputs(f, d, memory, hold, yaw, progress)
@@ -537,26 +541,30 @@ def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
 
 
 def _watch_progress(
-    progress: Progress | None, f: _Frame, goal: tuple[float, float, float], d: _Decision, cfg
+    state: GuidanceState, f: _Frame, goal: tuple[float, float, float], d: _Decision, cfg
 ) -> Progress:
-    """No progress toward ``goal`` for ``stall_timeout_s`` outside a HOLD → HOLD
-    (``NO_PROGRESS``), latched until the goal changes; the timer pauses in other HOLDs and
-    within ``2 · stall_progress_m`` of the goal (hovering there is arriving, not stalling)."""
+    """No progress toward ``goal`` for ``stall_timeout_s`` of steering outside a HOLD →
+    HOLD (``NO_PROGRESS``), latched until the goal changes. The count restarts in other
+    HOLDs and within ``2 · stall_progress_m`` of the goal (hovering there is arriving, not
+    stalling); a gap between steps (no frames, a failsafe hold) does not count."""
+    progress = state.progress
     dist = norm3(np.asarray(goal) - f.pos)
     if progress is None or progress.goal_ned_m != goal:
-        return Progress(goal, dist, f.time_s)
+        return Progress(goal, dist)
     if progress.stalled:
         d.mode, d.reason = Mode.HOLD, Reason.NO_PROGRESS
         d.aim, d.aim_dir = None, None
         return progress
     arrived = dist <= 2.0 * cfg.stall_progress_m  # at the goal: nothing left to give up on
     if dist <= progress.best_distance_m - cfg.stall_progress_m or d.mode is Mode.HOLD or arrived:
-        return Progress(goal, min(dist, progress.best_distance_m), f.time_s)
-    if cfg.stall_timeout_s > 0.0 and f.time_s - progress.since_s >= cfg.stall_timeout_s:
+        return Progress(goal, min(dist, progress.best_distance_m))
+    dt = f.time_s - state.time_s if state.time_s is not None else 0.0
+    stuck_s = progress.stuck_s + (dt if dt <= _MAX_STEP_GAP_S else 0.0)
+    if cfg.stall_timeout_s > 0.0 and stuck_s >= cfg.stall_timeout_s:
         d.mode, d.reason = Mode.HOLD, Reason.NO_PROGRESS
         d.aim, d.aim_dir = None, None
-        return dataclasses.replace(progress, stalled=True)
-    return progress
+        return Progress(goal, progress.best_distance_m, stuck_s, stalled=True)
+    return Progress(goal, progress.best_distance_m, stuck_s)
 
 
 def _latch_hold(state, f: _Frame, d: _Decision) -> tuple[float, float, float] | None:
