@@ -67,6 +67,19 @@ def test_true_disparity_is_eq27_rounded_with_the_right_camera_s_view():
     np.testing.assert_allclose(16 * fb / disp[0, 100:], 4.0, rtol=2e-3)  # 1/16 px rounding
 
 
+def test_true_disparity_saturates_and_takes_any_float_depth():
+    """A surface nearer than 16·f·b / 32767 saturates at the int16 maximum (never wraps);
+    float64 and float32 depth give the same disparities."""
+    fb = 71.87
+    depth = np.full((2, 3000), 1e-4)  # d = 16 · 71.87 / 1e-4 px ≫ int16 range
+    depth[1] = 7.5
+    disp = truth_disparity_fixed(depth, fb)
+    assert np.all(disp[0, 2048:] == np.iinfo(np.int16).max)  # 32767/16 = 2048 columns
+    assert np.all(disp[0, :2047] == -16)  # beyond the right camera's view there
+    np.testing.assert_array_equal(disp, truth_disparity_fixed(depth.astype(np.float32), fb))
+    assert disp[1, 2999] == round(16 * fb / 7.5)
+
+
 def test_truth_perception_places_the_paper_sphere_where_it_is():
     scene = paper_scene()
     cam = CameraModel()

@@ -21,6 +21,7 @@ pipeline processes that frame; a frame without its truth is an error, never stal
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from companion.perception import PerceptionConfig, StereoPerception
@@ -30,7 +31,7 @@ from protocols.stereo_frame import StereoFrame
 __all__ = ["TruthDepthSource", "TruthPerception", "truth_disparity_fixed"]
 
 _DISP_SCALE = 16  # OpenCV's fixed-point disparity: 1/16 px
-_INT16_MAX = np.iinfo(np.int16).max
+_INT16_MAX = float(np.iinfo(np.int16).max)
 
 
 def truth_disparity_fixed(depth_m: np.ndarray, focal_baseline_m_px: float) -> np.ndarray:
@@ -50,18 +51,29 @@ def truth_disparity_fixed(depth_m: np.ndarray, focal_baseline_m_px: float) -> np
         surface nearer than ``16 · f·b / 32767``); -16 (unmatched) where the depth is not
         positive or the match would lie left of the right image (``x − d < 0``).
     """
-    depth = np.asarray(depth_m, dtype=np.float64)
+    depth = np.asarray(depth_m)
     if depth.ndim != 2:
         raise ValueError(f"depth_m must be 2-D, got shape {depth.shape}")
-    valid = depth > 0.0  # False for NaN
-    with np.errstate(divide="ignore", invalid="ignore"):
-        disp16 = np.where(valid, _DISP_SCALE * focal_baseline_m_px / depth, -_DISP_SCALE)
-    disp16 = np.minimum(np.rint(disp16), _INT16_MAX).astype(np.int16)
-    columns = np.arange(depth.shape[1], dtype=np.float64)
-    # x − d < 0: the surface is outside the right camera's view
-    outside_right = disp16.astype(np.float64) > _DISP_SCALE * columns
-    disp16[outside_right] = -_DISP_SCALE
-    return disp16
+    if depth.dtype not in (np.float32, np.float64):
+        depth = depth.astype(np.float64)
+    out = np.empty(depth.shape, np.int16)
+    _truth_disparity(depth, float(_DISP_SCALE * focal_baseline_m_px), out)
+    return out
+
+
+@numba.njit(cache=True)
+def _truth_disparity(depth, fb16, out):
+    """:func:`truth_disparity_fixed` in one pass: ``out = min(rint(fb16 / depth), int16
+    max)``, -16 where the depth is not positive or ``out > 16 x`` (``x − d < 0``)."""
+    for y in range(depth.shape[0]):
+        for x in range(depth.shape[1]):
+            z = np.float64(depth[y, x])
+            d = -_DISP_SCALE
+            if z > 0.0:  # False for NaN
+                v = min(np.rint(fb16 / z), _INT16_MAX)
+                if v <= _DISP_SCALE * x:  # else outside the right camera's view
+                    d = np.int16(v)
+            out[y, x] = d
 
 
 class TruthDepthSource(PaddedStereoBM):
