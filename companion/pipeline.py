@@ -126,6 +126,8 @@ class AvoidancePipeline:
             vel_ned_mps=pose.vel_ned_mps,
             setpoint_ned_m=decision.setpoint_ned_m,
             free_distance=self.known_space.free_distance_m,
+            vehicle_radius_m=self.perception.config.vehicle_radius_m,
+            max_path_elevation_rad=self.guidance.config.max_aim_elevation_rad,
             config=self.envelope_config,
         )
         return PipelineOutput(

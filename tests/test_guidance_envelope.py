@@ -7,14 +7,21 @@ import math
 import numpy as np
 import pytest
 
+from companion.guidance.config import GuidanceConfig
 from companion.guidance.envelope import (
     EnvelopeConfig,
     envelope_step,
     speed_limit_mps,
     stopping_distance_m,
 )
+from companion.perception import PerceptionConfig
 
 CFG = EnvelopeConfig()
+# the vehicle's section and path limit come from perception and guidance (one value each)
+SECTION = {
+    "vehicle_radius_m": PerceptionConfig().vehicle_radius_m,
+    "max_path_elevation_rad": GuidanceConfig().max_aim_elevation_rad,
+}
 
 
 def _const_free(free_m: float):
@@ -53,6 +60,7 @@ def test_carrot_plus_stopping_distance_stays_inside_known_free_space(speed_mps, 
     pos = np.array([20.0, 0.0, -7.0])
     goal = np.array([0.0, 0.0, -7.0])
     out = envelope_step(
+        **SECTION,
         pos_ned_m=pos,
         vel_ned_mps=(-speed_mps, 0.0, 0.0),
         setpoint_ned_m=goal,
@@ -74,7 +82,11 @@ def test_goal_inside_known_free_space_is_the_setpoint():
     pos = np.array([0.0, 0.0, -7.0])
     goal = np.array([2.0, 1.0, -7.0])
     out = envelope_step(
-        pos_ned_m=pos, vel_ned_mps=(0, 0, 0), setpoint_ned_m=goal, free_distance=_const_free(8.0)
+        **SECTION,
+        pos_ned_m=pos,
+        vel_ned_mps=(0, 0, 0),
+        setpoint_ned_m=goal,
+        free_distance=_const_free(8.0),
     )
     assert not out.limited
     np.testing.assert_array_equal(out.setpoint_ned_m, goal)
@@ -88,20 +100,21 @@ def test_steep_climb_is_tilted_to_the_path_elevation_limit():
     goal = np.array([3.0, 0.0, -17.0])  # 73° up
     free = _const_free(2.0)
     out = envelope_step(
-        pos_ned_m=pos, vel_ned_mps=(0, 0, 0), setpoint_ned_m=goal, free_distance=free
+        **SECTION, pos_ned_m=pos, vel_ned_mps=(0, 0, 0), setpoint_ned_m=goal, free_distance=free
     )
     u = out.path_dir_ned
     elev = math.degrees(math.atan2(-u[2], math.hypot(u[0], u[1])))
-    assert elev == pytest.approx(CFG.max_path_elevation_deg)
+    assert elev == pytest.approx(math.degrees(SECTION["max_path_elevation_rad"]))
     assert u[0] > 0 and u[1] == 0.0
     # the query used the vehicle's section
     _, _, radius, _, half_height = free.calls[-1]
-    assert (radius, half_height) == (CFG.vehicle_radius_m, CFG.vehicle_half_height_m)
+    assert (radius, half_height) == (SECTION["vehicle_radius_m"], CFG.vehicle_half_height_m)
 
 
 def test_too_little_room_brakes_at_the_current_position():
     pos = np.array([1.0, 2.0, -3.0])
     out = envelope_step(
+        **SECTION,
         pos_ned_m=pos,
         vel_ned_mps=(0.5, 0, 0),
         setpoint_ned_m=(10.0, 2.0, -3.0),

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from companion.guidance.envelope import EnvelopeConfig
+from companion.perception import PerceptionConfig
 from plant_sim.lockstep.harness import RunConfig, run_scene
 from plant_sim.lockstep.scenes import paper_scene
 from plant_sim.profiles import profile, terminal_speed_mps
@@ -65,7 +66,7 @@ def test_every_setpoint_lies_in_known_free_space_and_in_true_free_space(which, r
     assert np.all(reach <= room + 1e-9), np.max(reach - room)
     sphere = paper_world().spheres[0]
     surface = np.array([sphere.surface_distance_m(x) for x in sp])
-    assert surface.min() >= EnvelopeConfig().vehicle_radius_m, surface.min()
+    assert surface.min() >= PerceptionConfig().vehicle_radius_m, surface.min()
 
 
 def test_fast_profile_flies_faster_than_the_paper_and_within_the_stopping_bound(fast_kills):

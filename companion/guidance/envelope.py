@@ -8,12 +8,14 @@ query function, there is no clock or I/O.
 Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's setpoint:
 
 1. **Path direction.** ``u = (s - p) / |s - p|`` with its elevation clamped to
-   ``±max_path_elevation_deg`` (vertical motion limited to what the camera's ±18.5° view
-   covers; the horizontal part is kept). A purely vertical ``u`` is not clamped: its free
-   distance is what the map says (usually only the vehicle's own bubble).
+   ``±max_path_elevation_rad`` (guidance's aiming limit: vertical motion limited to what
+   the camera's ±18.5° view covers; the horizontal part is kept). A purely vertical ``u``
+   is not clamped: its free distance is what the map says (usually only the vehicle's
+   own bubble).
 2. **Known-free distance** ``F`` along ``u`` for the vehicle's section
-   (``vehicle_radius_m`` wide, ``vehicle_half_height_m`` high;
-   ``KnownSpace.free_distance_m``), up to ``lookahead_m``.
+   (``vehicle_radius_m`` wide, the radius perception inflates boundaries by: one vehicle
+   size; ``vehicle_half_height_m`` high; ``KnownSpace.free_distance_m``), up to
+   ``lookahead_m``.
 3. **Stopping distance** at the current speed: ``d_stop(v) = latency_s·v + v²/(2·accel_mps2)``
    (reaction over the frame → command → autopilot latency, then constant braking).
 4. **Carrot**: the position target is ``p + c·u`` with
@@ -70,12 +72,10 @@ class EnvelopeConfig:
         vehicle's g·tan 15° = 2.63 and ArduCopter's default WPNAV_ACCEL 2.5 m/s².
     margin_m : float
         Distance kept from the edge of known-free space after stopping [m].
-    vehicle_radius_m : float
-        Half-width of the section swept through known-free space [m] (arm 0.25 +
-        propeller 0.1).
     vehicle_half_height_m : float
-        Half-height of that section [m] (body, propellers and a few centimetres of
-        height-hold error). The forward camera's ±18.5° view covers it 0.6 m ahead.
+        Half-height of the section swept through known-free space [m] (body, propellers
+        and a few centimetres of height-hold error). The forward camera's ±18.5° view
+        covers it 0.6 m ahead.
     near_field_m : float
         Within this distance ahead the section's rim may lie in unseen (never occupied)
         space: the left eye (0.1 m left of the centre) sees 0.35 m to the right only
@@ -88,8 +88,6 @@ class EnvelopeConfig:
         Speed limit cap [m/s].
     lookahead_m : float
         Longest free-distance query [m] (the map's range is 8 m).
-    max_path_elevation_deg : float
-        Steepest climb or descent of the path [deg] (inside the ±18.5° vertical view).
     overspeed_tolerance_mps : float
         Measured speed above the limit by more than this raises ``overspeed`` [m/s].
     """
@@ -97,23 +95,17 @@ class EnvelopeConfig:
     latency_s: float = 0.15
     accel_mps2: float = 2.0
     margin_m: float = 0.3
-    vehicle_radius_m: float = 0.35
     vehicle_half_height_m: float = 0.2
     near_field_m: float = 1.05
     min_advance_m: float = 0.15
     max_speed_mps: float = 10.0
     lookahead_m: float = 12.0
-    max_path_elevation_deg: float = 12.0
     overspeed_tolerance_mps: float = 0.3
 
     def __post_init__(self) -> None:
         check_numbers(self, (f.name for f in dataclasses.fields(self)), as_float=True)
         if self.accel_mps2 <= 0.0:
             raise ValueError(f"accel_mps2 must be > 0, got {self.accel_mps2!r}")
-        if not 0.0 < self.max_path_elevation_deg <= 90.0:
-            raise ValueError(
-                f"max_path_elevation_deg must be in (0, 90], got {self.max_path_elevation_deg}"
-            )
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> EnvelopeConfig:
@@ -196,6 +188,8 @@ def envelope_step(
     vel_ned_mps,
     setpoint_ned_m,
     free_distance: FreeDistanceFn,
+    vehicle_radius_m: float,
+    max_path_elevation_rad: float,
     config: EnvelopeConfig | None = None,
 ) -> EnvelopeOutput:
     """Bound guidance's setpoint by known-free space and the stopping distance.
@@ -209,6 +203,12 @@ def envelope_step(
     free_distance : callable
         ``(pos, unit_dir, radius_m, limit_m) -> metres`` of known-free travel, e.g.
         :meth:`companion.known_space.KnownSpace.free_distance_m`.
+    vehicle_radius_m : float
+        Half-width of the section swept through known-free space [m]: the vehicle's
+        radius, the one perception inflates its boundaries by (``PerceptionConfig``).
+    max_path_elevation_rad : float
+        Steepest climb or descent of the path [rad]: guidance's aiming-elevation limit
+        (``GuidanceConfig.max_aim_elevation_rad``, inside the camera's vertical view).
     config : EnvelopeConfig, optional
 
     Returns
@@ -229,15 +229,15 @@ def envelope_step(
         carrot = target.copy()
         limited = False
     else:
-        direction = _path_direction(to_setpoint, math.radians(cfg.max_path_elevation_deg))
+        direction = _path_direction(to_setpoint, max_path_elevation_rad)
         free = float(
             free_distance(
                 pos,
                 direction,
-                cfg.vehicle_radius_m,
+                vehicle_radius_m,
                 cfg.lookahead_m,
                 cfg.vehicle_half_height_m,
-                cfg.vehicle_radius_m,
+                vehicle_radius_m,
                 cfg.near_field_m,
             )
         )
