@@ -11,23 +11,17 @@ from __future__ import annotations
 
 import json
 import math
-import socket
-import threading
 import time
 
 import cv2
 import numpy as np
 import pytest
-import zenoh
-from _plant_sim_proc import free_port
+from _companion_rig import VEHICLE_ID, companion_rig
 
-from plant_sim.lockstep.sil import ChildProcess
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import GroundPlane, Sphere, World
 from protocols.camera import CameraModel
 from protocols.frames import rotation_321
-from protocols.keys import companion_status_key
-from protocols.zenoh_session import ZenohSettings, zenoh_config
 
 START_NED_M = np.array([20.0, 0.0, -7.0])  # plant-sim's default start, facing south
 OBSTACLE = Sphere((20.0 - 1.5 - 3.0, 0.0, -7.0), 1.5)  # surface 3 m ahead of the camera
@@ -55,67 +49,17 @@ def test_replayed_pairs_drive_the_companion(tmp_path):
     rec = tmp_path / "recording"
     rec.mkdir()
     _record(rec)
-    mav_port = free_port()
-    companion_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
-    test_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
-    children: list[ChildProcess] = []
-    docs: list[dict] = []
-    got = threading.Event()
-
-    def on_status(sample) -> None:
-        doc = json.loads(sample.payload.to_bytes())
-        docs.append(doc)
-        if doc["obstacles"] and doc["avoidance_flag"]:
-            got.set()
-
-    # The status subscriber exists before the companion starts and the companion connects
-    # to it, so its declaration is known before the first frame (no missed statuses).
-    session = zenoh.open(zenoh_config(ZenohSettings(listen=(test_zenoh,))))
-    session.declare_subscriber(companion_status_key("cam"), on_status)
-    try:
-        plant = ChildProcess(
-            "plant-sim",
-            "plant_sim",
-            ["--mavlink", f"udpin:127.0.0.1:{mav_port}", "--no-camera", "--no-logs"],
-        )
-        children.append(plant)
-        plant.wait_line(r"^PLANT_SIM READY ", 60)
-        companion = ChildProcess(
-            "companion",
-            "companion",
-            [
-                "--mavlink",
-                f"udpout:127.0.0.1:{mav_port}",
-                "--zenoh-listen",
-                companion_zenoh,
-                "--zenoh-connect",
-                test_zenoh,
-                "--vehicle-id",
-                "cam",
-                "--frame-clock",
-                "host",
-            ],
-        )
-        children.append(companion)
-        companion.wait_line(r"^COMPANION READY ", 60)
-        camera = ChildProcess(
+    with companion_rig() as rig:
+        camera = rig.start(
             "stereo-camera",
             "companion.camera",
-            [
-                "replay",
-                str(rec),
-                "--rate",
-                f"{RATE_HZ:g}",
-                "--zenoh-connect",
-                companion_zenoh,
-                "--vehicle-id",
-                "cam",
-            ],
-        )
-        children.append(camera)
+            ["replay", str(rec), "--rate", f"{RATE_HZ:g}", "--zenoh-connect",
+             rig.companion_zenoh, "--vehicle-id", VEHICLE_ID],
+        )  # fmt: skip
         camera.wait_line(r"^STEREO_CAMERA READY ", 30)
-        assert got.wait(N_PAIRS / RATE_HZ + 10.0), f"no avoiding status in {len(docs)} docs\n" + (
-            "\n".join(c.logs() for c in children)
+        docs = rig.docs
+        assert rig.avoiding.wait(N_PAIRS / RATE_HZ + 10.0), (
+            f"no avoiding status in {len(docs)} docs\n{rig.logs()}"
         )
         first = next(d for d in docs if d["obstacles"])
         centre = np.array(first["obstacles"][0]["center_ned_m"])
@@ -127,10 +71,4 @@ def test_replayed_pairs_drive_the_companion(tmp_path):
         deadline = time.monotonic() + 5.0  # and it steers the autopilot
         while not any(d["setpoint_sent"] for d in docs) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert any(d["setpoint_sent"] for d in docs), "\n".join(c.logs() for c in children)
-    finally:
-        session.close()
-        for child in reversed(children):
-            child.stop()
-        for child in children:
-            child.close()
+        assert any(d["setpoint_sent"] for d in docs), rig.logs()

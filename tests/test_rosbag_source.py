@@ -11,15 +11,11 @@ host frame clock).
 
 from __future__ import annotations
 
-import json
 import math
-import socket
-import threading
 
 import numpy as np
 import pytest
-import zenoh
-from _plant_sim_proc import free_port
+from _companion_rig import VEHICLE_ID, companion_rig
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
@@ -30,13 +26,10 @@ from companion.camera.rosbag_source import (
 )
 from companion.camera.sources import SourceError
 from companion.record.replay import replay
-from plant_sim.lockstep.sil import ChildProcess
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import GroundPlane, Sphere, World
 from protocols.camera import CameraModel
 from protocols.frames import rotation_321
-from protocols.keys import companion_status_key
-from protocols.zenoh_session import ZenohSettings, zenoh_config
 
 TS = get_typestore(Stores.ROS2_HUMBLE)
 Image = TS.types["sensor_msgs/msg/Image"]
@@ -201,63 +194,26 @@ def test_ros2_bag_drives_the_companion(tmp_path):
     n_pairs, rate_hz = 60, 10.0
     write_bag(bag, n_pairs=n_pairs, rate_hz=rate_hz, storage=StoragePlugin.MCAP)
     mcap = tmp_path / "companion.mcap"
-    mav_port = free_port()
-    companion_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
-    test_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
-    children: list[ChildProcess] = []
-    docs: list[dict] = []
-    got = threading.Event()
-
-    def on_status(sample) -> None:
-        doc = json.loads(sample.payload.to_bytes())
-        docs.append(doc)
-        if doc["obstacles"] and doc["avoidance_flag"]:
-            got.set()
-
-    session = zenoh.open(zenoh_config(ZenohSettings(listen=(test_zenoh,))))
-    session.declare_subscriber(companion_status_key("cam"), on_status)
-    try:
-        plant = ChildProcess(
-            "plant-sim",
-            "plant_sim",
-            ["--mavlink", f"udpin:127.0.0.1:{mav_port}", "--no-camera", "--no-logs"],
-        )
-        children.append(plant)
-        plant.wait_line(r"^PLANT_SIM READY ", 60)
-        companion = ChildProcess(
-            "companion",
-            "companion",
-            ["--mavlink", f"udpout:127.0.0.1:{mav_port}", "--zenoh-listen", companion_zenoh,
-             "--zenoh-connect", test_zenoh, "--vehicle-id", "cam", "--frame-clock", "host",
-             "--record", str(mcap)],
-        )  # fmt: skip
-        children.append(companion)
-        companion.wait_line(r"^COMPANION READY ", 60)
-        camera = ChildProcess(
+    with companion_rig(["--record", str(mcap)]) as rig:
+        camera = rig.start(
             "stereo-camera",
             "companion.camera",
             ["replay", str(bag), "--left", LEFT, "--right", RIGHT,
-             "--zenoh-connect", companion_zenoh, "--vehicle-id", "cam"],
+             "--zenoh-connect", rig.companion_zenoh, "--vehicle-id", VEHICLE_ID],
         )  # fmt: skip
-        children.append(camera)
         ready = camera.wait_line(r"^STEREO_CAMERA READY ", 30)
         assert "source=rosbag:" in ready.string and "size=320x240" in ready.string
-        assert got.wait(n_pairs / rate_hz + 10.0), f"no avoiding status in {len(docs)} docs\n" + (
-            "\n".join(c.logs() for c in children)
+        docs = rig.docs
+        assert rig.avoiding.wait(n_pairs / rate_hz + 10.0), (
+            f"no avoiding status in {len(docs)} docs\n{rig.logs()}"
         )
         first = next(d for d in docs if d["obstacles"])
         centre = np.array(first["obstacles"][0]["center_ned_m"])
         assert np.linalg.norm(centre - OBSTACLE.center_ned_m) < 0.5, centre
         assert first["obstacles"][0]["range_m"] == pytest.approx(3.0, abs=0.3)
         # steering (after 2.5 s of listening): its setpoints are what replay compares
-        companion.wait_line(r"^COMPANION EVENT steering ", n_pairs / rate_hz + 10.0)
-        companion.stop()
-    finally:
-        session.close()
-        for child in reversed(children):
-            child.stop()
-        for child in children:
-            child.close()
+        rig.companion.wait_line(r"^COMPANION EVENT steering ", n_pairs / rate_hz + 10.0)
+        rig.companion.stop()
     # host frame clock: the TIMESYNC fit runs on the recorded host times too
     result = replay(mcap)
     assert result.identical, result.summary()
