@@ -745,3 +745,17 @@ def test_time_without_guidance_steps_is_not_a_stall():
         state, out = _step(state, 60.0 + k * DT_S, pos, [0.0, 0.0, 0.0], goal, (), cfg)
         assert out.mode is Mode.NAVIGATE
     assert state.progress.stuck_s == pytest.approx(5.0 - DT_S, abs=1e-6)
+
+
+def test_circling_close_past_the_goal_still_stalls():
+    """A detour that keeps passing 0.8 m from the goal (inside the hover zone part of each
+    lap) never arrives: the time outside the zone adds up to a stall."""
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=10.0, stall_progress_m=0.5)
+    goal = np.array([0.0, 0.0, -7.0])
+    n = round(60.0 / DT_S)
+    # a 3 m circle whose nearest point is 0.8 m from the goal, one lap per 10 s
+    centre = goal + np.array([3.8, 0.0, 0.0])
+    angles = np.arange(n) * DT_S * 2.0 * math.pi / 10.0
+    laps = [centre + 3.0 * np.array([-math.cos(a), math.sin(a), 0.0]) for a in angles]
+    outs = _fly_positions(laps, [goal] * n, cfg)
+    assert any(o.reason is Reason.NO_PROGRESS for o in outs)

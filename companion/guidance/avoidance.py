@@ -38,7 +38,8 @@ No progress: when the distance to the goal has not fallen ``stall_progress_m`` b
 best for ``stall_timeout_s`` outside a HOLD, guidance holds where the vehicle is
 (``NO_PROGRESS``, latched until the goal changes): a way that stays unseen or a detour
 that circles never ends in wandering until the battery runs out. The timer runs from the
-first step toward a goal and pauses in any other HOLD.
+first step toward a goal, restarts in any other HOLD and stands still within
+``2 · stall_progress_m`` of the goal.
 
 Unreachable goal: when the goal lies inside a confirmed boundary sphere, guidance steers
 to the *stop point* instead, ``goal_standoff_m`` before the straight path to the goal
@@ -545,8 +546,9 @@ def _watch_progress(
 ) -> Progress:
     """No progress toward ``goal`` for ``stall_timeout_s`` of steering outside a HOLD →
     HOLD (``NO_PROGRESS``), latched until the goal changes. The count restarts in other
-    HOLDs and within ``2 · stall_progress_m`` of the goal (hovering there is arriving, not
-    stalling); a gap between steps (no frames, a failsafe hold) does not count."""
+    HOLDs and stands still within ``2 · stall_progress_m`` of the goal (hovering there is
+    arriving, not stalling; circling past it is not progress); a gap between steps (no
+    frames, a failsafe hold) does not count."""
     progress = state.progress
     dist = norm3(np.asarray(goal) - f.pos)
     if progress is None or progress.goal_ned_m != goal:
@@ -555,9 +557,10 @@ def _watch_progress(
         d.mode, d.reason = Mode.HOLD, Reason.NO_PROGRESS
         d.aim, d.aim_dir = None, None
         return progress
-    arrived = dist <= 2.0 * cfg.stall_progress_m  # at the goal: nothing left to give up on
-    if dist <= progress.best_distance_m - cfg.stall_progress_m or d.mode is Mode.HOLD or arrived:
+    if dist <= progress.best_distance_m - cfg.stall_progress_m or d.mode is Mode.HOLD:
         return Progress(goal, min(dist, progress.best_distance_m))
+    if dist <= 2.0 * cfg.stall_progress_m:  # hovering at the goal: the count stands still
+        return Progress(goal, min(dist, progress.best_distance_m), progress.stuck_s)
     dt = f.time_s - state.time_s if state.time_s is not None else 0.0
     stuck_s = progress.stuck_s + (dt if dt <= _MAX_STEP_GAP_S else 0.0)
     if cfg.stall_timeout_s > 0.0 and stuck_s >= cfg.stall_timeout_s:

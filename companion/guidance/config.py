@@ -102,7 +102,8 @@ class GuidanceConfig:
         30 s: a long detour (round a 10 m wall at 0.85 m/s) gets nearer within ~15 s.
     stall_progress_m : float
         Progress is the distance to the goal falling this far below its best so far [m];
-        within twice this distance of the goal the vehicle has arrived (no stall).
+        within twice this distance of the goal the count stands still (hovering at the
+        goal is not a stall; circling past it without arriving still is).
     """
 
     n_candidates: int = 72
