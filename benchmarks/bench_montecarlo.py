@@ -117,7 +117,7 @@ def instrumented(clock: StageClock) -> Iterator[None]:
         (StereoCameraRenderer, "render", "render"),
         (StereoCameraRenderer, "render_depth", "render"),  # ground truth: depth only
         (PaddedStereoBM, "disparity_fixed", "matcher"),
-        (PaddedStereoBM, "coarse_disparity_fixed", "matcher"),
+        (PaddedStereoBM, "coarse_pass_fixed", "matcher"),
         (TruthDepthSource, "disparity_fixed", "matcher"),  # ground truth: depth → disparity
         (PaddedStereoBM, "compute", "depth map (rest)"),  # prefilter, merge, depth
         (StereoPerception, "process", "perception (rest)"),

@@ -152,7 +152,7 @@ def _print_stages(perception: StereoPerception, payloads, poses) -> None:
         timed("noise estimate", noise_sigma, frame.left)
         timed("prefilter", source._prefiltered, frame)
         timed("main pass (prefilter, padded BM, gates)", source.disparity_fixed, frame)
-        timed("near pass", source.coarse_disparity_fixed, frame)
+        timed("near pass", source.coarse_pass_fixed, frame)
         timed("depth source total", source.compute, frame)
         timed("perception total", perception.process, frame, pos, R)
     for name, v in t.items():

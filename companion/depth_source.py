@@ -65,6 +65,7 @@ __all__ = [
     "DepthSource",
     "ValidityCounts",
     "depth_from_disparity",
+    "drop_small_far_blocks",
     "drop_small_far_regions",
 ]
 
@@ -176,7 +177,14 @@ def drop_small_far_regions(depth: np.ndarray, min_area: int) -> int:
         return 0
     height, width = depth.shape
     blocks = np.zeros(((height + 1) // 2, (width + 1) // 2), np.uint8)
-    if _far_per_block(depth, blocks) == 0:
+    return drop_small_far_blocks(depth, blocks, _far_per_block(depth, blocks), min_area)
+
+
+def drop_small_far_blocks(depth: np.ndarray, blocks: np.ndarray, n_far: int, min_area: int) -> int:
+    """:func:`drop_small_far_regions` for a caller that has counted the +inf pixels already:
+    ``blocks`` (uint8, ``ceil(H / 2) × ceil(W / 2)``) holds the count per 2 × 2 block and
+    ``n_far`` their total (a depth kernel counts them as it writes them)."""
+    if min_area <= 1 or n_far == 0:
         return 0
     n_labels, labels = cv2.connectedComponents((blocks > 0).view(np.uint8), connectivity=8)
     small = _small_labels(labels, blocks, n_labels, min_area)
@@ -213,11 +221,16 @@ def _small_labels(labels, blocks, n_labels, min_area):
 
 @numba.njit(cache=True)
 def _drop_far(depth, labels, small):
-    """NaN for every +inf pixel of ``depth`` whose block's label is ``small``; the count."""
+    """NaN for every +inf pixel of ``depth`` whose block's label is ``small``; the count.
+    Visits the pixels of the flagged blocks only."""
+    height, width = depth.shape
     n = 0
-    for y in range(depth.shape[0]):
-        for x in range(depth.shape[1]):
-            if depth[y, x] == np.inf and small[labels[y // 2, x // 2]]:
-                depth[y, x] = np.nan
-                n += 1
+    for by in range(labels.shape[0]):
+        for bx in range(labels.shape[1]):
+            if small[labels[by, bx]]:
+                for y in range(2 * by, min(2 * by + 2, height)):
+                    for x in range(2 * bx, min(2 * bx + 2, width)):
+                        if depth[y, x] == np.inf:
+                            depth[y, x] = np.nan
+                            n += 1
     return n

@@ -29,7 +29,12 @@ import numba
 import numpy as np
 
 from companion.depth_source import DISP_SCALE as _DISP_SCALE
-from companion.depth_source import DepthMap, ValidityCounts, drop_small_far_regions
+from companion.depth_source import (
+    DepthMap,
+    ValidityCounts,
+    drop_small_far_blocks,
+    drop_small_far_regions,
+)
 from protocols.camera import StereoIntrinsics
 from protocols.stereo_frame import PixelEncoding, StereoFrame
 
@@ -51,6 +56,9 @@ _NEAR_UNIQUENESS = 50  # its uniqueness margin [%]
 _NEAR_SPECKLE_PX = 10  # its speckle window [coarse px]
 _NEAR_HALO_PX = 41  # main-pass matches this close to a too-near surface are unknown [px]
 _NEAR_HALO = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_NEAR_HALO_PX, _NEAR_HALO_PX))
+_NO_GRADIENT = np.zeros((0, 0), np.uint8)  # the edge gate is off
+_NO_TABLE = np.zeros(0, np.uint8)
+_NO_COARSE = np.zeros((0, 0), np.int16)  # the coarse pass is off
 
 
 def speckle_window_px(window_at_reference_px: int, width_px: int) -> int:
@@ -84,17 +92,23 @@ def noise_sigma(image: np.ndarray) -> float:
     return float(math.sqrt(math.pi / 2.0) / 6.0 * cv2.mean(np.abs(response))[0])
 
 
-def _horizontal_edges(image: np.ndarray, block: int, ratio: float) -> np.ndarray:
-    """Pixels whose block has less than ``ratio`` times as much horizontal as vertical
-    gradient: near-horizontal edges, which only a perfect rectification matches right."""
+def _block_gradients(image: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal and vertical gradient magnitude (3x3 Sobel, saturated to uint8) averaged
+    over each pixel's block (uint8): a pixel whose block has less than ``ratio`` times as
+    much horizontal as vertical gradient lies on a near-horizontal edge, which only a
+    perfect rectification matches right (:func:`_gate` refuses it)."""
     dx, dy = cv2.spatialGradient(image)  # 3x3 Sobel, both directions in one pass
-    gx = cv2.convertScaleAbs(dx)
-    gy = cv2.convertScaleAbs(dy)
-    ax = cv2.blur(gx, (block, block))
-    ay = cv2.blur(gy, (block, block))
-    # ax < ratio·ay as ax / ratio < ay in uint8: where ax / ratio saturates, ay (<= 255)
-    # cannot exceed it, which is the right answer.
-    return cv2.compare(cv2.convertScaleAbs(ax, alpha=1.0 / ratio), ay, cv2.CMP_LT).view(bool)
+    ax = cv2.blur(cv2.convertScaleAbs(dx), (block, block))
+    ay = cv2.blur(cv2.convertScaleAbs(dy), (block, block))
+    return ax, ay
+
+
+def _scaled_gradient_table(ratio: float) -> np.ndarray:
+    """``convertScaleAbs(g, alpha=1 / ratio)`` for every uint8 ``g``: the gate compares
+    ``ax < ratio·ay`` as ``ax / ratio < ay`` in uint8; where ``ax / ratio`` saturates, ``ay``
+    (<= 255) cannot exceed it, which is the right answer."""
+    grey = np.arange(256, dtype=np.uint8).reshape(1, -1)
+    return cv2.convertScaleAbs(grey, alpha=1.0 / ratio).reshape(-1)
 
 
 def configured_bm(
@@ -117,25 +131,76 @@ def _auto_block_size(width_px: int) -> int:
 
 
 @numba.njit(cache=True)
-def _merge_depth(disp, coarse, has_coarse, top, d_far, fb16, depth, too_near, far_from_col):
-    """Coarse pass into the main disparity (both int16, 1/16 px, negative = unmatched), in
-    place, and the depth map ``fb16 / disp``: NaN where unmatched; a match below ``d_far``
-    (farther than the range) is +inf from column ``far_from_col`` on (nothing nearer than
-    the range along that ray) and NaN left of it, where a far match cannot be told from a
-    false match into the band the right camera cannot see.
+def _coarse_at(small, n_band, y, x):
+    """The coarse pass's full-resolution disparity at pixel (y, x) (1/16 px): the match of
+    ``small`` (its quarter-resolution pass, 1/16 coarse px) at (y // 4, x // 4), times 4;
+    -16 outside ``small`` or where the match reaches left of the right image (a coarse
+    column ``< n_band`` whose disparity exceeds it), negative as it is where unmatched."""
+    ys = y // _NEAR_SCALE
+    xs = x // _NEAR_SCALE
+    if ys >= small.shape[0] or xs >= small.shape[1]:
+        return -_DISP_SCALE
+    c = small[ys, xs]
+    if xs < n_band and c > _DISP_SCALE * xs:
+        return -_DISP_SCALE
+    if c >= 0:
+        return _NEAR_SCALE * c
+    return c
 
-    Returns (n_valid, n_unmatched, n_coarse, n_too_near); ``too_near`` (uint8) marks the
-    pixels the coarse pass ranged nearer than the main range (``> top``).
+
+@numba.njit(cache=True)
+def _upsampled(small, n_band, out):
+    """``out`` (int16, full resolution) = :func:`_coarse_at` at every pixel."""
+    for y in range(out.shape[0]):
+        for x in range(out.shape[1]):
+            out[y, x] = _coarse_at(small, n_band, y, x)
+
+
+@numba.njit(cache=True)
+def _gate(disp, grad_x, grad_y, scaled_x, band_limit):
+    """The main pass's gates on ``disp`` (int16, 1/16 px), in place: -16 where the block's
+    horizontal gradient, scaled (``scaled_x[grad_x]``), is below its vertical one (a
+    near-horizontal edge; skipped when ``grad_x`` is empty) and in column ``x`` of the left
+    band where the disparity exceeds ``band_limit[x]`` (the match leans on the black band)."""
+    edges = grad_x.shape[0] > 0
+    n_band = band_limit.shape[0]
+    for y in range(disp.shape[0]):
+        for x in range(disp.shape[1]):
+            if (edges and scaled_x[grad_x[y, x]] < grad_y[y, x]) or (
+                x < n_band and disp[y, x] > band_limit[x]
+            ):
+                disp[y, x] = -_DISP_SCALE
+
+
+@numba.njit(cache=True)
+def _merge_depth(disp, coarse, n_band, top, d_far, depth_of, fb16, out, far_from_col):
+    """Coarse pass into the main disparity (int16, 1/16 px, negative = unmatched), in place,
+    and the depth map ``fb16 / disp``: NaN where unmatched; a match below ``d_far`` (farther
+    than the range) is +inf from column ``far_from_col`` on (nothing nearer than the range
+    along that ray) and NaN left of it, where a far match cannot be told from a false match
+    into the band the right camera cannot see.
+
+    ``coarse`` is the quarter-resolution pass (:func:`_coarse_at`; no rows: none);
+    ``depth_of[d]`` is ``float32(fb16 / d)`` (the division, tabulated). ``out`` is (depth
+    (float32), too_near (uint8, zero), blocks (uint8, zero)): ``too_near`` marks the pixels
+    the coarse pass ranged nearer than the main range (``> top``), ``blocks`` counts the
+    +inf pixels per 2 × 2 block (for :func:`drop_small_far_blocks`).
+
+    Returns (n_valid, n_unmatched, n_coarse, n_too_near, n_far).
     """
+    depth, too_near, blocks = out
+    has_coarse = coarse.shape[0] > 0
+    n_table = depth_of.shape[0]
     n_valid = 0
     n_unmatched = 0
     n_coarse = 0
     n_too_near = 0
+    n_far = 0
     for y in range(disp.shape[0]):
         for x in range(disp.shape[1]):
             d = disp[y, x]
             if has_coarse:
-                c = coarse[y, x]
+                c = _coarse_at(coarse, n_band, y, x)
                 if c > top and c > d:
                     d = c
                     too_near[y, x] = 1
@@ -146,43 +211,49 @@ def _merge_depth(disp, coarse, has_coarse, top, d_far, fb16, depth, too_near, fa
                         n_coarse += 1
                 disp[y, x] = d
             if d >= d_far:
-                depth[y, x] = fb16 / d
+                depth[y, x] = depth_of[d] if d < n_table else fb16 / d
                 n_valid += 1
             elif d >= 0 and x >= far_from_col:
                 depth[y, x] = np.inf
+                blocks[y // 2, x // 2] += 1
+                n_far += 1
             else:
                 depth[y, x] = np.nan
                 if d < 0:
                     n_unmatched += 1
-    return n_valid, n_unmatched, n_coarse, n_too_near
+    return n_valid, n_unmatched, n_coarse, n_too_near, n_far
+
+
+def _depth_table(fb16: float, n: int) -> np.ndarray:
+    """``float32(fb16 / d)`` for ``0 <= d < n`` (Eq. 27 in 1/16 px; 0 at ``d = 0``)."""
+    table = np.zeros(n, np.float32)
+    table[1:] = fb16 / np.arange(1, n)
+    return table
 
 
 @functools.cache
 def _warm_up() -> None:
-    """Compile (or load from numba's cache) the merge and far-region kernels once per
+    """Compile (or load from numba's cache) the gate, merge and far-region kernels once per
     process, with the argument types :meth:`PaddedStereoBM.compute` uses."""
     far = np.full((3, 3), np.inf, np.float32)
     far[1, 1] = np.nan
     drop_small_far_regions(far, 100)
     main = np.full((6, 8), -16, np.int16)[1:5, 2:6]
-    _merge_depth(
-        main,
-        main.copy(),
-        True,
-        16,
-        1,
-        16.0,
-        np.empty((4, 4), np.float32),
-        np.zeros((4, 4), np.uint8),
-        2,
-    )
+    gradient = np.zeros((4, 4), np.uint8)
+    _gate(main, gradient, gradient, np.zeros(256, np.uint8), np.zeros(2, np.int16))
+    _gate(main, _NO_GRADIENT, _NO_GRADIENT, _NO_TABLE, np.zeros(2, np.int16))
+    coarse = np.full((3, 4), -16, np.int16)[1:, 1:3]
+    _upsampled(coarse, 1, np.empty((4, 4), np.int16))
+    for small in (coarse, _NO_COARSE):
+        out = (np.empty((4, 4), np.float32), np.zeros((4, 4), np.uint8), np.zeros((2, 2), np.uint8))
+        _merge_depth(main, small, 1, 16, 1, np.ones(4, np.float32), 16.0, out, 2)
 
 
 class PaddedStereoBM:
     """Padded, gated StereoBM with a quarter-resolution near pass (module docstring).
 
-    Holds the OpenCV matchers, built once per image geometry and reused; otherwise
-    :meth:`compute` is a function of the frame.
+    Holds the OpenCV matchers and small lookup tables, built once per image geometry and
+    reused; otherwise :meth:`compute` is a function of the frame.
 
     Parameters
     ----------
@@ -193,13 +264,22 @@ class PaddedStereoBM:
     def __init__(self, config: PerceptionConfig):
         self.config = config
         self._matchers: dict[tuple, cv2.StereoMatcher] = {}
+        self._tables: dict[tuple, np.ndarray] = {}
         _warm_up()
+
+    def _table(self, key: tuple, make) -> np.ndarray:
+        """The lookup table ``make()`` for ``key`` (read-only), built once."""
+        table = self._tables.get(key)
+        if table is None:
+            table = self._tables[key] = make()
+            table.flags.writeable = False
+        return table
 
     def compute(self, frame: StereoFrame) -> DepthMap:
         """The frame's depth map (:mod:`companion.depth_source` contract)."""
         k = frame.intrinsics
         disp = self.disparity_fixed(frame)
-        coarse = self.coarse_disparity_fixed(frame)
+        coarse = self.coarse_pass_fixed(frame)
         n_disp = self.num_disparities(k)
         # columns the right camera cannot see at the nearest range of the main pass
         band_px = n_disp + self.block_size(k) // 2
@@ -242,18 +322,23 @@ class PaddedStereoBM:
         pad_x, pad_y = n_disp, max(block // 2, (block + 2 - height) // 2)
         out = matcher.compute(_padded(left, pad_x, pad_y), _padded(right, pad_x, pad_y))
         disp = out[pad_y : pad_y + height, pad_x : pad_x + width]
-        if self.config.min_edge_ratio > 0.0:
+        ratio = self.config.min_edge_ratio
+        grad_x, grad_y, scaled_x = _NO_GRADIENT, _NO_GRADIENT, _NO_TABLE
+        if ratio > 0.0:
             # Aperture: along a near-horizontal edge a match is only as good as the
             # rectification (a 2 px vertical error on a 5° edge shifts it by 23 px).
-            disp[_horizontal_edges(left, block, self.config.min_edge_ratio)] = -_DISP_SCALE
+            grad_x, grad_y = _block_gradients(left, block)
+            scaled_x = self._table(("edge", ratio), lambda: _scaled_gradient_table(ratio))
         # The right camera sees column x - d only if x - d >= 0; a match whose right block
         # reaches into the black band (x - d < half a block + _EDGE_MARGIN_PX) leans on it
         # and is as likely wrong as right: unknown too.
         margin = block // 2 + _EDGE_MARGIN_PX
         n_band = min(n_disp + margin, width)
-        band = disp[:, :n_band]
-        limit = _DISP_SCALE * (np.arange(n_band, dtype=np.int16) - margin)
-        band[band > limit] = -_DISP_SCALE
+        limit = self._table(
+            ("band", n_band, margin),
+            lambda: _DISP_SCALE * (np.arange(n_band, dtype=np.int16) - margin),
+        )
+        _gate(disp, grad_x, grad_y, scaled_x, limit)
         return disp
 
     def prefilter_sigma_px(self, frame: StereoFrame) -> tuple[float, float]:
@@ -278,8 +363,21 @@ class PaddedStereoBM:
         )
 
     def coarse_disparity_fixed(self, frame: StereoFrame) -> np.ndarray | None:
-        """Coarse pass: full-resolution int16 disparity (1/16 px, each coarse pixel repeated
-        over its 4 × 4 block), -16 where unmatched; ``None`` when disabled.
+        """Coarse pass at full resolution: int16 disparity (1/16 px, each coarse pixel
+        repeated over its 4 × 4 block), -16 where unmatched; ``None`` when disabled
+        (:meth:`coarse_pass_fixed`, which :meth:`compute` merges without this copy)."""
+        coarse = self.coarse_pass_fixed(frame)
+        if coarse is None:
+            return None
+        out = np.empty(frame.left.shape, np.int16)
+        _upsampled(*coarse, out)
+        return out
+
+    def coarse_pass_fixed(self, frame: StereoFrame) -> tuple[np.ndarray, int] | None:
+        """Coarse pass at its own resolution: (int16 disparity in 1/16 coarse px, negative
+        where unmatched; its disparity range ``n`` [coarse px]), ``None`` when disabled. A
+        match in coarse column ``x < n`` above ``16·x`` reaches left of the right image and
+        is read as unmatched (:func:`_coarse_at`).
 
         The pair is matched at a quarter of the resolution (disparities are a quarter too, so
         a 48-disparity search reaches 4 × 48 px at full resolution at 1/16 of the cost) with
@@ -315,28 +413,18 @@ class PaddedStereoBM:
             for im in (frame.left, frame.right)
         ]
         coarse = matcher.compute(small[0], small[1])[pad_y : pad_y + h4, n_disp : n_disp + w4]
-        band = coarse[:, : min(n_disp, w4)]
-        band[band > _DISP_SCALE * np.arange(band.shape[1], dtype=np.int16)] = -_DISP_SCALE
-        coarse = np.ascontiguousarray(coarse)
-        np.multiply(coarse, _NEAR_SCALE, out=coarse, where=coarse >= 0)
-        up = cv2.resize(
-            coarse, (_NEAR_SCALE * w4, _NEAR_SCALE * h4), interpolation=cv2.INTER_NEAREST
-        )
-        if up.shape == (height, width):
-            return up
-        out = np.full((height, width), -_DISP_SCALE, np.int16)
-        out[: _NEAR_SCALE * h4, : _NEAR_SCALE * w4] = up
-        return out
+        return coarse, n_disp
 
     def _merge(
         self,
         disp: np.ndarray,
-        coarse: np.ndarray | None,
+        coarse: tuple[np.ndarray, int] | None,
         fb: float,
         n_disp: int,
         band_px: int,
     ) -> tuple[np.ndarray, ValidityCounts]:
-        """Merge the coarse pass into ``disp`` (in place) and make the depth map.
+        """Merge the coarse pass (:meth:`coarse_pass_fixed`) into ``disp`` (in place) and
+        make the depth map.
 
         Holes of the main pass within its range take the coarse disparity; where the coarse
         pass sees a surface nearer than the main range (the main pass missed it or aliased
@@ -344,20 +432,27 @@ class PaddedStereoBM:
         of it are unknown (as likely aliased as right). One compiled pass over the pixels.
         """
         d_far = max(1, math.ceil(_DISP_SCALE * fb / self.config.max_range_m))
+        fb16 = float(_DISP_SCALE * fb)
+        small, n_near = coarse if coarse is not None else (_NO_COARSE, 0)
+        # float32(fb16 / d) for every disparity the passes can give (1/16 px)
+        n_table = _DISP_SCALE * max(n_disp, _NEAR_SCALE * n_near)
+        depth_of = self._table(("depth", fb16, n_table), lambda: _depth_table(fb16, n_table))
+        height, width = disp.shape
         depth = np.empty(disp.shape, np.float32)
         too_near = np.zeros(disp.shape, np.uint8)
-        has_coarse = coarse is not None
-        n_valid, n_unmatched, n_coarse, n_too_near = _merge_depth(
+        blocks = np.zeros(((height + 1) // 2, (width + 1) // 2), np.uint8)
+        n_valid, n_unmatched, n_coarse, n_too_near, n_far = _merge_depth(
             disp,
-            coarse if has_coarse else disp,
-            has_coarse,
+            small,
+            n_near,
             _DISP_SCALE * (n_disp - 1),
             d_far,
-            float(_DISP_SCALE * fb),
-            depth,
-            too_near,
+            depth_of,
+            fb16,
+            (depth, too_near, blocks),
             band_px,
         )
+        n_halo = 0
         if n_too_near:
             halo = cv2.dilate(too_near, _NEAR_HALO).view(bool) & (too_near == 0)
             halo &= disp >= 0
@@ -368,9 +463,11 @@ class PaddedStereoBM:
                 disp[halo] = -_DISP_SCALE
                 depth[halo] = np.nan
         # A small island of beyond-range matches is noise (a textureless wall), not sky.
-        n_unmatched += drop_small_far_regions(
-            depth, math.ceil(self.config.min_far_fraction * disp.size)
-        )
+        min_area = math.ceil(self.config.min_far_fraction * disp.size)
+        if n_halo:  # the halo made some +inf pixels unknown: count them again
+            n_unmatched += drop_small_far_regions(depth, min_area)
+        else:
+            n_unmatched += drop_small_far_blocks(depth, blocks, n_far, min_area)
         depth.flags.writeable = False
         counts = ValidityCounts(
             n_valid=n_valid,

@@ -112,7 +112,7 @@ class TruthDepthSource(PaddedStereoBM):
             raise ValueError(f"true depth shape {depth.shape} != frame {(k.height_px, k.width_px)}")
         return truth_disparity_fixed(depth, k.focal_baseline_m_px)
 
-    def coarse_disparity_fixed(self, frame: StereoFrame) -> None:
+    def coarse_pass_fixed(self, frame: StereoFrame) -> None:
         """No coarse pass: the true disparity ranges every distance already."""
         return None
 
