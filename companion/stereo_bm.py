@@ -82,6 +82,20 @@ def _padded(image: np.ndarray, pad_x: int, pad_y: int) -> np.ndarray:
     return out
 
 
+def _padded_output(shape: tuple[int, int], pad_x: int, pad_y: int, write) -> np.ndarray:
+    """:func:`_padded` of the ``shape`` image that ``write(dst)`` writes into ``dst`` (an
+    OpenCV filter's output argument): written in place, no copy of it into the padding."""
+    height, width = shape
+    out = np.empty((height + 2 * pad_y, pad_x + width + pad_y), np.uint8)
+    inner = out[pad_y : pad_y + height, pad_x : pad_x + width]
+    write(inner)
+    out[pad_y : pad_y + height, pad_x + width :] = inner[:, width - 1 :]
+    out[:pad_y, pad_x:] = out[pad_y, pad_x:]
+    out[pad_y + height :, pad_x:] = out[pad_y + height - 1, pad_x:]
+    out[:, :pad_x] = 0
+    return out
+
+
 def noise_sigma(image: np.ndarray) -> float:
     """Sensor noise standard deviation of a grey image [grey levels] (Immerkær 1996: the mean
     absolute response to a Laplacian-difference mask that cancels smooth image structure)."""
@@ -317,10 +331,11 @@ class PaddedStereoBM:
             raise ValueError(f"unsupported pixel encoding {frame.encoding!r}")
         matcher, n_disp, block = self._matcher(frame.intrinsics)
         height, width = frame.left.shape
-        left, right = self._prefiltered(frame)
         # Half a block on each side; more on a frame shorter than a block (OpenCV refuses it).
         pad_x, pad_y = n_disp, max(block // 2, (block + 2 - height) // 2)
-        out = matcher.compute(_padded(left, pad_x, pad_y), _padded(right, pad_x, pad_y))
+        left_padded, right_padded = self._prefiltered(frame, pad_x, pad_y)
+        left = left_padded[pad_y : pad_y + height, pad_x : pad_x + width]
+        out = matcher.compute(left_padded, right_padded)
         disp = out[pad_y : pad_y + height, pad_x : pad_x + width]
         ratio = self.config.min_edge_ratio
         grad_x, grad_y, scaled_x = _NO_GRADIENT, _NO_GRADIENT, _NO_TABLE
@@ -351,16 +366,27 @@ class PaddedStereoBM:
         extra = min(_PREFILTER_PER_NOISE * max(0.0, noise - _NOISE_FLOOR), _PREFILTER_MAX_PX)
         return _PREFILTER_BASE_PX + extra, _PREFILTER_BASE_PX + extra
 
-    def _prefiltered(self, frame: StereoFrame) -> tuple[np.ndarray, np.ndarray]:
+    def _prefiltered(
+        self, frame: StereoFrame, pad_x: int = 0, pad_y: int = 0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's prefiltered images, padded (:func:`_padded`) by ``pad_x``, ``pad_y``."""
         sx, sy = self.prefilter_sigma_px(frame)
         if max(sx, sy) < 0.3:
-            return frame.left, frame.right
+            return _padded(frame.left, pad_x, pad_y), _padded(frame.right, pad_x, pad_y)
         # Kernels of ±2 sigma: OpenCV's fixed-point path for uint8 (the tails carry < 5 %).
         ksize = (2 * math.ceil(2.0 * sx) + 1, 2 * math.ceil(2.0 * sy) + 1)
-        return tuple(  # type: ignore[return-value]
-            cv2.GaussianBlur(im, ksize, sigmaX=sx, sigmaY=sy, borderType=cv2.BORDER_REPLICATE)
-            for im in (frame.left, frame.right)
-        )
+
+        def blur(image: np.ndarray) -> np.ndarray:
+            return _padded_output(
+                image.shape,
+                pad_x,
+                pad_y,
+                lambda dst: cv2.GaussianBlur(
+                    image, ksize, dst=dst, sigmaX=sx, sigmaY=sy, borderType=cv2.BORDER_REPLICATE
+                ),
+            )
+
+        return blur(frame.left), blur(frame.right)
 
     def coarse_disparity_fixed(self, frame: StereoFrame) -> np.ndarray | None:
         """Coarse pass at full resolution: int16 disparity (1/16 px, each coarse pixel
@@ -408,10 +434,16 @@ class PaddedStereoBM:
             matcher.setDisp12MaxDiff(max(cfg.lr_max_diff_px, 0))
             self._matchers[key] = matcher
         pad_y = max(_NEAR_BLOCK_PX // 2, (_NEAR_BLOCK_PX + 2 - h4) // 2)
-        small = [
-            _padded(cv2.resize(im, (w4, h4), interpolation=cv2.INTER_AREA), n_disp, pad_y)
-            for im in (frame.left, frame.right)
-        ]
+
+        def quarter(image: np.ndarray) -> np.ndarray:
+            return _padded_output(
+                (h4, w4),
+                n_disp,
+                pad_y,
+                lambda dst: cv2.resize(image, (w4, h4), dst=dst, interpolation=cv2.INTER_AREA),
+            )
+
+        small = [quarter(frame.left), quarter(frame.right)]
         coarse = matcher.compute(small[0], small[1])[pad_y : pad_y + h4, n_disp : n_disp + w4]
         return coarse, n_disp
 
