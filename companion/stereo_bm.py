@@ -145,29 +145,32 @@ def _auto_block_size(width_px: int) -> int:
 
 
 @numba.njit(cache=True)
-def _coarse_at(small, n_band, y, x):
-    """The coarse pass's full-resolution disparity at pixel (y, x) (1/16 px): the match of
-    ``small`` (its quarter-resolution pass, 1/16 coarse px) at (y // 4, x // 4), times 4;
-    -16 outside ``small`` or where the match reaches left of the right image (a coarse
-    column ``< n_band`` whose disparity exceeds it), negative as it is where unmatched."""
+def _coarse_row(small, n_band, y, row):
+    """``row`` = the coarse pass's full-resolution disparity along row ``y`` (1/16 px): the
+    match of ``small`` (its quarter-resolution pass, 1/16 coarse px) at (y // 4, x // 4),
+    times 4; -16 outside ``small`` or where the match reaches left of the right image (a
+    coarse column ``< n_band`` whose disparity exceeds it), negative as it is where
+    unmatched."""
     ys = y // _NEAR_SCALE
-    xs = x // _NEAR_SCALE
-    if ys >= small.shape[0] or xs >= small.shape[1]:
-        return -_DISP_SCALE
-    c = small[ys, xs]
-    if xs < n_band and c > _DISP_SCALE * xs:
-        return -_DISP_SCALE
-    if c >= 0:
-        return _NEAR_SCALE * c
-    return c
+    for x in range(row.shape[0]):
+        xs = x // _NEAR_SCALE
+        c = -_DISP_SCALE
+        if ys < small.shape[0] and xs < small.shape[1]:
+            c = small[ys, xs]
+            if xs < n_band and c > _DISP_SCALE * xs:
+                c = -_DISP_SCALE
+            elif c >= 0:
+                c = _NEAR_SCALE * c
+        row[x] = c
 
 
 @numba.njit(cache=True)
 def _upsampled(small, n_band, out):
-    """``out`` (int16, full resolution) = :func:`_coarse_at` at every pixel."""
+    """``out`` (int16, full resolution) = :func:`_coarse_row` along every row."""
+    row = np.empty(out.shape[1], np.int64)
     for y in range(out.shape[0]):
-        for x in range(out.shape[1]):
-            out[y, x] = _coarse_at(small, n_band, y, x)
+        _coarse_row(small, n_band, y, row)
+        out[y, :] = row
 
 
 @numba.njit(cache=True)
@@ -187,62 +190,57 @@ def _gate(disp, grad_x, grad_y, scaled_x, band_limit):
 
 
 @numba.njit(cache=True)
-def _merge_depth(disp, coarse, n_band, top, d_far, depth_of, fb16, out, far_from_col):
+def _merge_depth(disp, coarse, n_band, top, d_far, fb16, out, far_from_col):
     """Coarse pass into the main disparity (int16, 1/16 px, negative = unmatched), in place,
     and the depth map ``fb16 / disp``: NaN where unmatched; a match below ``d_far`` (farther
     than the range) is +inf from column ``far_from_col`` on (nothing nearer than the range
     along that ray) and NaN left of it, where a far match cannot be told from a false match
     into the band the right camera cannot see.
 
-    ``coarse`` is the quarter-resolution pass (:func:`_coarse_at`; no rows: none);
-    ``depth_of[d]`` is ``float32(fb16 / d)`` (the division, tabulated). ``out`` is (depth
-    (float32), too_near (uint8, zero), blocks (uint8, zero)): ``too_near`` marks the pixels
-    the coarse pass ranged nearer than the main range (``> top``), ``blocks`` counts the
-    +inf pixels per 2 × 2 block (for :func:`drop_small_far_blocks`).
+    ``coarse`` is the quarter-resolution pass (:func:`_coarse_row`; no rows: none). ``out``
+    is (depth (float32), too_near (uint8, zero), blocks (uint8, zero)): ``too_near`` marks
+    the pixels the coarse pass ranged nearer than the main range (``> top``), ``blocks``
+    counts the +inf pixels per 2 × 2 block (for :func:`drop_small_far_blocks`).
 
     Returns (n_valid, n_unmatched, n_coarse, n_too_near, n_far).
     """
     depth, too_near, blocks = out
     has_coarse = coarse.shape[0] > 0
-    n_table = depth_of.shape[0]
     n_valid = 0
     n_unmatched = 0
     n_coarse = 0
     n_too_near = 0
     n_far = 0
+    row = np.empty(disp.shape[1], np.int64)  # the coarse pass along the row
     for y in range(disp.shape[0]):
+        if has_coarse and y % _NEAR_SCALE == 0:
+            _coarse_row(coarse, n_band, y, row)
+        disp_y, depth_y, too_near_y, blocks_y = disp[y], depth[y], too_near[y], blocks[y // 2]
         for x in range(disp.shape[1]):
-            d = disp[y, x]
+            d = disp_y[x]
             if has_coarse:
-                c = _coarse_at(coarse, n_band, y, x)
+                c = row[x]
                 if c > top and c > d:
                     d = c
-                    too_near[y, x] = 1
+                    too_near_y[x] = 1
                     n_too_near += 1
                 elif d < 0 and c >= 0:
                     d = c
                     if d >= d_far:  # counted only where it gives a depth (n_valid)
                         n_coarse += 1
-                disp[y, x] = d
+                disp_y[x] = d
             if d >= d_far:
-                depth[y, x] = depth_of[d] if d < n_table else fb16 / d
+                depth_y[x] = fb16 / d
                 n_valid += 1
             elif d >= 0 and x >= far_from_col:
-                depth[y, x] = np.inf
-                blocks[y // 2, x // 2] += 1
+                depth_y[x] = np.inf
+                blocks_y[x // 2] += 1
                 n_far += 1
             else:
-                depth[y, x] = np.nan
+                depth_y[x] = np.nan
                 if d < 0:
                     n_unmatched += 1
     return n_valid, n_unmatched, n_coarse, n_too_near, n_far
-
-
-def _depth_table(fb16: float, n: int) -> np.ndarray:
-    """``float32(fb16 / d)`` for ``0 <= d < n`` (Eq. 27 in 1/16 px; 0 at ``d = 0``)."""
-    table = np.zeros(n, np.float32)
-    table[1:] = fb16 / np.arange(1, n)
-    return table
 
 
 @functools.cache
@@ -260,7 +258,7 @@ def _warm_up() -> None:
     _upsampled(coarse, 1, np.empty((4, 4), np.int16))
     for small in (coarse, _NO_COARSE):
         out = (np.empty((4, 4), np.float32), np.zeros((4, 4), np.uint8), np.zeros((2, 2), np.uint8))
-        _merge_depth(main, small, 1, 16, 1, np.ones(4, np.float32), 16.0, out, 2)
+        _merge_depth(main, small, 1, 16, 1, 16.0, out, 2)
 
 
 class PaddedStereoBM:
@@ -403,7 +401,7 @@ class PaddedStereoBM:
         """Coarse pass at its own resolution: (int16 disparity in 1/16 coarse px, negative
         where unmatched; its disparity range ``n`` [coarse px]), ``None`` when disabled. A
         match in coarse column ``x < n`` above ``16·x`` reaches left of the right image and
-        is read as unmatched (:func:`_coarse_at`).
+        is read as unmatched (:func:`_coarse_row`).
 
         The pair is matched at a quarter of the resolution (disparities are a quarter too, so
         a 48-disparity search reaches 4 × 48 px at full resolution at 1/16 of the cost) with
@@ -466,9 +464,6 @@ class PaddedStereoBM:
         d_far = max(1, math.ceil(_DISP_SCALE * fb / self.config.max_range_m))
         fb16 = float(_DISP_SCALE * fb)
         small, n_near = coarse if coarse is not None else (_NO_COARSE, 0)
-        # float32(fb16 / d) for every disparity the passes can give (1/16 px)
-        n_table = _DISP_SCALE * max(n_disp, _NEAR_SCALE * n_near)
-        depth_of = self._table(("depth", fb16, n_table), lambda: _depth_table(fb16, n_table))
         height, width = disp.shape
         depth = np.empty(disp.shape, np.float32)
         too_near = np.zeros(disp.shape, np.uint8)
@@ -479,7 +474,6 @@ class PaddedStereoBM:
             n_near,
             _DISP_SCALE * (n_disp - 1),
             d_far,
-            depth_of,
             fb16,
             (depth, too_near, blocks),
             band_px,
