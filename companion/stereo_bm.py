@@ -163,6 +163,24 @@ def _auto_block_size(width_px: int) -> int:
 
 
 @numba.njit(cache=True)
+def _quarter(image, out):
+    """``out`` = ``image`` (uint8, exactly 4x as large) averaged over 4 × 4 blocks: OpenCV's
+    integer-scale INTER_AREA resize (the sum / 16, rounded half to even), bit for bit."""
+    for ys in range(out.shape[0]):
+        for xs in range(out.shape[1]):
+            total = 0
+            for y in range(_NEAR_SCALE * ys, _NEAR_SCALE * ys + _NEAR_SCALE):
+                row = image[y]
+                for x in range(_NEAR_SCALE * xs, _NEAR_SCALE * xs + _NEAR_SCALE):
+                    total += row[x]
+            mean = total >> 4
+            rest = total & 15
+            if rest > 8 or (rest == 8 and mean & 1):
+                mean += 1
+            out[ys, xs] = mean
+
+
+@numba.njit(cache=True)
 def _coarse_row(small, n_band, y, row):
     """``row`` = the coarse pass's full-resolution disparity along row ``y`` (1/16 px): the
     match of ``small`` (its quarter-resolution pass, 1/16 coarse px) at (y // 4, x // 4),
@@ -269,7 +287,11 @@ def _warm_up() -> None:
     far[1, 1] = np.nan
     drop_small_far_regions(far, 100)
     main = np.full((6, 8), -16, np.int16)[1:5, 2:6]
-    noise_sigma(np.zeros((9, 9), np.uint8))
+    decoded = np.zeros((2, 8, 8), np.uint8)
+    decoded.flags.writeable = False  # a decoded frame's planes are read-only views
+    for image in (decoded[0], np.zeros((8, 8), np.uint8)):
+        noise_sigma(image)
+        _quarter(image, np.zeros((4, 6), np.uint8)[1:3, 1:3])
     gradient = np.zeros((4, 4), np.uint8)
     _gate(main, gradient, gradient, np.zeros(256, np.uint8), np.zeros(2, np.int16))
     _gate(main, _NO_GRADIENT, _NO_GRADIENT, _NO_TABLE, np.zeros(2, np.int16))
@@ -299,11 +321,10 @@ class PaddedStereoBM:
         _warm_up()
 
     def _table(self, key: tuple, make) -> np.ndarray:
-        """The lookup table ``make()`` for ``key`` (read-only), built once."""
+        """The lookup table ``make()`` for ``key``, built once (the kernels only read it)."""
         table = self._tables.get(key)
         if table is None:
             table = self._tables[key] = make()
-            table.flags.writeable = False
         return table
 
     def compute(self, frame: StereoFrame) -> DepthMap:
@@ -453,6 +474,8 @@ class PaddedStereoBM:
         pad_y = max(_NEAR_BLOCK_PX // 2, (_NEAR_BLOCK_PX + 2 - h4) // 2)
 
         def quarter(image: np.ndarray) -> np.ndarray:
+            if (height, width) == (_NEAR_SCALE * h4, _NEAR_SCALE * w4):
+                return _padded_output((h4, w4), n_disp, pad_y, lambda dst: _quarter(image, dst))
             return _padded_output(
                 (h4, w4),
                 n_disp,
