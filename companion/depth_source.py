@@ -186,6 +186,9 @@ def drop_small_far_blocks(depth: np.ndarray, blocks: np.ndarray, n_far: int, min
     ``n_far`` their total (a depth kernel counts them as it writes them)."""
     if min_area <= 1 or n_far == 0:
         return 0
+    if n_far < min_area:  # every region is smaller than that: no need to label them
+        depth[depth == np.inf] = np.nan
+        return n_far
     n_labels, labels = cv2.connectedComponents((blocks > 0).view(np.uint8), connectivity=8)
     small = _small_labels(labels, blocks, n_labels, min_area)
     if not small.any():
