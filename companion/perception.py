@@ -11,7 +11,7 @@ Pipeline for one rectified frame (:meth:`StereoPerception.process`):
 2. Obstacle pixels: valid disparity ``d ≥ f·b / threshold_m`` (depth below the threshold,
    Eq. 27, compared in disparity space so no per-pixel division).
 3. Noise filter: a morphological opening, then connected components
-   (``cv2.connectedComponentsWithStats``) smaller than ``min_blob_fraction`` of the image are
+   (``cv2.connectedComponents``) smaller than ``min_blob_fraction`` of the image are
    dropped, so isolated noisy pixels never become obstacles.
 4. Extent: each surviving blob is flood-filled over the disparity image along depth-continuous
    neighbours (relative step ≤ ``continuity_rel``) out to ``threshold_m + extent_margin_m``.
@@ -360,6 +360,33 @@ def _region_contour(fill: np.ndarray, value: int, rect: tuple[int, int, int, int
 
 
 @numba.njit(cache=True)
+def _label_stats(labels, n_labels):
+    """``cv2.connectedComponentsWithStats``' stats of the labels 1 .. ``n_labels`` - 1 of
+    ``labels`` (int32): per label, the bounding box's left, top, width and height and the
+    area (indexed by ``cv2.CC_STAT_*``); row 0 (the background) is zero, unused. One pass,
+    several times cheaper than OpenCV's stats (which also sum centroids in double)."""
+    stats = np.zeros((n_labels, 5), np.int32)
+    right = np.full(n_labels, -1, np.int32)
+    bottom = np.full(n_labels, -1, np.int32)
+    for label in range(1, n_labels):
+        stats[label, 0] = labels.shape[1]
+        stats[label, 1] = labels.shape[0]
+    for y in range(labels.shape[0]):
+        for x in range(labels.shape[1]):
+            label = labels[y, x]
+            if label > 0:
+                stats[label, 0] = min(stats[label, 0], x)
+                stats[label, 1] = min(stats[label, 1], y)
+                right[label] = max(right[label], x)
+                bottom[label] = max(bottom[label], y)
+                stats[label, 4] += 1
+    for label in range(1, n_labels):
+        stats[label, 2] = right[label] - stats[label, 0] + 1
+        stats[label, 3] = bottom[label] - stats[label, 1] + 1
+    return stats
+
+
+@numba.njit(cache=True)
 def _blob_seeds(labels, disp, n_labels):
     """Nearest pixel of every label: its largest disparity, the first in raster order on ties.
 
@@ -507,7 +534,8 @@ def _warm_up() -> None:
     mask = np.zeros((4, 4), np.uint8)
     mask[1:3, 1:3] = 1
     cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    _, labels, _, _ = cv2.connectedComponentsWithStats(mask[1:3, 1:3], connectivity=8)
+    n_labels, labels = cv2.connectedComponents(mask[1:3, 1:3], connectivity=8)
+    _label_stats(labels, n_labels)
     disp = np.full((3, 3), 16, np.int16)
     _blob_seeds(labels, disp[1:, 1:], 2)  # a strided view, like the labelled box
     fill = np.zeros((4, 4), np.uint8)
@@ -622,13 +650,14 @@ class StereoPerception:
         # Blobs on a 2x subsampled mask: 4x cheaper labelling; areas count 4 pixels each.
         near_half = np.ascontiguousarray(near[::2, ::2])
         # Label only the bounding box of the mask (same components, same raster-order labels);
-        # stats are shifted back to the half-resolution image, labels stay box-relative.
+        # labels and stats are box-relative.
         bx, by, bw, bh = cv2.boundingRect(near_half)
         if bw == 0:
             return None
-        n_labels, labels, stats, _ = cv2.connectedComponentsWithStats(
+        n_labels, labels = cv2.connectedComponents(
             near_half[by : by + bh, bx : bx + bw], connectivity=8
         )
+        stats = _label_stats(labels, n_labels)
         min_area = max(1, math.ceil(cfg.min_blob_fraction * width * height / 4.0))
         blobs = [i for i in range(1, n_labels) if stats[i, cv2.CC_STAT_AREA] >= min_area]
         if not blobs:

@@ -283,9 +283,9 @@ def _merge_depth(disp, coarse, n_band, top, d_far, fb16, out, far_from_col):
 def _warm_up() -> None:
     """Compile (or load from numba's cache) the gate, merge and far-region kernels once per
     process, with the argument types :meth:`PaddedStereoBM.compute` uses."""
-    far = np.full((3, 3), np.inf, np.float32)
-    far[1, 1] = np.nan
-    drop_small_far_regions(far, 100)
+    far = np.full((2, 8), np.inf, np.float32)
+    far[:, 4:7] = np.nan  # a region of 8 +inf pixels and one of 2: the second is dropped
+    drop_small_far_regions(far, 5)
     main = np.full((6, 8), -16, np.int16)[1:5, 2:6]
     decoded = np.zeros((2, 8, 8), np.uint8)
     decoded.flags.writeable = False  # a decoded frame's planes are read-only views
