@@ -201,15 +201,6 @@ def _coarse_row(small, n_band, y, row):
 
 
 @numba.njit(cache=True)
-def _upsampled(small, n_band, out):
-    """``out`` (int16, full resolution) = :func:`_coarse_row` along every row."""
-    row = np.empty(out.shape[1], np.int64)
-    for y in range(out.shape[0]):
-        _coarse_row(small, n_band, y, row)
-        out[y, :] = row
-
-
-@numba.njit(cache=True)
 def _gate(disp, grad_x, grad_y, scaled_x, band_limit):
     """The main pass's gates on ``disp`` (int16, 1/16 px), in place: -16 where the block's
     horizontal gradient, scaled (``scaled_x[grad_x]``), is below its vertical one (a
@@ -296,7 +287,6 @@ def _warm_up() -> None:
     _gate(main, gradient, gradient, np.zeros(256, np.uint8), np.zeros(2, np.int16))
     _gate(main, _NO_GRADIENT, _NO_GRADIENT, _NO_TABLE, np.zeros(2, np.int16))
     coarse = np.full((3, 4), -16, np.int16)[1:, 1:3]
-    _upsampled(coarse, 1, np.empty((4, 4), np.int16))
     for small in (coarse, _NO_COARSE):
         out = (np.empty((4, 4), np.float32), np.zeros((4, 4), np.uint8), np.zeros((2, 2), np.uint8))
         _merge_depth(main, small, 1, 16, 1, 16.0, out, 2)
@@ -425,17 +415,6 @@ class PaddedStereoBM:
             )
 
         return blur(frame.left), blur(frame.right)
-
-    def coarse_disparity_fixed(self, frame: StereoFrame) -> np.ndarray | None:
-        """Coarse pass at full resolution: int16 disparity (1/16 px, each coarse pixel
-        repeated over its 4 × 4 block), -16 where unmatched; ``None`` when disabled
-        (:meth:`coarse_pass_fixed`, which :meth:`compute` merges without this copy)."""
-        coarse = self.coarse_pass_fixed(frame)
-        if coarse is None:
-            return None
-        out = np.empty(frame.left.shape, np.int16)
-        _upsampled(*coarse, out)
-        return out
 
     def coarse_pass_fixed(self, frame: StereoFrame) -> tuple[np.ndarray, int] | None:
         """Coarse pass at its own resolution: (int16 disparity in 1/16 coarse px, negative

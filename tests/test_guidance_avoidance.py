@@ -72,6 +72,8 @@ def test_config_from_dict_names_unknown_key():
         {"min_clear_time_s": -1.0},
         {"merge_distance_m": -1.0},
         {"tie_angle_rad": math.nan},
+        {"max_aim_elevation_rad": 0.0},
+        {"max_aim_elevation_rad": 1e6},
         {"min_setpoint_distance_m": 5.0, "max_setpoint_distance_m": 4.0},
     ],
 )

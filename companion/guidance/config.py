@@ -141,6 +141,11 @@ class GuidanceConfig:
             check_numbers(self, (field.name,), as_float=True)
         if self.vertical_weight <= 0.0:
             raise ValueError(f"vertical_weight must be > 0, got {self.vertical_weight!r}")
+        if not 0.0 < self.max_aim_elevation_rad <= 0.5 * math.pi:
+            # also the safety envelope's path-elevation clamp: it must clamp something
+            raise ValueError(
+                f"max_aim_elevation_rad must be in (0, π/2], got {self.max_aim_elevation_rad!r}"
+            )
         if self.tie_angle_rad >= 0.5 * math.pi:
             raise ValueError(f"tie_angle_rad must be < π/2, got {self.tie_angle_rad!r}")
         if self.confirm_n > self.confirm_m or self.confirm_m > 30:

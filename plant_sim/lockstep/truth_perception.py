@@ -136,11 +136,3 @@ class TruthPerception(StereoPerception):
     def provide(self, sequence: int, depth_left_m: np.ndarray) -> None:
         """The true depth of the left image of frame ``sequence`` (next to be processed)."""
         self._truth_source.provide(sequence, depth_left_m)
-
-    def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
-        """True disparity of ``frame`` (int16, 1/16 px, -16 where a perfect matcher fails)."""
-        return self._truth_source.disparity_fixed(frame)
-
-    def coarse_disparity_fixed(self, frame: StereoFrame) -> None:
-        """No coarse pass: the true disparity ranges every distance already."""
-        return None
