@@ -24,7 +24,12 @@ block is matched):
   FREE up to ``hit_clear_m`` short of the hit (also clearing OCCUPIED: seen free again);
   the hit's voxel becomes TENTATIVE (3) on its first frame and OCCUPIED when hit again in
   a later frame (a one-frame false match — a speckle, a mismatch — is not an obstacle; a
-  real surface is hit in every frame). TENTATIVE is not free either.
+  real surface is hit in every frame). TENTATIVE is not free either. Within one frame a
+  hit wins over free space (OctoMap's rule): the free segments are marked after all of
+  the frame's hits and never clear them, so a ray that grazes a voxel on its way to a
+  farther surface does not erase the surface another ray hit there. Without this an
+  obstacle seen obliquely at close range — the flank the vehicle is passing — never
+  became occupied: its limb voxels were hit and cleared again in every frame.
 * **Matched, beyond range** (finite or +inf depth, range > ``max_range_m``): FREE up to
   ``max_range_m``, nothing occupied.
 * **Unmatched** (NaN depth: no match, the matcher's blind band, nearer than its minimum
@@ -52,11 +57,12 @@ block is matched):
   cannot see beside or below itself).
 
 Query (:meth:`KnownSpace.free_distance_m`): the distance the vehicle's body, an ellipse
-normal to the direction (``radius_m`` wide, ``half_height_m`` high; its centre and 8
-points on its rim), can travel from a position along a direction, in steps of half a
-voxel, up to a limit: the centre must be in FREE voxels beyond ``body_m`` (inside it is
-the vehicle), the rim in FREE voxels beyond ``near_field_m`` and in voxels that are not
-OCCUPIED (UNKNOWN or TENTATIVE) before it. The near field is where the rim is outside
+normal to the direction (``radius_m`` wide, ``half_height_m`` high; its centre, 8
+points on its rim and 8 on the ellipse of half its size, so that no voxel fits between
+two samples), can travel from a position along a direction, in steps of half a voxel,
+up to a limit: the centre must be in FREE voxels beyond ``body_m`` (inside it is the
+vehicle), the other samples in FREE voxels beyond ``near_field_m`` and in voxels that
+are not OCCUPIED (UNKNOWN or TENTATIVE) before it. The near field is where the rim is outside
 any forward camera's view (0.35 m to the right is in the left eye's ±24° view only from
 1.0 m ahead): what the vehicle could not have looked at without being there, excused
 only when it was never seen occupied (named limitation: a thin obstacle that reaches
@@ -97,7 +103,8 @@ UNKNOWN = np.int8(0)
 FREE = np.int8(1)
 OCCUPIED = np.int8(2)
 TENTATIVE = np.int8(3)  # hit in one frame only: not free, not yet an obstacle
-_NEW_HIT = 4  # hit in the frame being integrated (becomes TENTATIVE at its end)
+_NEW_HIT = 4  # first hit, in the frame being integrated (becomes TENTATIVE at its end)
+_NEW_HIT_AGAIN = 5  # hit in this frame and in an earlier one (becomes OCCUPIED at its end)
 
 
 @dataclass(frozen=True)
@@ -124,6 +131,13 @@ class KnownSpaceConfig:
     hit_clear_m : float
         Free marking stops this far before a hit [m] (range noise must not clear the
         surface voxel).
+    clear_core_m : float
+        An OCCUPIED or TENTATIVE voxel is seen free again only by a ray that passes this
+        close to its centre [m] (a ray through a corner of the voxel saw the corner free,
+        not the surface point in it: the flank of an obstacle beside the vehicle is
+        grazed by the rays at the edge of the view in every frame). 0.06 m: at the 8 m
+        range, rays 4 px apart are 9 cm apart, so a voxel seen through from anywhere
+        nearer is crossed within 6 cm of its centre.
     sky_min_elevation_deg : float
         Open-sky rule: lowest ray elevation above the horizon [deg] (negative: below).
     ego_clear_radius_m : float
@@ -147,6 +161,7 @@ class KnownSpaceConfig:
     pixel_stride: int = 4
     block_min_matched: float = 0.25
     hit_clear_m: float = 0.2
+    clear_core_m: float = 0.06
     sky_min_elevation_deg: float = -5.0
     ego_clear_radius_m: float = 0.25
     start_free_radius_m: float = 1.2
@@ -164,7 +179,14 @@ class KnownSpaceConfig:
             raise ValueError(f"piece_vox must be even and >= 2, got {self.piece_vox}")
         check_numbers(self, ("voxel_m", "max_range_m"), positive=True)
         check_numbers(
-            self, ("hit_clear_m", "ego_clear_radius_m", "start_free_radius_m", "blind_depth_m")
+            self,
+            (
+                "hit_clear_m",
+                "clear_core_m",
+                "ego_clear_radius_m",
+                "start_free_radius_m",
+                "blind_depth_m",
+            ),
         )
         if not 0.0 < self.block_min_matched <= 1.0:
             raise ValueError(f"block_min_matched must be in (0, 1], got {self.block_min_matched}")
@@ -232,7 +254,9 @@ def _cell(grid, origin, inv_voxel, x, y, z):
 
 @numba.njit(cache=True)
 def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, clear_occupied):
-    """FREE in every voxel the segment from (ox, oy, oz) over ``length`` [m] crosses.
+    """FREE in every UNKNOWN voxel the segment from (ox, oy, oz) over ``length`` [m]
+    crosses, and in every OCCUPIED or TENTATIVE one whose centre it passes within
+    ``clear_occupied`` [m] of (0: never).
 
     Amanatides–Woo traversal: each voxel is visited once, in order along the ray; the
     walk stops at the grid's edge. ``(dx, dy, dz)`` is a unit direction.
@@ -276,8 +300,18 @@ def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, clear_occupie
         if i < 0 or j < 0 or k < 0 or i >= ni or j >= nj or k >= nk:
             return
         cur = grid[i, j, k]
-        if cur == 0 or (clear_occupied and cur >= 2):
+        if cur == 0:
             grid[i, j, k] = 1
+        elif clear_occupied > 0.0 and (cur == 2 or cur == 3):
+            # OCCUPIED / TENTATIVE seen free again, only by a ray through the voxel's core:
+            # one that crosses a corner saw that corner free, not the surface point that
+            # made the voxel occupied (never a hit of the frame being integrated: 4, 5)
+            qx = (i + origin[0] + 0.5) * voxel - ox
+            qy = (j + origin[1] + 0.5) * voxel - oy
+            qz = (k + origin[2] + 0.5) * voxel - oz
+            along = qx * dx + qy * dy + qz * dz
+            if qx * qx + qy * qy + qz * qz - along * along <= clear_occupied * clear_occupied:
+                grid[i, j, k] = 1
         if tx <= ty and tx <= tz:
             t = tx
             tx += ddx
@@ -310,6 +344,7 @@ def _integrate_depth(
     R_ned_from_cam,
     max_range,
     hit_clear,
+    clear_core,
     sky_min_sin_elev,
     blind_band_px,
 ):
@@ -324,8 +359,11 @@ def _integrate_depth(
     height, width = depth.shape
     inv = 1.0 / voxel
     n_rays = 0
-    new_hits = np.empty((((width // stride) * (height // stride)), 3), np.int64)
+    n_blocks = (width // stride) * (height // stride)
+    new_hits = np.empty((n_blocks, 3), np.int64)
     n_new = 0
+    segments = np.empty((n_blocks, 5))  # free segments: direction, length, clears obstacles
+    n_seg = 0
     # first matched row of every column (0 in the blind band: never sky) and the
     # horizontal distance of its point: how far the column's sky may be free
     first_matched = np.empty(width, np.int64)
@@ -390,39 +428,55 @@ def _integrate_depth(
                     elif horizontal * max_range > limit:
                         length = limit / horizontal
                     if length > 0.0:
-                        _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
-                                  dx, dy, dz, length, False)  # fmt: skip
+                        segments[n_seg, 0] = dx
+                        segments[n_seg, 1] = dy
+                        segments[n_seg, 2] = dz
+                        segments[n_seg, 3] = length
+                        segments[n_seg, 4] = 0.0  # sky: never clears an obstacle
+                        n_seg += 1
                         n_rays += 1
                 continue
             if d <= 0.0:
                 continue
             rng = d * norm  # depth along the optical axis → range along the ray
             n_rays += 1
-            if rng > max_range:
-                _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
-                          dx, dy, dz, max_range, True)  # fmt: skip
-                continue
-            free_len = rng - hit_clear
+            free_len = max_range if rng > max_range else rng - hit_clear
             if free_len > 0.0:
-                _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
-                          dx, dy, dz, free_len, True)  # fmt: skip
+                segments[n_seg, 0] = dx
+                segments[n_seg, 1] = dy
+                segments[n_seg, 2] = dz
+                segments[n_seg, 3] = free_len
+                segments[n_seg, 4] = clear_core
+                n_seg += 1
+            if rng > max_range:
+                continue
             i, j, k = _cell(
                 grid, origin, inv, cam_ned[0] + rng * dx, cam_ned[1] + rng * dy,
                 cam_ned[2] + rng * dz,
             )  # fmt: skip
             if i >= 0:
                 cur = grid[i, j, k]
-                if cur == 2 or cur == 3:  # seen in an earlier frame too: an obstacle
-                    grid[i, j, k] = 2
-                elif cur != _NEW_HIT:
-                    grid[i, j, k] = _NEW_HIT
+                if cur < _NEW_HIT:
+                    # hit in an earlier frame too (OCCUPIED, TENTATIVE): an obstacle
+                    grid[i, j, k] = _NEW_HIT_AGAIN if cur == 2 or cur == 3 else _NEW_HIT
                     new_hits[n_new, 0] = i
                     new_hits[n_new, 1] = j
                     new_hits[n_new, 2] = k
                     n_new += 1
-    for h in range(n_new):  # this frame's first hits are tentative from now on
-        if grid[new_hits[h, 0], new_hits[h, 1], new_hits[h, 2]] == _NEW_HIT:
-            grid[new_hits[h, 0], new_hits[h, 1], new_hits[h, 2]] = 3
+    # free space after every hit is known: within one frame a surface wins over the rays
+    # that pass beside it (a ray grazing a voxel on its way to a farther surface must not
+    # clear the voxel another ray hit, OctoMap's rule), so an obstacle seen obliquely —
+    # its flank, passed at close range — still becomes occupied
+    for s in range(n_seg):
+        _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
+                  segments[s, 0], segments[s, 1], segments[s, 2], segments[s, 3],
+                  segments[s, 4])  # fmt: skip
+    for h in range(n_new):  # this frame's hits: tentative on a first hit, else occupied
+        i, j, k = new_hits[h, 0], new_hits[h, 1], new_hits[h, 2]
+        if grid[i, j, k] == _NEW_HIT_AGAIN:
+            grid[i, j, k] = 2
+        elif grid[i, j, k] == _NEW_HIT:
+            grid[i, j, k] = 3
     return n_rays
 
 
@@ -474,11 +528,14 @@ def _free_distance(
     e2x = uy * e1z - uz * e1y
     e2y = uz * e1x - ux * e1z
     e2z = ux * e1y - uy * e1x
-    offs = np.zeros((9, 3))
-    for m in range(8):
-        a = m * (math.pi / 4.0)
-        ca = math.cos(a) * radius
-        sa = math.sin(a) * half_height
+    # the centre, the rim and a ring half-way: samples at most a voxel apart across the
+    # section (0.175 m at the 0.35 m radius), so no voxel lies unseen between two of them
+    offs = np.zeros((17, 3))
+    for m in range(16):
+        a = (m % 8) * (math.pi / 4.0)
+        scale = 1.0 if m < 8 else 0.5
+        ca = math.cos(a) * radius * scale
+        sa = math.sin(a) * half_height * scale
         offs[m + 1, 0] = ca * e1x + sa * e2x
         offs[m + 1, 1] = ca * e1y + sa * e2y
         offs[m + 1, 2] = ca * e1z + sa * e2z
@@ -487,7 +544,7 @@ def _free_distance(
     last = -1.0
     for s in range(n + 2):
         t = min(s * step, limit)
-        for m in range(9):
+        for m in range(17):
             i, j, k = _cell(
                 grid, origin, inv,
                 px + t * ux + offs[m, 0], py + t * uy + offs[m, 1], pz + t * uz + offs[m, 2],
@@ -656,7 +713,7 @@ def _warm_up() -> None:
     depth.flags.writeable = False  # perception's depth is read-only: its own specialization
     _integrate_depth(
         grid, origin, 0.2, depth, 2, 1, 2.0, 2.0, 1.5, 1.5, np.full(3, 0.8),
-        np.eye(3), 1.0, 0.1, -0.1, 0,
+        np.eye(3), 1.0, 0.1, 0.05, -0.1, 0,
     )  # fmt: skip
     _mark_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3, True, True)
     _free_distance(grid, origin, 0.2, 0.8, 0.8, 0.8, 1.0, 0.0, 0.0, 0.1, 0.1, 0.5, 0.1, 0.2)
@@ -756,6 +813,7 @@ class KnownSpace:
             R_ned_from_cam,
             c.max_range_m,
             c.hit_clear_m,
+            c.clear_core_m,
             math.sin(math.radians(c.sky_min_elevation_deg)),
             int(blind_band_px),
         )
@@ -796,10 +854,10 @@ class KnownSpace:
 
         The section is an ellipse normal to the direction, ``radius_m`` wide on each side
         (horizontal) and ``half_height_m`` (default ``radius_m``) high. Returns the largest
-        distance ≤ ``limit_m`` (multiples of half a voxel) over which its centre and 8 rim
-        points stay in FREE voxels (the centre within ``body_m`` and the rim within
-        ``near_field_m``: see the module docstring); 0 when the vehicle cannot move at
-        all (also for a zero direction).
+        distance ≤ ``limit_m`` (multiples of half a voxel) over which its centre and 16
+        points on the rim and half-way to it stay in FREE voxels (the centre within
+        ``body_m`` and the others within ``near_field_m``: see the module docstring);
+        0 when the vehicle cannot move at all (also for a zero direction).
         """
         u = np.asarray(direction_ned, dtype=float)
         n = math.sqrt(float(u @ u))
