@@ -253,10 +253,10 @@ def _cell(grid, origin, inv_voxel, x, y, z):
 
 
 @numba.njit(cache=True)
-def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, clear_occupied):
+def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m):
     """FREE in every UNKNOWN voxel the segment from (ox, oy, oz) over ``length`` [m]
     crosses, and in every OCCUPIED or TENTATIVE one whose centre it passes within
-    ``clear_occupied`` [m] of (0: never).
+    ``core_m`` [m] of (0: never).
 
     Amanatides–Woo traversal: each voxel is visited once, in order along the ray; the
     walk stops at the grid's edge. ``(dx, dy, dz)`` is a unit direction.
@@ -302,7 +302,7 @@ def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, clear_occupie
         cur = grid[i, j, k]
         if cur == 0:
             grid[i, j, k] = 1
-        elif clear_occupied > 0.0 and (cur == 2 or cur == 3):
+        elif core_m > 0.0 and (cur == 2 or cur == 3):
             # OCCUPIED / TENTATIVE seen free again, only by a ray through the voxel's core:
             # one that crosses a corner saw that corner free, not the surface point that
             # made the voxel occupied (never a hit of the frame being integrated: 4, 5)
@@ -310,7 +310,7 @@ def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, clear_occupie
             qy = (j + origin[1] + 0.5) * voxel - oy
             qz = (k + origin[2] + 0.5) * voxel - oz
             along = qx * dx + qy * dy + qz * dz
-            if qx * qx + qy * qy + qz * qz - along * along <= clear_occupied * clear_occupied:
+            if qx * qx + qy * qy + qz * qz - along * along <= core_m * core_m:
                 grid[i, j, k] = 1
         if tx <= ty and tx <= tz:
             t = tx
@@ -362,7 +362,7 @@ def _integrate_depth(
     n_blocks = (width // stride) * (height // stride)
     new_hits = np.empty((n_blocks, 3), np.int64)
     n_new = 0
-    segments = np.empty((n_blocks, 5))  # free segments: direction, length, clears obstacles
+    segments = np.empty((n_blocks, 5))  # free segments: direction, length, core_m (0: sky)
     n_seg = 0
     # first matched row of every column (0 in the blind band: never sky) and the
     # horizontal distance of its point: how far the column's sky may be free

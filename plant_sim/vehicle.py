@@ -303,17 +303,25 @@ class Quadrotor:
             raise ValueError(f"n_steps must be >= 0, got {n_steps}")
         if n_steps == 0:
             return
-        self._state, self._phase, self._yaw_sp_rad, self._on_ground = _advance(
+        self._run(_advance, n_steps)
+
+    def _run(self, advance, n_steps: int, *watch) -> tuple:
+        """Run the compiled loop ``advance`` for ``n_steps`` (> 0) steps from the current
+        state, keep what it returns of the state and return the rest (what it watched)."""
+        out = advance(
             self._state,
             self._ctrl_out,
             int(n_steps),
             self._phase,
             self._yaw_sp_rad,
             self._loop_args(),
+            *watch,
         )
+        self._state, self._phase, self._yaw_sp_rad, self._on_ground = out[:4]
         self._steps += int(n_steps)
         if not np.all(np.isfinite(self._state)):
             raise FloatingPointError(f"vehicle state diverged at t={self.time_s:.3f} s")
+        return out[4:]
 
     def step_watching(
         self, n_steps: int, sphere_centres_ned_m: np.ndarray, sphere_radii_m: np.ndarray
@@ -343,27 +351,9 @@ class Quadrotor:
         if n_steps == 0:
             return 0.0, 0.0, math.inf
         centres_paper = np.ascontiguousarray(paper_frames.paper_from_ned(centres))
-        (
-            self._state,
-            self._phase,
-            self._yaw_sp_rad,
-            self._on_ground,
-            max_roll,
-            max_pitch,
-            min_surface,
-        ) = _advance_watching(
-            self._state,
-            self._ctrl_out,
-            int(n_steps),
-            self._phase,
-            self._yaw_sp_rad,
-            self._loop_args(),
-            centres_paper,
-            radii,
+        max_roll, max_pitch, min_surface = self._run(
+            _advance_watching, n_steps, centres_paper, radii
         )
-        self._steps += int(n_steps)
-        if not np.all(np.isfinite(self._state)):
-            raise FloatingPointError(f"vehicle state diverged at t={self.time_s:.3f} s")
         return float(max_roll), float(max_pitch), float(min_surface)
 
     def run_until(self, time_s: float) -> None:
