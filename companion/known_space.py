@@ -30,6 +30,12 @@ block is matched):
   farther surface does not erase the surface another ray hit there. Without this an
   obstacle seen obliquely at close range — the flank the vehicle is passing — never
   became occupied: its limb voxels were hit and cleared again in every frame.
+  A ray frees only the voxels whose centre it passes within a *core* radius:
+  ``free_core_m`` for UNKNOWN ones, ``clear_core_m`` for OCCUPIED or TENTATIVE ones. A
+  ray through a voxel's corner saw that corner free, not the rest of it: the rays that
+  graze an obstacle's limb (in every frame, at the edge of the silhouette) otherwise
+  freed voxels reaching 0.17 m into it, and the swept section's samples found free
+  space inside the flank they were about to hit (Monte Carlo seed 762).
 * **Matched, beyond range** (finite or +inf depth, range > ``max_range_m``): FREE up to
   ``max_range_m``, nothing occupied.
 * **Unmatched** (NaN depth: no match, the matcher's blind band, nearer than its minimum
@@ -65,9 +71,12 @@ vehicle), the other samples in FREE voxels beyond ``near_field_m`` and in voxels
 are not OCCUPIED (UNKNOWN or TENTATIVE) before it. The near field is where the rim is outside
 any forward camera's view (0.35 m to the right is in the left eye's ±24° view only from
 1.0 m ahead): what the vehicle could not have looked at without being there, excused
-only when it was never seen occupied (named limitation: a thin obstacle that reaches
-into the rim's path only within 1 m ahead and never into the view). Outside the grid is
-UNKNOWN.
+only when it was never seen occupied and lies outside every sphere where an obstacle may
+be (``solid_ned_m``: the collision safety boundaries without their inflation, each a
+piece of occupied space and its blind spot, Fig. 4 — the unseen flank of an obstacle
+whose other side was seen is taken as obstacle). Named limitation: a thin obstacle that
+reaches into the rim's path only within 1 m ahead, never into the view and never near
+anything seen occupied. Outside the grid is UNKNOWN.
 
 Costs (``benchmarks/bench_known_space.py``): median 0.9–1.1 ms per 320 × 240 frame at the
 default stride of 4 (up to 4 800 rays) on the 2-core machine under a load of 8–9; the
@@ -138,6 +147,12 @@ class KnownSpaceConfig:
         grazed by the rays at the edge of the view in every frame). 0.06 m: at the 8 m
         range, rays 4 px apart are 9 cm apart, so a voxel seen through from anywhere
         nearer is crossed within 6 cm of its centre.
+    free_core_m : float
+        An UNKNOWN voxel is seen free only by a ray that passes this close to its centre
+        [m] (see ``clear_core_m``; a voxel's half diagonal, 0.173 m at 0.2 m, frees every
+        voxel crossed). 0.1 m, half a voxel: rays 4 px apart are 9 cm apart at the 8 m
+        range, so every voxel in the view has a ray this close to its centre, and a voxel
+        centre seen free lies at most 0.1 m inside an obstacle whose limb a ray grazed.
     sky_min_elevation_deg : float
         Open-sky rule: lowest ray elevation above the horizon [deg] (negative: below).
     ego_clear_radius_m : float
@@ -162,6 +177,7 @@ class KnownSpaceConfig:
     block_min_matched: float = 0.25
     hit_clear_m: float = 0.2
     clear_core_m: float = 0.06
+    free_core_m: float = 0.1
     sky_min_elevation_deg: float = -5.0
     ego_clear_radius_m: float = 0.25
     start_free_radius_m: float = 1.2
@@ -183,6 +199,7 @@ class KnownSpaceConfig:
             (
                 "hit_clear_m",
                 "clear_core_m",
+                "free_core_m",
                 "ego_clear_radius_m",
                 "start_free_radius_m",
                 "blind_depth_m",
@@ -253,10 +270,10 @@ def _cell(grid, origin, inv_voxel, x, y, z):
 
 
 @numba.njit(cache=True)
-def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m):
-    """FREE in every UNKNOWN voxel the segment from (ox, oy, oz) over ``length`` [m]
-    crosses, and in every OCCUPIED or TENTATIVE one whose centre it passes within
-    ``core_m`` [m] of (0: never).
+def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m, free_core_m):
+    """FREE in every UNKNOWN voxel whose centre the segment from (ox, oy, oz) over
+    ``length`` [m] passes within ``free_core_m`` [m] of, and in every OCCUPIED or
+    TENTATIVE one whose centre it passes within ``core_m`` [m] of (0: never).
 
     Amanatides–Woo traversal: each voxel is visited once, in order along the ray; the
     walk stops at the grid's edge. ``(dx, dy, dz)`` is a unit direction.
@@ -300,17 +317,18 @@ def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m):
         if i < 0 or j < 0 or k < 0 or i >= ni or j >= nj or k >= nk:
             return
         cur = grid[i, j, k]
-        if cur == 0:
-            grid[i, j, k] = 1
-        elif core_m > 0.0 and (cur == 2 or cur == 3):
-            # OCCUPIED / TENTATIVE seen free again, only by a ray through the voxel's core:
-            # one that crosses a corner saw that corner free, not the surface point that
-            # made the voxel occupied (never a hit of the frame being integrated: 4, 5)
+        if cur == 0 or (core_m > 0.0 and (cur == 2 or cur == 3)):
+            # only a ray through the voxel's core sees it free: one that crosses a corner
+            # saw that corner free, not the rest of the voxel (the inside of an obstacle
+            # whose limb it grazed; the surface point that made the voxel occupied). A
+            # hit of the frame being integrated (4, 5) is never cleared.
             qx = (i + origin[0] + 0.5) * voxel - ox
             qy = (j + origin[1] + 0.5) * voxel - oy
             qz = (k + origin[2] + 0.5) * voxel - oz
             along = qx * dx + qy * dy + qz * dz
-            if qx * qx + qy * qy + qz * qz - along * along <= core_m * core_m:
+            off2 = qx * qx + qy * qy + qz * qz - along * along
+            core = free_core_m if cur == 0 else core_m
+            if off2 <= core * core:
                 grid[i, j, k] = 1
         if tx <= ty and tx <= tz:
             t = tx
@@ -345,6 +363,7 @@ def _integrate_depth(
     max_range,
     hit_clear,
     clear_core,
+    free_core,
     sky_min_sin_elev,
     blind_band_px,
 ):
@@ -470,7 +489,7 @@ def _integrate_depth(
     for s in range(n_seg):
         _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
                   segments[s, 0], segments[s, 1], segments[s, 2], segments[s, 3],
-                  segments[s, 4])  # fmt: skip
+                  segments[s, 4], free_core)  # fmt: skip
     for h in range(n_new):  # this frame's hits: tentative on a first hit, else occupied
         i, j, k = new_hits[h, 0], new_hits[h, 1], new_hits[h, 2]
         if grid[i, j, k] == _NEW_HIT_AGAIN:
@@ -478,6 +497,14 @@ def _integrate_depth(
         elif grid[i, j, k] == _NEW_HIT:
             grid[i, j, k] = 3
     return n_rays
+
+
+def _solid_array(solid_ned_m) -> np.ndarray:
+    """``(n, 4)`` float64 rows ``(north, east, down, radius)`` [m], checked finite."""
+    a = np.ascontiguousarray(solid_ned_m, dtype=float).reshape(-1, 4)
+    if not np.all(np.isfinite(a)):
+        raise ValueError("solid_ned_m must be finite")
+    return a
 
 
 @numba.njit(cache=True)
@@ -504,7 +531,21 @@ def _mark_ball(grid, origin, voxel, px, py, pz, radius, free_unknown, clear_occu
 
 @numba.njit(cache=True)
 def _free_distance(
-    grid, origin, voxel, px, py, pz, ux, uy, uz, radius, half_height, limit, body, near_field
+    grid,
+    origin,
+    voxel,
+    px,
+    py,
+    pz,
+    ux,
+    uy,
+    uz,
+    radius,
+    half_height,
+    limit,
+    body,
+    near_field,
+    solid,
 ):
     """Largest s ≤ limit (half-voxel steps) with the body's section FREE from 0 to s.
 
@@ -545,10 +586,10 @@ def _free_distance(
     for s in range(n + 2):
         t = min(s * step, limit)
         for m in range(17):
-            i, j, k = _cell(
-                grid, origin, inv,
-                px + t * ux + offs[m, 0], py + t * uy + offs[m, 1], pz + t * uz + offs[m, 2],
-            )  # fmt: skip
+            qx = px + t * ux + offs[m, 0]
+            qy = py + t * uy + offs[m, 1]
+            qz = pz + t * uz + offs[m, 2]
+            i, j, k = _cell(grid, origin, inv, qx, qy, qz)
             if i < 0:
                 return last
             cur = grid[i, j, k]
@@ -557,7 +598,17 @@ def _free_distance(
             if m == 0 and t <= body:
                 continue
             if m > 0 and t < near_field and (cur == 0 or cur == 3):
-                continue
+                # unseen near field, excused unless it may be inside an obstacle
+                inside = False
+                for b in range(solid.shape[0]):
+                    sx = qx - solid[b, 0]
+                    sy = qy - solid[b, 1]
+                    sz = qz - solid[b, 2]
+                    if sx * sx + sy * sy + sz * sz <= solid[b, 3] * solid[b, 3]:
+                        inside = True
+                        break
+                if not inside:
+                    continue
             return last
         last = t
         if t >= limit:
@@ -713,10 +764,12 @@ def _warm_up() -> None:
     depth.flags.writeable = False  # perception's depth is read-only: its own specialization
     _integrate_depth(
         grid, origin, 0.2, depth, 2, 1, 2.0, 2.0, 1.5, 1.5, np.full(3, 0.8),
-        np.eye(3), 1.0, 0.1, 0.05, -0.1, 0,
+        np.eye(3), 1.0, 0.1, 0.05, 0.1, -0.1, 0,
     )  # fmt: skip
     _mark_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3, True, True)
-    _free_distance(grid, origin, 0.2, 0.8, 0.8, 0.8, 1.0, 0.0, 0.0, 0.1, 0.1, 0.5, 0.1, 0.2)
+    _free_distance(
+        grid, origin, 0.2, 0.8, 0.8, 0.8, 1.0, 0.0, 0.0, 0.1, 0.1, 0.5, 0.1, 0.2, np.zeros((1, 4))
+    )
     grid[4, 4, 4] = OCCUPIED
     _pieces(grid, origin, 2, 0.2, 0.8, 0.8, 0.8, 0.5, 0.8, 0.8, 0.8)
     _unseen_runs(grid, origin, 0.2, np.full((1, 3), 0.8), 0.0, 0.0, 0.0, 0.5)
@@ -814,6 +867,7 @@ class KnownSpace:
             c.max_range_m,
             c.hit_clear_m,
             c.clear_core_m,
+            c.free_core_m,
             math.sin(math.radians(c.sky_min_elevation_deg)),
             int(blind_band_px),
         )
@@ -849,6 +903,7 @@ class KnownSpace:
         half_height_m: float | None = None,
         body_m: float = 0.0,
         near_field_m: float = 0.0,
+        solid_ned_m=None,
     ) -> float:
         """Known-free distance [m] for the vehicle's section moving along ``direction_ned``.
 
@@ -856,8 +911,9 @@ class KnownSpace:
         (horizontal) and ``half_height_m`` (default ``radius_m``) high. Returns the largest
         distance ≤ ``limit_m`` (multiples of half a voxel) over which its centre and 16
         points on the rim and half-way to it stay in FREE voxels (the centre within
-        ``body_m`` and the others within ``near_field_m``: see the module docstring);
-        0 when the vehicle cannot move at all (also for a zero direction).
+        ``body_m`` and the others within ``near_field_m``, except inside the spheres
+        ``solid_ned_m``, rows ``(north, east, down, radius)`` [m]: see the module
+        docstring); 0 when the vehicle cannot move at all (also for a zero direction).
         """
         u = np.asarray(direction_ned, dtype=float)
         n = math.sqrt(float(u @ u))
@@ -880,6 +936,7 @@ class KnownSpace:
             float(limit_m),
             float(body_m),
             float(near_field_m),
+            _solid_array(() if solid_ned_m is None else solid_ned_m),
         )
         return max(float(d), 0.0)
 

@@ -12,6 +12,7 @@ both run exactly this.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -19,7 +20,12 @@ import numpy as np
 
 from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
-from companion.guidance.map_boundaries import MapBoundary, MapBoundaryConfig, map_boundaries
+from companion.guidance.map_boundaries import (
+    MapBoundary,
+    MapBoundaryConfig,
+    map_boundaries,
+    solid_extent,
+)
 from companion.known_space import KnownSpace, KnownSpaceConfig
 from companion.perception import PerceptionConfig, PerceptionResult, StereoPerception
 from protocols.config import vec3
@@ -125,7 +131,9 @@ class AvoidancePipeline:
             pos_ned_m=pose.pos_ned_m,
             vel_ned_mps=pose.vel_ned_mps,
             setpoint_ned_m=decision.setpoint_ned_m,
-            free_distance=self.known_space.free_distance_m,
+            free_distance=functools.partial(
+                self.known_space.free_distance_m, solid_ned_m=solid_extent(boundaries)
+            ),
             vehicle_radius_m=self.perception.config.vehicle_radius_m,
             max_path_elevation_rad=self.guidance.config.max_aim_elevation_rad,
             config=self.envelope_config,

@@ -82,8 +82,10 @@ def test_free_distance_to_a_sphere_matches_the_disc_geometry(radius_m):
     surface_s = 6.0 - math.sqrt(big_r**2 - radius_m**2)
     free = space.free_distance_m(pos, (1.0, 0.0, 0.0), radius_m, 20.0)
     assert surface_s - space.config.hit_clear_m - 2 * VOXEL_M <= free <= surface_s, free
-    # beside the sphere (outside its silhouette) the view is free to max range
-    side = np.array([math.cos(math.radians(20)), math.sin(math.radians(20)), 0.0])
+    # beside the sphere (outside its silhouette) the view is free to max range (18°: the
+    # line passes 0.35 m clear of the sphere, and its voxels are inside the left eye's
+    # ±24° view from 0.9 m on, inside the start bubble)
+    side = np.array([math.cos(math.radians(18)), math.sin(math.radians(18)), 0.0])
     assert space.free_distance_m(pos, side, 0.0, 20.0) >= space.config.max_range_m - VOXEL_M
 
 
@@ -263,6 +265,28 @@ def test_near_field_excuses_unseen_rim_but_never_an_obstacle():
     assert blocked <= wall_north_m - pos[0]
 
 
+def test_near_field_is_not_excused_where_an_obstacle_may_be():
+    """The unseen rim beside the path is excused only outside the spheres where an
+    obstacle may be (a boundary's piece and its blind spot): beside a sphere whose far
+    side was seen, the unseen near flank is taken as part of it."""
+    space = KnownSpace(KnownSpaceConfig(start_free_radius_m=0.0))
+    pos = np.array([0.1, 0.1, -7.1])
+    space.integrate(_wall_depth(30.0), K, pos, LEVEL_NORTH)  # sees north, nothing beside
+    args = ((1, 0, 0), 0.35, 10.0, 0.2, 0.35, 1.05)
+    assert space.free_distance_m(pos, *args) >= 7.0
+    # a sphere of 0.5 m whose surface reaches 0.15 m into the rim's path 0.6 m ahead, east
+    solid = np.array([[pos[0] + 0.6, pos[1] + 0.35 + 0.5 - 0.15, pos[2], 0.5]])
+    free = space.free_distance_m(pos, *args, solid_ned_m=solid)
+    # the rim enters the sphere at √(0.5² − 0.35²) = 0.36 m before its centre, within a
+    # half-voxel step
+    assert 0.6 - math.sqrt(0.5**2 - 0.35**2) - 0.5 * VOXEL_M <= free < 0.6, free
+    # a sphere out of the tube's way changes nothing
+    away = solid + np.array([[0.0, 1.0, 0.0, 0.0]])
+    assert space.free_distance_m(pos, *args, solid_ned_m=away) >= 7.0
+    with pytest.raises(ValueError, match="finite"):
+        space.free_distance_m(pos, *args, solid_ned_m=[[np.nan, 0.0, 0.0, 1.0]])
+
+
 def test_a_one_frame_hit_is_tentative_and_confirmed_by_a_second_frame():
     space = KnownSpace()
     pos = np.array([0.0, 0.0, -7.0])
@@ -301,15 +325,23 @@ def test_an_obstacle_passed_at_close_range_stays_in_the_way():
     assert checked > 50
 
 
-def test_an_occupied_voxel_is_seen_free_again_only_through_its_core():
-    """One matched ray (depth 30 m) through a block of occupied voxels clears exactly
-    those whose centre it passes within ``clear_core_m``; the rest stay occupied."""
-    space = KnownSpace(KnownSpaceConfig(start_free_radius_m=0.0))
+@pytest.mark.parametrize(
+    ("state", "core_name", "block_uv"),
+    [(OCCUPIED, "clear_core_m", (40, 37)), (UNKNOWN, "free_core_m", (36, 36))],
+)
+def test_a_ray_frees_only_the_voxels_whose_core_it_crosses(state, core_name, block_uv):
+    """One matched ray (depth 30 m) through a block of occupied (or never seen) voxels
+    frees exactly those whose centre it passes within ``clear_core_m`` (``free_core_m``);
+    the rest keep their state. A ray through a voxel's corner saw the corner, not the
+    surface point that made it occupied, nor the inside of an obstacle whose limb it
+    grazed."""
+    cfg = KnownSpaceConfig(start_free_radius_m=0.0, sky_min_elevation_deg=90.0)  # no sky
+    space = KnownSpace(cfg)
     pos = np.array([0.0, 0.0, -7.0])
     depth = np.full((K.height_px, K.width_px), np.nan, np.float32)
     space.integrate(depth, K, pos, LEVEL_NORTH)  # places the grid, marks nothing
     stride = space.config.pixel_stride
-    bu, bv = 40 * stride, 37 * stride  # one block below and right of the centre
+    bu, bv = (n * stride for n in block_uv)  # a block below the centre
     depth[bv : bv + stride, bu : bu + stride] = 30.0
     cam_ned = pos + np.array([0.0, -K.baseline_m / 2, 0.0])
     ray_cam = np.array(
@@ -323,16 +355,24 @@ def test_an_occupied_voxel_is_seen_free_again_only_through_its_core():
     ray /= np.linalg.norm(ray)
     near = np.floor((cam_ned + 3.0 * ray) / VOXEL_M).astype(int) - space.origin_vox
     block = tuple(slice(c - 2, c + 3) for c in near)
-    space.grid[block] = OCCUPIED
+    space.grid[block] = state
     space.integrate(depth, K, pos, LEVEL_NORTH)
     idx = np.stack(np.meshgrid(*(np.arange(s.start, s.stop) for s in block), indexing="ij"), -1)
     centres = (idx + space.origin_vox + 0.5) * VOXEL_M - cam_ned
     off_ray_m = np.linalg.norm(centres - (centres @ ray)[..., None] * ray, axis=-1)
     cleared = space.grid[block] == FREE
-    core = space.config.clear_core_m
+    core = getattr(space.config, core_name)
     assert np.array_equal(cleared, off_ray_m <= core), off_ray_m[cleared != (off_ray_m <= core)]
     assert 0 < cleared.sum() < cleared.size
-    assert np.all(space.grid[block][~cleared] == OCCUPIED)
+    assert np.all(space.grid[block][~cleared] == state)
+    # some voxels the ray crossed were left alone (old rule: every voxel crossed is freed)
+    along = cam_ned + np.arange(0.0, 6.0, 1e-3)[:, None] * ray
+    crossed = np.zeros(cleared.shape, bool)
+    for v in np.unique(np.floor(along / VOXEL_M).astype(int) - space.origin_vox, axis=0):
+        rel = v - np.array([s.start for s in block])
+        if np.all((rel >= 0) & (rel < 5)):
+            crossed[tuple(rel)] = True
+    assert np.any(crossed & ~cleared), "the ray crossed no voxel outside its core"
 
 
 def test_free_distance_sees_a_voxel_between_the_centre_and_the_rim():

@@ -10,7 +10,12 @@ import pytest
 
 from companion.guidance import BoundarySphere, GuidanceConfig
 from companion.guidance.cone import collision_cone
-from companion.guidance.map_boundaries import MapBoundaryConfig, map_boundaries, track_key
+from companion.guidance.map_boundaries import (
+    MapBoundaryConfig,
+    map_boundaries,
+    solid_extent,
+    track_key,
+)
 from companion.guidance.memory import ObstacleMemory, update_memory
 from companion.guidance.planner import choose_aiming_point
 from companion.known_space import FREE, OCCUPIED, KnownSpace, KnownSpaceConfig
@@ -86,6 +91,20 @@ def test_boundaries_of_a_wall_are_many_small_spheres_not_one_growing_one():
     # stable keys: the same map gives the same ids
     assert [s.track_key for s in spheres] == [s.track_key for s in map_boundaries(space, POS, goal)]
     assert len({s.track_key for s in spheres}) == len(spheres)
+
+
+def test_solid_extent_is_the_boundary_without_its_inflation():
+    """Where an obstacle may be: each boundary's piece and blind spot, not the vehicle's
+    radius and margin added for the cone; every occupied voxel within reach lies in it."""
+    space = _space_with_wall()
+    spheres = map_boundaries(space, POS, np.array([0.1, 0.1, -20.0]))
+    solid = solid_extent(spheres)
+    assert solid.shape == (len(spheres), 4)
+    np.testing.assert_allclose(solid[:, :3], [s.center_ned_m for s in spheres])
+    np.testing.assert_allclose(solid[:, 3], [s.radius_m - INFLATE_M for s in spheres])
+    for p in _occupied_within(space, 4.0):
+        assert np.any(np.linalg.norm(solid[:, :3] - p, axis=1) + HALF_DIAG_M <= solid[:, 3] + 1e-9)
+    assert solid_extent(()).shape == (0, 4)
 
 
 def test_blind_spot_ends_where_the_space_behind_was_seen_free():

@@ -55,7 +55,8 @@ __all__ = [
 
 FreeDistanceFn = Callable[..., float]
 """``(pos_ned_m, unit_dir_ned, radius_m, limit_m, half_height_m, body_m, near_field_m)``
-→ known-free metres (:meth:`companion.known_space.KnownSpace.free_distance_m`)."""
+→ known-free metres (:meth:`companion.known_space.KnownSpace.free_distance_m`, with the
+pipeline's obstacle extents bound: :func:`companion.guidance.map_boundaries.solid_extent`)."""
 
 
 @dataclass(frozen=True)
@@ -78,8 +79,9 @@ class EnvelopeConfig:
         covers it 0.6 m ahead.
     near_field_m : float
         Within this distance ahead the section's rim may lie in unseen (never occupied)
-        space: the left eye (0.1 m left of the centre) sees 0.35 m to the right only
-        from (0.35 + 0.1) / tan 24° = 1.0 m ahead (see :mod:`companion.known_space`) [m].
+        space outside every obstacle's extent: the left eye (0.1 m left of the centre)
+        sees 0.35 m to the right only from (0.35 + 0.1) / tan 24° = 1.0 m ahead (see
+        :mod:`companion.known_space`) [m].
     min_advance_m : float
         A carrot nearer than this is not sent: the target is the vehicle's position
         (brake) [m]. Keeps the vehicle from creeping into unseen space by the width of

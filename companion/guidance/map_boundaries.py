@@ -59,7 +59,7 @@ import numpy as np
 from companion.known_space import FREE, KnownSpace, Pieces
 from protocols.config import check_numbers
 
-__all__ = ["MapBoundary", "MapBoundaryConfig", "map_boundaries", "track_key"]
+__all__ = ["MapBoundary", "MapBoundaryConfig", "map_boundaries", "solid_extent", "track_key"]
 
 _KEY_FLAG = 1 << 62  # keyed tracks: ids far above the memory's own counter
 _KEY_OFFSET = 1 << 19  # cube indices within ±2^19 (±629 km at 1.2 m cubes)
@@ -216,6 +216,21 @@ def map_boundaries(
         boundaries = [b for b in boundaries if b.track_key not in split]
         boundaries += _boundaries_of(space, sub, 1, pos, goal, goal_free, cfg)
     return tuple(sorted(boundaries, key=lambda b: b.track_key))
+
+
+def solid_extent(boundaries) -> np.ndarray:
+    """Where each boundary's obstacle may be: ``(n, 4)`` rows ``(north, east, down,
+    radius)`` [m], the sphere without its inflation (the piece and its blind spot, Fig. 4).
+
+    The safety envelope's near-field excuse (unseen space beside the vehicle's path that
+    no forward camera could have shown) never applies inside these spheres
+    (:meth:`companion.known_space.KnownSpace.free_distance_m`).
+    """
+    out = np.empty((len(boundaries), 4))
+    for n, b in enumerate(boundaries):
+        out[n, :3] = b.center_ned_m
+        out[n, 3] = b.piece_radius_m + 0.5 * b.blind_depth_m
+    return out
 
 
 def _blocks(gap_m: float, goal_free: bool, space: KnownSpace, config: MapBoundaryConfig) -> bool:
