@@ -193,13 +193,13 @@ class KnownSpaceConfig:
             raise ValueError("grid sizes must be >= 8 voxels and pixel_stride >= 1")
         if self.piece_vox < 2 or self.piece_vox % 2:
             raise ValueError(f"piece_vox must be even and >= 2, got {self.piece_vox}")
-        check_numbers(self, ("voxel_m", "max_range_m"), positive=True)
+        # free_core_m = 0 would free nothing the camera sees: a vehicle that never moves
+        check_numbers(self, ("voxel_m", "max_range_m", "free_core_m"), positive=True)
         check_numbers(
             self,
             (
                 "hit_clear_m",
                 "clear_core_m",
-                "free_core_m",
                 "ego_clear_radius_m",
                 "start_free_radius_m",
                 "blind_depth_m",

@@ -54,6 +54,8 @@ def test_config_rejects_unknown_key_and_bad_values():
         KnownSpaceConfig(voxel_m=0.0)
     with pytest.raises(ValueError):
         KnownSpaceConfig(pixel_stride=0)
+    with pytest.raises(ValueError, match="free_core_m"):
+        KnownSpaceConfig(free_core_m=0.0)
 
 
 @pytest.mark.parametrize("radius_m", [0.0, 0.35])
