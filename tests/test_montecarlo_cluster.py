@@ -18,13 +18,14 @@ import pytest
 
 from plant_sim.lockstep.cli import main
 from plant_sim.lockstep.mc_cluster import dask_client, fly_on_cluster
+from plant_sim.lockstep.mc_provenance import code_counts, code_fingerprint, source_fingerprint
 from plant_sim.lockstep.mc_results import (
     BatchSpec,
     ResultsFile,
     ResultsFileError,
     verdict_from_record,
 )
-from plant_sim.lockstep.montecarlo import fly_seed
+from plant_sim.lockstep.montecarlo import fly_record, fly_seed
 
 SEEDS = range(40, 60)  # 20 seeds, five of each family
 HORIZON_S = 1.5  # simulation seconds per scene
@@ -171,3 +172,41 @@ def test_results_file_refuses_to_mix_batches_and_cuts_a_torn_last_line(tmp_path)
     assert resumed.pending == [1, 2]
     assert (tmp_path / "results.jsonl").read_text().count("\n") == 1
     assert resumed.verdicts() == [verdict]
+
+
+def test_a_resume_refuses_seeds_flown_by_other_code(tmp_path):
+    """Every record names the code that flew it; resuming over seeds of other code (or of
+    code that did not say) is refused unless asked for, and the counts show the mix."""
+    spec = BatchSpec(first_seed=0, n=3, family="mixed", perception="truth")
+    verdict = fly_seed(0, "mixed", "truth", 0.1)
+    base = {**dataclasses.asdict(verdict), "perception": "truth", "worker": "w"}
+    with ResultsFile(tmp_path, spec, code="aaaa") as results:
+        results.append({**base, "code": "aaaa"})
+        results.append({**base, "seed": 1, "code": "bbbb"})
+        results.append({**base, "seed": 2})  # written before records carried their code
+    assert list(ResultsFile(tmp_path, spec, resume=True).records) == [0, 1, 2]  # unchecked
+    with pytest.raises(ResultsFileError, match=r"1 by bbbb, 1 by unknown\); this code is aaaa"):
+        ResultsFile(tmp_path, spec, resume=True, code="aaaa")
+    mixed = ResultsFile(tmp_path, spec, resume=True, code="aaaa", allow_code_change=True)
+    assert code_counts(mixed.records.values()) == {"aaaa": 1, "bbbb": 1, "unknown": 1}
+
+
+def test_the_code_fingerprint_follows_every_source_byte_and_nothing_else(tmp_path):
+    pkg = tmp_path / "pkg"
+    (pkg / "sub" / "__pycache__").mkdir(parents=True)
+    (pkg / "a.py").write_text("x = 1\n")
+    (pkg / "sub" / "b.py").write_text("y = 2\n")
+    first = source_fingerprint([pkg])
+    assert len(first) == 16 and int(first, 16) >= 0
+    (pkg / "sub" / "__pycache__" / "b.cpython-311.pyc").write_bytes(b"compiled")
+    (pkg / "notes.txt").write_text("not source")
+    assert source_fingerprint([pkg]) == first
+    (pkg / "sub" / "b.py").write_text("y = 2  # a comment moves it too\n")
+    assert source_fingerprint([pkg]) != first
+    (pkg / "sub" / "b.py").write_text("y = 2\n")
+    assert source_fingerprint([pkg]) == first
+    (pkg / "sub" / "b.py").rename(pkg / "b.py")  # same bytes, another module
+    assert source_fingerprint([pkg]) != first
+    # the installed packages: stable within a process, the one fly_record stamps
+    assert code_fingerprint() == code_fingerprint()
+    assert fly_record(0, "mixed", "truth", 0.1)["code"] == code_fingerprint()

@@ -6,12 +6,14 @@ Subcommands
     Fly §6 (start (20, 0, −7), goal (0, 0, −7), obstacle (10, 0, −7) r 1.5 m), print
     progress and a verdict, write Fig. 6–11 as PNG and the time history as CSV.
 ``stereo-avoid montecarlo --n N [--seed S] [--family F] [--perception stereo|truth]
-[--cluster ADDRESS | --jobs J] [--out DIR] [--resume] [--json]``
+[--cluster ADDRESS | --jobs J] [--out DIR] [--resume [--allow-code-change]] [--json]``
     N random scenes (seeds S … S+N−1) as tasks on a Dask cluster: the scheduler at
     ADDRESS (``tcp://host:8786``), or a local cluster of J worker processes. Verdicts
-    stream to DIR/results.jsonl as they finish (``--resume`` flies only the seeds not in
-    it), with a progress bar (rate, ETA); at the end a summary table and figures in DIR,
-    with the seed of every failure to replay. Families (``plant_sim.lockstep.scenes``):
+    stream to DIR/results.jsonl as they finish, each with the fingerprint of the code that
+    flew it (``--resume`` flies only the seeds not in it, and refuses seeds flown by other
+    code unless ``--allow-code-change``), with a progress bar (rate, ETA); at the end a
+    summary table (with the code that flew it) and figures in DIR, with the seed of every
+    failure to replay. Families (``plant_sim.lockstep.scenes``):
     path, climb, goal_near, facing_away, or mixed (the default: the family of seed s is
     the (s mod 4)-th). ``--perception truth``: the renderer's exact depth instead of the
     stereo matcher (``plant_sim.lockstep.truth_perception``).
@@ -106,6 +108,7 @@ def _fly_and_report(
 def _montecarlo(args: argparse.Namespace) -> int:
     from plant_sim.lockstep.mc_cluster import dask_client, fly_on_cluster
     from plant_sim.lockstep.mc_progress import ProgressBar
+    from plant_sim.lockstep.mc_provenance import code_counts, code_fingerprint
     from plant_sim.lockstep.mc_report import write_report
     from plant_sim.lockstep.mc_results import (
         BatchSpec,
@@ -120,8 +123,15 @@ def _montecarlo(args: argparse.Namespace) -> int:
     out = args.out or Path(
         f"runs/montecarlo/{args.family}-{args.perception}-s{args.seed}-n{args.n}"
     )
+    code = code_fingerprint()
     try:
-        results = ResultsFile(out, spec, resume=args.resume)
+        results = ResultsFile(
+            out,
+            spec,
+            resume=args.resume,
+            code=code,
+            allow_code_change=args.allow_code_change,
+        )
     except ResultsFileError as exc:
         print(f"stereo-avoid montecarlo: {exc}", file=sys.stderr)
         return 2
@@ -136,8 +146,18 @@ def _montecarlo(args: argparse.Namespace) -> int:
         )
         bar = ProgressBar(args.n, len(results.records), log)
         t0 = time.monotonic()
+        foreign: set[str] = set()
 
         def on_record(record: dict) -> None:
+            other = record.get("code")
+            if other != code and other not in foreign:  # a worker with other source
+                foreign.add(other)
+                print(
+                    f"\nwarning: worker {record.get('worker') or '?'} flies other code "
+                    f"({other}; this client is {code}): its verdicts are kept, marked and "
+                    "counted in the report",
+                    file=sys.stderr,
+                )
             results.append(record)
             verdict = verdict_from_record(record)
             bar.update(collided=verdict.collided, safe=is_safe(verdict))
@@ -155,6 +175,7 @@ def _montecarlo(args: argparse.Namespace) -> int:
         bar.close()
         wall_s = time.monotonic() - t0
         verdicts = results.verdicts()
+        codes = code_counts(results.records.values())
     summary = summarize(verdicts)
     throughput = (
         {"scenes": len(pending), "wall_s": wall_s, "scenes_per_min": 60 * len(pending) / wall_s}
@@ -168,6 +189,7 @@ def _montecarlo(args: argparse.Namespace) -> int:
         family=args.family,
         perception=args.perception,
         throughput=throughput,
+        code_counts=codes,
     )
     if args.json:
         print(json.dumps({**summary, "throughput": throughput}, indent=2))
@@ -266,6 +288,12 @@ def _add_montecarlo(mc: argparse.ArgumentParser) -> None:
     )
     mc.add_argument(
         "--resume", action="store_true", help="finish the run in --out: skip finished seeds"
+    )
+    mc.add_argument(
+        "--allow-code-change",
+        action="store_true",
+        help="with --resume: finish a batch whose finished seeds were flown by other code "
+        "(refused by default; the report lists which code flew which seeds)",
     )
     mc.add_argument("--json", action="store_true", help="print the summary as JSON")
     mc.add_argument(

@@ -26,6 +26,7 @@ from typing import Any
 from distributed import Client, LocalCluster, as_completed
 from distributed.diagnostics.plugin import WorkerPlugin
 
+from plant_sim.lockstep.mc_provenance import code_fingerprint
 from plant_sim.lockstep.mc_results import verdict_to_record
 from plant_sim.lockstep.montecarlo import error_verdict, fly_record, single_threaded
 
@@ -123,6 +124,8 @@ def fly_on_cluster(
         except Exception as exc:  # the worker died (KilledWorker) or the task was lost
             seed = seed_of[future.key]
             verdict = error_verdict(seed, f"{type(exc).__name__}: {exc}")
-            record = verdict_to_record(verdict, perception=perception, worker="")
+            record = verdict_to_record(
+                verdict, perception=perception, worker="", code=code_fingerprint()
+            )
         future.release()
         on_record(record)

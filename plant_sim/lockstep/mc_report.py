@@ -75,8 +75,11 @@ def write_report(
     family: str,
     perception: str,
     throughput: dict[str, float] | None = None,
+    code_counts: dict[str, int] | None = None,
 ) -> str:
-    """Write the table and the figures to ``out_dir``; returns the table."""
+    """Write the table and the figures to ``out_dir``; returns the table. ``code_counts``:
+    seeds per code fingerprint (:mod:`plant_sim.lockstep.mc_provenance`), a line of the
+    table (flagged when the batch mixes code)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     table = format_summary(summary, family=family, perception=perception)
@@ -85,8 +88,18 @@ def write_report(
             f"\nthroughput           {throughput['scenes_per_min']:.1f} scenes/min "
             f"({throughput['scenes']} scenes in {throughput['wall_s']:.0f} s this session)"
         )
+    if code_counts:
+        flown = ", ".join(f"{c} ({n} seeds)" for c, n in code_counts.items())
+        mixed = "MIXED CODE: " if len(code_counts) > 1 else ""
+        table += f"\ncode                 {mixed}{flown}"
     (out_dir / "summary.txt").write_text(table + "\n")
-    doc = {**summary, "family": family, "perception": perception, "throughput": throughput}
+    doc = {
+        **summary,
+        "family": family,
+        "perception": perception,
+        "throughput": throughput,
+        "code": code_counts,
+    }
     (out_dir / "summary.json").write_text(json.dumps(doc, indent=2, allow_nan=True) + "\n")
     _separation_histogram(out_dir / "min_separation_hist.png", verdicts, perception)
     _failures_by_cause(out_dir / "failures_by_cause.png", summary, perception)

@@ -5,7 +5,9 @@ scene family, which perception) and ``results.jsonl`` (one :class:`Verdict` per 
 the order the scenes finished, with the worker that flew it). Every line is flushed when
 written, so a killed run loses at most the scene in flight; ``--resume`` reads the file
 back, drops a torn last line, and flies only the seeds not in it. A folder is never mixed
-between batches: resuming with another spec is an error.
+between batches: resuming with another spec is an error, and so is resuming seeds flown by
+other code (each record's ``code``, :mod:`plant_sim.lockstep.mc_provenance`) unless
+``allow_code_change`` says the mix is wanted.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from plant_sim.lockstep.harness import Verdict
+from plant_sim.lockstep.mc_provenance import code_counts
 
 __all__ = [
     "PERCEPTIONS",
@@ -89,9 +92,23 @@ class ResultsFile:
     resume : bool
         Keep the seeds already in ``results.jsonl``. Without it, a folder that already
         holds results is an error (nothing is overwritten).
+    code : str or None
+        Fingerprint of the code that will fly the remaining seeds; with ``resume``, seeds
+        already flown by other code (or by code that did not say) are an error, unless
+        ``allow_code_change``. ``None``: not checked.
+    allow_code_change : bool
+        Finish a batch started by other code (the report lists each fingerprint's seeds).
     """
 
-    def __init__(self, out_dir: Path, spec: BatchSpec, *, resume: bool = False) -> None:
+    def __init__(
+        self,
+        out_dir: Path,
+        spec: BatchSpec,
+        *,
+        resume: bool = False,
+        code: str | None = None,
+        allow_code_change: bool = False,
+    ) -> None:
         self.out_dir = Path(out_dir)
         self.spec = spec
         self.path = self.out_dir / RESULTS_NAME
@@ -106,6 +123,8 @@ class ResultsFile:
                 )
             self._check_spec()
             self.records = self._read()
+            if code is not None and not allow_code_change:
+                self._check_code(code)
         self.spec_path.write_text(json.dumps(dataclasses.asdict(spec), indent=2) + "\n")
         self._fh: IO[str] | None = None
 
@@ -151,6 +170,16 @@ class ResultsFile:
             raise ResultsFileError(
                 f"{self.out_dir} holds another batch ({have}); --resume needs the same "
                 f"--seed, --n, --family, --perception and --max-time-s ({self.spec})"
+            )
+
+    def _check_code(self, code: str) -> None:
+        others = {c: n for c, n in code_counts(self.records.values()).items() if c != code}
+        if others:
+            flown = ", ".join(f"{n} by {c}" for c, n in others.items())
+            raise ResultsFileError(
+                f"{self.path} holds seeds flown by other code ({flown}); this code is {code}. "
+                "Finish the batch with the code that started it, start a new --out, or pass "
+                "--allow-code-change to mix them (the report lists which code flew which seeds)"
             )
 
     def _read(self) -> dict[int, dict[str, Any]]:

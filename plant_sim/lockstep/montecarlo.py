@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from plant_sim.lockstep.harness import RunConfig, Verdict, run_scene
+from plant_sim.lockstep.mc_provenance import code_fingerprint
 from plant_sim.lockstep.mc_results import PERCEPTIONS, verdict_to_record
 from plant_sim.lockstep.scenes import FAMILIES, family_scene, mixed_scene
 
@@ -78,8 +79,10 @@ def fly_seed(
 def fly_record(
     seed: int, family: str = "mixed", perception: str = "stereo", max_time_s: float | None = None
 ) -> dict[str, Any]:
-    """:func:`fly_seed` as a results record (a Dask task): the verdict, the perception and
-    the worker (host:pid). A scene that raises is an ``"error"`` verdict, not a lost task."""
+    """:func:`fly_seed` as a results record (a Dask task): the verdict, the perception, the
+    worker (host:pid) and the fingerprint of the code that flew it
+    (:func:`~plant_sim.lockstep.mc_provenance.code_fingerprint`, computed where it flew). A
+    scene that raises is an ``"error"`` verdict, not a lost task."""
     wall_start = time.perf_counter()
     try:
         verdict = fly_seed(seed, family, perception, max_time_s)
@@ -87,7 +90,10 @@ def fly_record(
         message = f"{type(exc).__name__}: {exc}"
         verdict = error_verdict(seed, message, time.perf_counter() - wall_start)
     return verdict_to_record(
-        verdict, perception=perception, worker=f"{socket.gethostname()}:{os.getpid()}"
+        verdict,
+        perception=perception,
+        worker=f"{socket.gethostname()}:{os.getpid()}",
+        code=code_fingerprint(),
     )
 
 
