@@ -45,11 +45,17 @@ import json
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from plant_sim.lockstep.harness import RunConfig, RunResult, run_scene
-from plant_sim.lockstep.montecarlo import run_config, scene_of, single_threaded, summarize
+from plant_sim.lockstep.montecarlo import (
+    is_safe,
+    run_config,
+    scene_of,
+    single_threaded,
+    summarize,
+)
 from plant_sim.lockstep.report import write_run_report
 from plant_sim.lockstep.scenes import FAMILIES, Scene, paper_scene
 
@@ -105,18 +111,36 @@ def _fly_and_report(
     )
 
 
+def _record_sink(results, bar, code: str) -> Callable[[dict], None]:
+    """``on_record`` for a batch: append the record to ``results``, advance ``bar``, and warn
+    (once per fingerprint) when a worker flew it with other code than this client's."""
+    from plant_sim.lockstep.mc_results import verdict_from_record
+
+    foreign: set[str] = set()
+
+    def on_record(record: dict) -> None:
+        other = record.get("code")
+        if other != code and other not in foreign:  # a worker with other source
+            foreign.add(other)
+            print(
+                f"\nwarning: worker {record.get('worker') or '?'} flies other code "
+                f"({other}; this client is {code}): its verdicts are kept, marked and "
+                "counted in the report",
+                file=sys.stderr,
+            )
+        results.append(record)
+        verdict = verdict_from_record(record)
+        bar.update(collided=verdict.collided, safe=is_safe(verdict))
+
+    return on_record
+
+
 def _montecarlo(args: argparse.Namespace) -> int:
     from plant_sim.lockstep.mc_cluster import dask_client, fly_on_cluster
     from plant_sim.lockstep.mc_progress import ProgressBar
     from plant_sim.lockstep.mc_provenance import code_counts, code_fingerprint
     from plant_sim.lockstep.mc_report import write_report
-    from plant_sim.lockstep.mc_results import (
-        BatchSpec,
-        ResultsFile,
-        ResultsFileError,
-        verdict_from_record,
-    )
-    from plant_sim.lockstep.montecarlo import is_safe
+    from plant_sim.lockstep.mc_results import BatchSpec, ResultsFile, ResultsFileError
 
     log = sys.stderr if args.json else sys.stdout
     spec = BatchSpec(args.seed, args.n, args.family, args.perception, args.max_time_s)
@@ -146,22 +170,7 @@ def _montecarlo(args: argparse.Namespace) -> int:
         )
         bar = ProgressBar(args.n, len(results.records), log)
         t0 = time.monotonic()
-        foreign: set[str] = set()
-
-        def on_record(record: dict) -> None:
-            other = record.get("code")
-            if other != code and other not in foreign:  # a worker with other source
-                foreign.add(other)
-                print(
-                    f"\nwarning: worker {record.get('worker') or '?'} flies other code "
-                    f"({other}; this client is {code}): its verdicts are kept, marked and "
-                    "counted in the report",
-                    file=sys.stderr,
-                )
-            results.append(record)
-            verdict = verdict_from_record(record)
-            bar.update(collided=verdict.collided, safe=is_safe(verdict))
-
+        on_record = _record_sink(results, bar, code)
         if pending:
             with dask_client(args.cluster, n_workers=args.jobs) as client:
                 fly_on_cluster(
