@@ -210,3 +210,18 @@ def test_the_code_fingerprint_follows_every_source_byte_and_nothing_else(tmp_pat
     # the installed packages: stable within a process, the one fly_record stamps
     assert code_fingerprint() == code_fingerprint()
     assert fly_record(0, "mixed", "truth", 0.1)["code"] == code_fingerprint()
+
+
+def test_the_cli_refuses_a_resume_over_other_code_and_a_stray_override(tmp_path, capsys):
+    out = tmp_path / "mc"
+    spec = BatchSpec(first_seed=0, n=2, family="mixed", perception="truth")
+    verdict = fly_seed(0, "mixed", "truth", 0.1)
+    with ResultsFile(out, spec) as results:
+        results.append({**dataclasses.asdict(verdict), "worker": "w", "code": "bbbb"})
+    args = ["montecarlo", "--n", "2", "--seed", "0", "--perception", "truth", "--out", str(out)]
+    assert main([*args, "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "1 by bbbb" in err and f"this code is {code_fingerprint()}" in err, err
+    assert main([*args, "--allow-code-change"]) == 2
+    assert "only applies with --resume" in capsys.readouterr().err
+    assert [r["code"] for r in _lines(out / "results.jsonl")] == ["bbbb"], "nothing flown"

@@ -142,6 +142,12 @@ def _montecarlo(args: argparse.Namespace) -> int:
     from plant_sim.lockstep.mc_report import write_report
     from plant_sim.lockstep.mc_results import BatchSpec, ResultsFile, ResultsFileError
 
+    if args.allow_code_change and not args.resume:
+        print(
+            "stereo-avoid montecarlo: --allow-code-change only applies with --resume",
+            file=sys.stderr,
+        )
+        return 2
     log = sys.stderr if args.json else sys.stdout
     spec = BatchSpec(args.seed, args.n, args.family, args.perception, args.max_time_s)
     out = args.out or Path(
@@ -201,7 +207,7 @@ def _montecarlo(args: argparse.Namespace) -> int:
         code_counts=codes,
     )
     if args.json:
-        print(json.dumps({**summary, "throughput": throughput}, indent=2))
+        print(json.dumps({**summary, "throughput": throughput, "code": codes}, indent=2))
     else:
         print(table)
         print(f"report               {out}/summary.txt, *.png")
