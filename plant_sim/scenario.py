@@ -93,6 +93,7 @@ __all__ = [
     "StartConfig",
     "load_scenario",
     "paper_scenario",
+    "read_scenario_data",
     "scenario_from_dict",
 ]
 
@@ -402,14 +403,13 @@ def scenario_from_dict(d: Mapping[str, Any]) -> Scenario:
     return scenario
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read a ``.toml`` or ``.json`` scenario file.
+def read_scenario_data(path: str | Path) -> dict[str, Any]:
+    """The parsed content of a ``.toml`` or ``.json`` scenario file, not yet checked.
 
     Raises
     ------
     ScenarioError
-        If the file cannot be parsed or holds an invalid scenario (the message names the
-        file and the key).
+        If the file cannot be read or parsed, or is not a table of keys.
     """
     path = Path(path)
     try:
@@ -423,6 +423,21 @@ def load_scenario(path: str | Path) -> Scenario:
             data = tomllib.loads(text.decode("utf-8"))
     except (ValueError, UnicodeDecodeError) as exc:
         raise ScenarioError(f"cannot parse scenario {path}: {exc}") from None
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{path}: a scenario is a table of keys, got {type(data).__name__}")
+    return data
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read a ``.toml`` or ``.json`` scenario file.
+
+    Raises
+    ------
+    ScenarioError
+        If the file cannot be parsed or holds an invalid scenario (the message names the
+        file and the key).
+    """
+    data = read_scenario_data(path)
     try:
         return scenario_from_dict(data)
     except ScenarioError as exc:

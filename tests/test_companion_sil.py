@@ -352,6 +352,11 @@ def test_signing_key_mismatch_is_refused_and_reported(rig):
     assert ev["signing"] is True
     assert "MAVLink signing is on" in companion.stderr_text()
     assert not companion.events("autopilot") and not companion.events("steering")
+    # The companion's 3 s silence can end before plant-sim has received anything (it may
+    # start slower on a loaded machine): wait for plant-sim's own report of the refusals.
+    deadline = time.monotonic() + 15.0
+    while "bad_signature_refused" not in plant.stderr_text() and time.monotonic() < deadline:
+        time.sleep(0.1)
     plant.stop()
     plant_stats = plant.stats("PLANT_SIM STATS ")
     assert plant_stats["link"]["bad_signature_refused"] > 0

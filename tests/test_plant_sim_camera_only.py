@@ -195,7 +195,12 @@ def test_camera_only_follows_an_external_autopilot(tmp_path):
             ap.mav.attitude_send(ms, 0.0, -0.05, 0.1 * t_fly, 0.0, 0.0, 0.0)
             t_fly += 0.02
         assert t_fly >= 3.0, plant.logs()
-        time.sleep(0.5)
+        # the last poses may still become frames (a loaded machine): until none came for 1 s
+        seen, quiet_since, deadline = len(frames), time.monotonic(), time.monotonic() + 10.0
+        while time.monotonic() - quiet_since < 1.0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+            if len(frames) != seen:
+                seen, quiet_since = len(frames), time.monotonic()
         sub.undeclare()
     finally:
         if session is not None:

@@ -35,6 +35,7 @@ from plant_sim.lockstep.sitl import (
     free_sitl_instance,
     run_sitl_sil,
 )
+from plant_sim.lockstep.sitl_scene import sitl_scene
 
 M = mavlink
 SPEEDUP = 3.0
@@ -86,11 +87,12 @@ def _print_logs(out_dir: Path, lines: list[str]) -> None:
             print(f"--- {name} (tail) ---\n{path.read_text(errors='replace')[-6000:]}")
 
 
-def _fly(binary, out_dir, params=()) -> object:
+def _fly(binary, out_dir, params=(), scene=None) -> object:
     lines: list[str] = []
+    extra = {} if scene is None else {"scene": scene, "scene_name": "test-sitl"}
     try:
         return run_sitl_sil(
-            SitlOptions(binary=binary, out_dir=out_dir, speedup=SPEEDUP, params=params),
+            SitlOptions(binary=binary, out_dir=out_dir, speedup=SPEEDUP, params=params, **extra),
             progress=lines.append,
         )
     finally:
@@ -125,6 +127,54 @@ def test_paper_scene_on_arducopter_sitl_at_default_wpnav_speed(sitl_binary, tmp_
     print(v, fig)
     assert v.reached_goal and not v.collided, (v, fig)
     assert v.min_surface_distance_m >= CLEARANCE_M, (v, fig)
+
+
+#: Not the paper's scene: start facing away from the goal, 16 m south-west of the start
+#: behind a 6 m wide, 8 m tall wall (a box, not a sphere) that reaches the ground.
+WALL_BEHIND_SCENARIO = {
+    "goal_ned_m": [0.0, 0.0, -6.0],
+    "start": {"pos_ned_m": [16.0, 1.0, -6.0], "yaw_deg": 0.0},
+    "obstacles": [{"shape": "box", "center_ned_m": [6.0, 0.0, -4.0], "size_m": [0.4, 6.0, 8.0]}],
+}
+
+
+@pytest.mark.slow
+def test_a_scenario_of_its_own_on_arducopter_sitl_at_default_wpnav_speed(sitl_binary, tmp_path):
+    """A plant-sim scenario file flown on ArduCopter (``sil --scenario``), moved so that its
+    start is SITL's home: the vehicle starts facing away from the goal (SITL's start
+    heading is the scenario's), looks before it moves, and goes round the wall at
+    WPNAV_SPEED 10 m/s with the safety envelope."""
+    scene = sitl_scene(WALL_BEHIND_SCENARIO)
+    result = _fly(sitl_binary, tmp_path, scene=scene)
+    v, fig = result.sil.verdict, result.figures
+    print(v, fig)
+    assert v.reached_goal and not v.collided, (v, fig)
+    assert v.min_surface_distance_m >= CLEARANCE_M, (v, fig)
+    truth = _read_truth(result.sil.truth_path)
+    # SITL took the scenario's heading (north, away from the goal) before the takeoff
+    assert abs(np.degrees(truth["yaw_rad"][0])) < 10.0, truth["yaw_rad"][0]
+    # the goal is where the scenario put it, relative to the start at home
+    assert v.final_goal_distance_m < 0.5
+    assert scene.goal_ned_m == (-16.0, -1.0, -6.0)
+
+
+@pytest.mark.slow
+def test_a_goal_inside_an_obstacle_on_arducopter_sitl_ends_in_a_safe_reported_stop(
+    sitl_binary, tmp_path
+):
+    """The goal inside a sphere: ArduCopter holds outside it, the companion reports the
+    stop, and the run ends as soon as the vehicle is at rest (not at the time limit) with
+    the lockstep's verdict: a safe stop, reason goal_unreachable."""
+    scene = sitl_scene(
+        {"obstacles": [{"center_ned_m": [0.5, 0.0, -7.0], "radius_m": 1.5}]}  # goal (0, 0, -7)
+    )
+    result = _fly(sitl_binary, tmp_path, scene=scene)
+    v = result.sil.verdict
+    print(v)
+    assert v.safe_stop and v.hold_reason == "goal_unreachable", v
+    assert v.min_surface_distance_m >= CLEARANCE_M, v
+    assert v.sim_time_s < 60.0, v  # ended at rest, not by the 120 s limit
+    assert any(name == "hold" for name, _ in result.sil.events)
 
 
 def _set_mode(gcs, custom_mode: int) -> None:

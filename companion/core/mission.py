@@ -125,6 +125,7 @@ class Mission:
     def _report_changes(self, out: PipelineOutput, capture_ns: int, notices, events) -> None:
         g = out.guidance
         if (g.mode, g.reason) != self._guidance_state:
+            was_holding = self._guidance_state is not None and self._guidance_state[0] is Mode.HOLD
             self._guidance_state = (g.mode, g.reason)
             if g.mode is Mode.HOLD:
                 sp = out.setpoint_ned_m
@@ -137,8 +138,16 @@ class Mission:
                 events.append(
                     Event(
                         "hold",
-                        {"reason": g.reason.value, "setpoint_ned_m": [float(x) for x in sp]},
+                        {
+                            "reason": g.reason.value,
+                            "setpoint_ned_m": [float(x) for x in sp],
+                            "capture_s": capture_ns * 1e-9,
+                        },
                     )
+                )
+            elif was_holding:
+                events.append(
+                    Event("hold_end", {"reason": g.reason.value, "capture_s": capture_ns * 1e-9})
                 )
         if g.avoidance_flag != self._avoiding:
             self._avoiding = bool(g.avoidance_flag)

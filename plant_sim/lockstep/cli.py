@@ -29,12 +29,16 @@ Subcommands
 
 ``paper``, ``replay`` and ``sil`` take ``--rerun FILE.rrd|serve[:PORT]``: the run in Rerun
 (:mod:`plant_sim.lockstep.view`; needs the optional ``view`` extra).
-``stereo-avoid sil --autopilot arducopter-sitl [--autopilot-params FILE] [--speedup K]``
-    the paper's scene (north from home at 7 m) on ArduPilot's ArduCopter SITL, taken off
-    by the companion, plant-sim as the camera only (:mod:`plant_sim.lockstep.sitl`).
+``stereo-avoid sil --autopilot arducopter-sitl [--scenario FILE] [--autopilot-params FILE]``
+    the paper's scene (north from home at 7 m), or a plant-sim scenario moved so that its
+    start is SITL's home (:mod:`plant_sim.lockstep.sitl_scene`), on ArduPilot's ArduCopter
+    SITL, taken off by the companion, plant-sim as the camera only
+    (:mod:`plant_sim.lockstep.sitl`).
 
 Exit status: 0 when every run reached its goal without collision (montecarlo: every
-scene ended safely, at the goal or in a reported stop, and none collided), 1 otherwise, 2
+scene ended safely, at the goal or in a reported stop, and none collided); for one run
+(``paper``, ``replay SEED``, ``sil``) 3 when it ended in a safe stop (guidance reported a
+hold and the vehicle came to rest, no collision: the goal is unreachable); 1 otherwise; 2
 on a usage error.
 """
 
@@ -362,11 +366,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from plant_sim.lockstep.sil_report import fly_sil_and_report, fly_sitl_and_report
 
         if args.autopilot == "arducopter-sitl":
-            if args.scenario is not None:
-                print("stereo-avoid sil: --scenario is for plant-sim", file=sys.stderr)
-                return 2
             out = args.out if args.out != Path("runs/sil") else Path("runs/sitl")
-            return fly_sitl_and_report(args.speedup, out, args.json, tuple(args.autopilot_params))
+            return fly_sitl_and_report(
+                args.speedup, out, args.json, tuple(args.autopilot_params), args.scenario
+            )
         if args.autopilot_params:
             print("stereo-avoid sil: --autopilot-params needs --autopilot", file=sys.stderr)
             return 2

@@ -38,6 +38,8 @@ from protocols.config import check_numbers
 from protocols.stereo_frame import StereoFrame
 
 __all__ = [
+    "HOLD_REST_S",
+    "HOLD_REST_SPEED_MPS",
     "KillOutcome",
     "RunConfig",
     "RunResult",
@@ -45,6 +47,12 @@ __all__ = [
     "nearest_surface_m",
     "run_scene",
 ]
+
+
+#: A run ends in a reported stop once the vehicle, in guidance's HOLD, has been slower than
+#: HOLD_REST_SPEED_MPS for HOLD_REST_S of simulation time (lockstep and SIL judge alike).
+HOLD_REST_SPEED_MPS = 0.05
+HOLD_REST_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -100,6 +108,21 @@ class Verdict:
     def passed(self) -> bool:
         """Goal reached without a collision."""
         return self.reached_goal and not self.collided
+
+    @property
+    def safe_stop(self) -> bool:
+        """Not at the goal, but stopped where guidance reported a hold, without a collision
+        (a goal inside an obstacle, no free direction, no progress): a safe outcome."""
+        return not self.reached_goal and not self.collided and self.failure == "hold"
+
+    @property
+    def outcome(self) -> str:
+        """``PASS`` (goal reached), ``SAFE STOP (reason)`` or ``FAIL (cause)``."""
+        if self.passed:
+            return "PASS"
+        if self.safe_stop:
+            return f"SAFE STOP ({self.hold_reason})"
+        return f"FAIL ({self.failure or 'goal not reached'})"
 
 
 @dataclass(frozen=True, eq=False)
@@ -277,9 +300,10 @@ class _Tally:
         if mission.goal_reached:  # the last waypoint, within goal_tolerance_m
             self.reached = True
             return True
-        if decision.mode is Mode.HOLD and float(np.linalg.norm(state.vel_ned_mps)) < 0.05:
+        speed = float(np.linalg.norm(state.vel_ned_mps))
+        if decision.mode is Mode.HOLD and speed < HOLD_REST_SPEED_MPS:
             self.hold_since = state.time_s if self.hold_since is None else self.hold_since
-            if state.time_s - self.hold_since >= 2.0:
+            if state.time_s - self.hold_since >= HOLD_REST_S:
                 self.failure, self.hold_reason = "hold", decision.reason.value
                 return True
         else:

@@ -162,7 +162,7 @@ def run_batch(
 
 def is_safe(verdict: Verdict) -> bool:
     """A safe outcome: the goal, or a stop reported by guidance (HOLD), without a collision."""
-    return verdict.passed or (verdict.failure == "hold" and not verdict.collided)
+    return verdict.passed or verdict.safe_stop
 
 
 def summarize(verdicts: list[Verdict]) -> dict[str, Any]:

@@ -36,7 +36,9 @@ def write_run_report(
 ) -> int:
     """Write ``history.csv``, the figures and ``verdict.json`` into ``out_dir``; print the
     verdict (JSON with ``as_json``, else text with the files). Returns the exit status:
-    0 when the goal was reached without collision, 1 otherwise."""
+    0 when the goal was reached without collision, 3 for a safe stop (guidance reported a
+    hold and the vehicle came to rest without a collision: the goal is unreachable), 1
+    otherwise."""
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = out_dir / "history.csv"
     history.write_csv(csv_path)
@@ -51,11 +53,12 @@ def write_run_report(
     )
     fields = dataclasses.asdict(verdict)
     fields["passed"] = verdict.passed
+    fields["outcome"] = verdict.outcome
     (out_dir / "verdict.json").write_text(json.dumps(fields, indent=2) + "\n")
     if as_json:
         print(json.dumps(fields, indent=2), file=stdout)
     else:
-        print("verdict:", "PASS" if verdict.passed else "FAIL", file=stdout)
+        print("verdict:", verdict.outcome, file=stdout)
         for key, value in fields.items():
             print(f"  {key:24s} {value}", file=stdout)
         print(f"history: {csv_path}", file=stdout)
@@ -63,4 +66,4 @@ def write_run_report(
             print(f"{label + ':':8s} {path}", file=stdout)
         for path in figures:
             print(f"figure:  {path}", file=stdout)
-    return 0 if verdict.passed else 1
+    return 0 if verdict.passed else 3 if verdict.safe_stop else 1

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plant_sim.lockstep.harness import RunConfig, Verdict
+from plant_sim.lockstep.harness import HOLD_REST_S, HOLD_REST_SPEED_MPS, RunConfig, Verdict
 from plant_sim.lockstep.history import History
 from plant_sim.scenario import Scenario, load_scenario, paper_scenario
 
@@ -45,6 +45,7 @@ __all__ = [
     "free_port",
     "history_from_truth",
     "run_sil",
+    "settled_in_hold",
     "verdict_from_truth",
 ]
 
@@ -161,8 +162,13 @@ class ChildProcess:
 
 
 def _read_truth(path: Path) -> dict[str, np.ndarray]:
+    """The truth log's columns (empty cells NaN); a last row still being written (no
+    newline yet: plant-sim is running) is left out."""
     with Path(path).open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
+        text = fh.read()
+    if not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+    rows = list(csv.DictReader(text.splitlines()))
     cols: dict[str, np.ndarray] = {}
     if not rows:
         return cols
@@ -188,6 +194,57 @@ def _avoid_intervals(events: list[tuple[str, dict]]) -> list[tuple[float, float]
     return intervals
 
 
+def _hold_intervals(events: list[tuple[str, dict]]) -> list[tuple[float, float, str]]:
+    """Guidance's reported holds ``(start_s, end_s, reason)`` on the frames' clock, from the
+    companion's ``hold`` / ``hold_end`` events (a failsafe hold, which has no capture time,
+    is not a guidance stop). An open hold ends at ``inf``."""
+    intervals: list[tuple[float, float, str]] = []
+    start: tuple[float, str] | None = None
+    for name, fields in events:
+        if name == "hold" and "capture_s" in fields:
+            if start is not None:  # a new reason while holding: the hold goes on
+                intervals.append((start[0], float(fields["capture_s"]), start[1]))
+            start = (float(fields["capture_s"]), str(fields.get("reason")))
+        elif name == "hold_end" and start is not None:
+            intervals.append((start[0], float(fields["capture_s"]), start[1]))
+            start = None
+    if start is not None:
+        intervals.append((start[0], math.inf, start[1]))
+    return intervals
+
+
+def _rest_in_hold(
+    t: np.ndarray, speed_mps: np.ndarray, holds: Sequence[tuple[float, float, str]]
+) -> tuple[int, str] | None:
+    """(sample, reason) at which the vehicle has been slower than HOLD_REST_SPEED_MPS for
+    HOLD_REST_S inside one reported hold: where the lockstep harness ends a run in a stop."""
+    for start_s, end_s, reason in holds:
+        rest_since = None
+        for i in np.flatnonzero((t >= start_s) & (t < end_s)):
+            if not speed_mps[i] < HOLD_REST_SPEED_MPS:
+                rest_since = None
+                continue
+            rest_since = t[i] if rest_since is None else rest_since
+            if t[i] - rest_since >= HOLD_REST_S:
+                return int(i), reason
+    return None
+
+
+def settled_in_hold(truth_path: Path, events: list[tuple[str, dict]]) -> bool:
+    """True once the truth log shows the vehicle at rest in a hold guidance reported."""
+    holds = _hold_intervals(events)
+    if not holds or not Path(truth_path).is_file():
+        return False
+    truth = _read_truth(truth_path)
+    if not truth:
+        return False
+    return _rest_in_hold(truth["time_s"], _speed(truth), holds) is not None
+
+
+def _speed(truth: dict[str, np.ndarray]) -> np.ndarray:
+    return np.sqrt(sum(truth[k] ** 2 for k in ("vel_n_mps", "vel_e_mps", "vel_d_mps")))
+
+
 def _max_abs_deg(angles_rad: np.ndarray) -> float:
     """Largest |angle| [deg] ignoring empty cells (an external autopilot may not say what
     it commanded: NaN when no sample has it)."""
@@ -205,11 +262,14 @@ def verdict_from_truth(
     frames: int,
     wall_time_s: float,
     config: RunConfig | None = None,
+    hold_intervals: Sequence[tuple[float, float, str]] = (),
 ) -> Verdict:
     """The lockstep :class:`Verdict`, computed from plant-sim's truth log after ``t0_s``.
 
-    The run ends at the first sample within the goal tolerance, or a collision (centre
-    nearer a surface than ``collision_distance_m``), or the end of the log.
+    The run ends at the first of: a collision (centre nearer a surface than
+    ``collision_distance_m``), a sample within the goal tolerance, the vehicle at rest in a
+    hold guidance reported (``hold_intervals``, :func:`_hold_intervals`; the lockstep rule:
+    slower than HOLD_REST_SPEED_MPS for HOLD_REST_S), or the end of the log (a timeout).
     """
     cfg = config or RunConfig()
     t = truth["time_s"]
@@ -222,14 +282,24 @@ def verdict_from_truth(
     end = len(t) - 1
     reached = collided = False
     failure: str | None = None
+    hold_reason: str | None = None
     hit_goal = np.flatnonzero(goal_dist < cfg.goal_tolerance_m)
     hit_obst = np.flatnonzero(surface < cfg.collision_distance_m)
-    if hit_obst.size and (not hit_goal.size or hit_obst[0] <= hit_goal[0]):
-        end, collided, failure = int(hit_obst[0]), True, "collision"
-    elif hit_goal.size:
-        end, reached = int(hit_goal[0]), True
-    else:
+    rest = _rest_in_hold(t, _speed(truth)[sel], hold_intervals)
+    first = {
+        "collision": int(hit_obst[0]) if hit_obst.size else math.inf,
+        "goal": int(hit_goal[0]) if hit_goal.size else math.inf,
+        "hold": rest[0] if rest is not None else math.inf,
+    }
+    how = min(first, key=first.get)  # ties: collision, then goal, then hold
+    if first[how] == math.inf:
         failure = "timeout"
+    elif how == "collision":
+        end, collided, failure = int(first[how]), True, "collision"
+    elif how == "goal":
+        end, reached = int(first[how]), True
+    else:
+        end, failure, hold_reason = int(first[how]), "hold", rest[1]
     w = slice(0, end + 1)
     t_end = float(t[end])
     avoid = sum(max(0.0, min(b, t_end) - max(a, t0_s)) for a, b in avoid_intervals)
@@ -247,6 +317,7 @@ def verdict_from_truth(
         final_goal_distance_m=round(float(goal_dist[end]), 4),
         frames=frames,
         failure=failure,
+        hold_reason=hold_reason,
     )
 
 
@@ -363,7 +434,7 @@ def run_sil(
         plant = _start_plant(options, out, mav_port, zen, env)
         plant.wait_line(r"^PLANT_SIM READY ", options.startup_timeout_s)
         say(f"plant-sim and companion up (MAVLink udp {mav_port}, Zenoh {zen})")
-        t0 = _fly(options, companion, plant, say)
+        t0 = _fly(options, companion, plant, say, out / "truth.csv")
     finally:
         if plant is not None:
             plant.stop()
@@ -394,10 +465,15 @@ def _start_plant(
 
 
 def _fly(
-    options: SilOptions, companion: ChildProcess, plant: ChildProcess, say: Callable[[str], None]
+    options: SilOptions,
+    companion: ChildProcess,
+    plant: ChildProcess,
+    say: Callable[[str], None],
+    truth_path: Path,
 ) -> float:
-    """Wait for the companion to steer, then for the goal, plant-sim's end or the time
-    limit, saying the companion's progress once a second; the steering time [s, sim]."""
+    """Wait for the companion to steer, then for the goal, a reported hold come to rest
+    (:func:`settled_in_hold`), plant-sim's end or the time limit, saying the companion's
+    progress once a second; the steering time [s, sim]."""
     steering = companion.wait_line(r"^COMPANION EVENT steering ", 30.0)
     t0 = json.loads(steering.string.split(" ", 3)[3]).get("autopilot_time_s") or 0.0
     say(f"companion steering at t={t0:.2f} s (simulation time)")
@@ -413,6 +489,9 @@ def _fly(
             last = _last_progress(companion.stderr_text())
             if last:
                 say(last)
+            if settled_in_hold(truth_path, companion.events()):
+                say("stopped in a reported hold")
+                break
         time.sleep(0.05)
     time.sleep(0.5)  # a little of the flight after the goal, as the truth log samples it
     return t0
@@ -447,6 +526,7 @@ def _collect(
         avoid_intervals=intervals,
         frames=(companion_stats or {}).get("frames_processed", 0),
         wall_time_s=wall_s,
+        hold_intervals=_hold_intervals(events),
     )
     return SilResult(
         verdict=verdict,

@@ -5,11 +5,18 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import TextIO
 
 from plant_sim.lockstep.harness import RunConfig
 from plant_sim.lockstep.report import write_run_report
 from plant_sim.lockstep.sil import SilOptions, run_sil
-from plant_sim.scenario import load_scenario, paper_scenario
+from plant_sim.scenario import (
+    ScenarioError,
+    load_scenario,
+    paper_scenario,
+    read_scenario_data,
+    scenario_from_dict,
+)
 
 __all__ = ["fly_sil_and_report", "fly_sitl_and_report"]
 
@@ -65,21 +72,25 @@ def fly_sil_and_report(
 
 
 def fly_sitl_and_report(
-    speedup: float, out_dir: Path, as_json: bool, params_files: tuple[Path, ...] = ()
+    speedup: float,
+    out_dir: Path,
+    as_json: bool,
+    params_files: tuple[Path, ...] = (),
+    scenario: Path | None = None,
 ) -> int:
-    """``stereo-avoid sil --autopilot arducopter-sitl``: fly the paper's scene on ArduPilot's
-    ArduCopter SITL (plant-sim as the camera only), report like the plant-sim SIL run plus
-    the speed figures; exit status 0 when passed, 1 otherwise, 2 on bad input."""
-    import json
+    """``stereo-avoid sil --autopilot arducopter-sitl``: fly the paper's scene (or
+    ``scenario``, placed so that its start is SITL's home: :mod:`~plant_sim.lockstep.sitl_scene`)
+    on ArduPilot's ArduCopter SITL (plant-sim as the camera only), report like the
+    plant-sim SIL run plus the speed figures; exit status as :func:`write_run_report`'s,
+    2 on bad input."""
 
     from plant_sim.lockstep.sitl import (
         ARDUCOPTER_SITL_ENV,
-        SITL_GOAL_NED_M,
         SitlOptions,
         find_arducopter_sitl,
         run_sitl_sil,
     )
-    from plant_sim.scenario import scenario_from_dict
+    from plant_sim.lockstep.sitl_scene import paper_sitl_scene
 
     log = sys.stderr if as_json else sys.stdout
     binary = find_arducopter_sitl()
@@ -95,15 +106,26 @@ def fly_sitl_and_report(
         if not path.is_file():
             print(f"stereo-avoid sil: parameter file {path} not found", file=sys.stderr)
             return 2
+    try:
+        scene = paper_sitl_scene() if scenario is None else _sitl_scene_of(scenario, log)
+    except ScenarioError as exc:
+        print(f"stereo-avoid sil: {exc}", file=sys.stderr)
+        return 2
 
     def progress(text: str) -> None:
         print(f"  {text}", file=log)
         log.flush()
 
-    print(f"flying the paper's scene on ArduCopter SITL ({binary}) at {speedup:g}x", file=log)
+    what = "the paper's scene" if scenario is None else str(scenario)
+    print(f"flying {what} on ArduCopter SITL ({binary}) at {speedup:g}x", file=log)
     try:
         options = SitlOptions(
-            binary=binary, out_dir=out_dir, speedup=speedup, params_files=params_files
+            binary=binary,
+            out_dir=out_dir,
+            speedup=speedup,
+            params_files=params_files,
+            scene=scene,
+            scene_name="paper-sitl" if scenario is None else f"{scenario.stem}-sitl",
         )
         result = run_sitl_sil(options, progress)
     except ValueError as exc:
@@ -112,13 +134,21 @@ def fly_sitl_and_report(
     except (RuntimeError, TimeoutError, OSError) as exc:
         print(f"stereo-avoid sil: {exc}", file=sys.stderr)
         return 1
+    return _report_sitl(result, scene, out_dir, as_json, log)
+
+
+def _report_sitl(result, scene, out_dir: Path, as_json: bool, log: TextIO) -> int:
+    """Verdict, figures and files of a SITL run (:func:`write_run_report`) plus its speed
+    figures; the exit status."""
+    import json
+
     sc = scenario_from_dict({})
     sil = result.sil
     status = write_run_report(
         sil.verdict,
         sil.history,
-        world=load_scenario(out_dir / "scenario.toml").world,
-        goal_ned_m=SITL_GOAL_NED_M,
+        world=scenario_from_dict(scene.scenario).world,
+        goal_ned_m=scene.goal_ned_m,
         out_dir=out_dir,
         vehicle=sc.vehicle,
         control=sc.control,
@@ -134,3 +164,24 @@ def fly_sitl_and_report(
         for key, value in result.figures.items():
             print(f"  {key:24s} {value}", file=sys.stdout)
     return status
+
+
+def _sitl_scene_of(path: Path, log: TextIO):
+    """The scenario file at ``path`` placed in SITL's world; says how it was moved and what
+    SITL decides for itself."""
+    from plant_sim.lockstep.sitl_scene import sitl_scene
+
+    scene = sitl_scene(read_scenario_data(path))
+    north, east = scene.shift_ne_m
+    print(
+        f"  scene moved by N{north:+g} E{east:+g} m so that its start is SITL's home; "
+        f"takeoff to {scene.takeoff_alt_m:g} m, heading {scene.heading_deg:g} deg, goal "
+        f"N{scene.goal_ned_m[0]:g} E{scene.goal_ned_m[1]:g} D{scene.goal_ned_m[2]:g}",
+        file=log,
+    )
+    if scene.not_applied:
+        print(
+            f"  not applied (ArduCopter SITL decides these itself): {', '.join(scene.not_applied)}",
+            file=log,
+        )
+    return scene

@@ -48,17 +48,19 @@ from plant_sim.lockstep.sil import (
     ChildProcess,
     SilResult,
     _avoid_intervals,
+    _hold_intervals,
     _last_progress,
     _read_truth,
     free_port,
     history_from_truth,
+    settled_in_hold,
     verdict_from_truth,
 )
+from plant_sim.lockstep.sitl_scene import SitlScene, paper_sitl_scene
 
 __all__ = [
     "ARDUCOPTER_SITL_ENV",
     "SITL_GOAL_NED_M",
-    "SITL_SCENARIO_TOML",
     "ArduCopterSitl",
     "SitlOptions",
     "SitlRig",
@@ -69,20 +71,8 @@ __all__ = [
 ]
 
 ARDUCOPTER_SITL_ENV = "ARDUCOPTER_SITL"
-SITL_GOAL_NED_M = (20.0, 0.0, -7.0)
 #: The paper's §6 in SITL's LOCAL_NED: north from home at 7 m, the sphere half-way.
-SITL_SCENARIO_TOML = """\
-# the paper's section 6 in ArduCopter SITL's LOCAL_NED (home = origin), flown northwards
-vehicle_id = "sim1"
-goal_ned_m = [20.0, 0.0, -7.0]
-
-[[obstacles]]
-center_ned_m = [10.0, 0.0, -7.0]
-radius_m = 1.5
-
-[ground]
-down_m = 0.0
-"""
+SITL_GOAL_NED_M = paper_sitl_scene().goal_ned_m
 
 
 def _die_with_parent_hook() -> Callable[[], None] | None:
@@ -153,10 +143,16 @@ class ArduCopterSitl:
     defaults : parameter files, later ones win (``copter.parm`` first).
     instance : ``-I N``.
     speedup : ``--speedup K``.
+    home : ``--home lat,lon,alt,yaw``; None: SITL's default site and heading.
     """
 
     def __init__(
-        self, binary: Path, defaults: Sequence[Path], instance: int, speedup: float
+        self,
+        binary: Path,
+        defaults: Sequence[Path],
+        instance: int,
+        speedup: float,
+        home: str | None = None,
     ) -> None:
         self.binary = Path(binary)
         self.instance = instance
@@ -175,6 +171,7 @@ class ArduCopterSitl:
                 ",".join(str(p) for p in defaults),
                 "-I",
                 str(instance),
+                *(("--home", home) if home is not None else ()),
             ],
             cwd=self.workdir,
             stdin=subprocess.DEVNULL,
@@ -245,7 +242,8 @@ class SitlOptions:
     boot_speedup: float = 10.0
     params_files: tuple[Path, ...] = ()  # extra parameter files (after copter.parm)
     params: tuple[tuple[str, float], ...] = ()  # extra parameters (written to a file)
-    takeoff_alt_m: float = 7.0
+    scene: SitlScene = field(default_factory=paper_sitl_scene)  # what is flown, where
+    scene_name: str = "paper-sitl"  # the verdict's scene name
     max_time_s: float = 120.0  # autopilot time after the companion starts steering
     startup_timeout_s: float = 240.0  # wall: boot, EKF/GPS, takeoff
     companion_args: tuple[str, ...] = ()
@@ -282,8 +280,8 @@ class SitlRig:
         """Start SITL, the companion and plant-sim (each waited for, bounded)."""
         o = self.options
         self.out.mkdir(parents=True, exist_ok=True)
-        scenario = self.out / "scenario.toml"
-        scenario.write_text(SITL_SCENARIO_TOML)
+        scenario = self.out / "scenario.json"
+        scenario.write_text(json.dumps(o.scene.scenario, indent=2) + "\n")
         defaults = [Path(o.binary).parent / "copter.parm", *o.params_files]
         if o.params:
             extra = self.out / "extra.parm"
@@ -293,7 +291,9 @@ class SitlRig:
             if not path.is_file():
                 raise OSError(f"SITL parameter file {path} not found")
         instance = free_sitl_instance()
-        self.sitl = ArduCopterSitl(Path(o.binary), defaults, instance, o.speedup)
+        self.sitl = ArduCopterSitl(
+            Path(o.binary), defaults, instance, o.speedup, o.scene.home_arg()
+        )
         self.sitl.wait_output(r"Waiting for connection", 30.0)
         zen = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
         self.companion = ChildProcess(
@@ -307,9 +307,9 @@ class SitlRig:
                 "--vehicle-id",
                 "sim1",
                 "--goal",
-                *(f"{x:g}" for x in SITL_GOAL_NED_M),
+                *(f"{x:g}" for x in o.scene.goal_ned_m),
                 "--takeoff-alt",
-                f"{o.takeoff_alt_m:g}",
+                f"{o.scene.takeoff_alt_m:g}",
                 "--frame-clock",
                 "autopilot",
                 *o.companion_args,
@@ -374,10 +374,15 @@ class SitlRig:
         return self.sitl.url(2)
 
     def wait_event(
-        self, name: str, timeout_s: float, cond: Callable[[dict], bool] | None = None
-    ) -> dict:
+        self,
+        name: str,
+        timeout_s: float,
+        cond: Callable[[dict], bool] | None = None,
+        unless: Callable[[], bool] | None = None,
+    ) -> dict | None:
         """The first ``COMPANION EVENT name`` (matching ``cond``) within ``timeout_s`` wall
-        seconds, showing the companion's progress once per second."""
+        seconds, showing the companion's progress once per second; None as soon as
+        ``unless()`` (asked once per second) is true."""
         assert self.companion is not None
         deadline = time.monotonic() + timeout_s
         last_say = 0.0
@@ -398,6 +403,8 @@ class SitlRig:
                 line = _last_progress(self.companion.stderr_text())
                 if line:
                     self.say(line)
+                if unless is not None and unless():
+                    return None
             time.sleep(0.05)
         raise TimeoutError(f"no companion event {name!r} within {timeout_s:.0f} s\n{self.logs()}")
 
@@ -419,15 +426,27 @@ class SitlRig:
         return self.t0_s
 
     def fly_to_goal(self) -> bool:
-        """Wait (bounded by ``max_time_s`` of autopilot time) for the goal; True if the
-        companion reported it."""
+        """Wait (bounded by ``max_time_s`` of autopilot time) for the goal, or for the vehicle
+        at rest in a hold the companion reported (:func:`settled_in_hold`); True if the
+        companion reported the goal."""
         o = self.options
+        assert self.companion is not None
+        companion = self.companion
+
+        def settled() -> bool:
+            if settled_in_hold(self.out / "truth.csv", companion.events()):
+                self.say("stopped in a reported hold")
+                return True
+            return False
+
         try:
-            self.wait_event("goal_reached", o.max_time_s / o.speedup + 20.0)
+            reached = self.wait_event(
+                "goal_reached", o.max_time_s / o.speedup + 20.0, unless=settled
+            )
         except TimeoutError:
             return False
-        time.sleep(0.5)  # a little of the flight after the goal, as the truth log samples it
-        return True
+        time.sleep(0.5)  # a little of the flight after the end, as the truth log samples it
+        return reached is not None
 
     def logs(self) -> str:
         parts = [c.logs() for c in (self.companion, self.plant) if c is not None]
@@ -477,12 +496,13 @@ class SitlRig:
         intervals = _avoid_intervals(events)
         verdict = verdict_from_truth(
             truth,
-            scene="paper-sitl",
-            goal_ned_m=SITL_GOAL_NED_M,
+            scene=self.options.scene_name,
+            goal_ned_m=self.options.scene.goal_ned_m,
             t0_s=self.t0_s,
             avoid_intervals=intervals,
             frames=(companion_stats or {}).get("frames_processed", 0),
             wall_time_s=time.monotonic() - self._wall_start,
+            hold_intervals=_hold_intervals(events),
         )
         return SilResult(
             verdict=verdict,
