@@ -3,9 +3,10 @@ progress, then the verdict and files through :func:`~plant_sim.lockstep.report.w
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from plant_sim.lockstep.harness import RunConfig
 from plant_sim.lockstep.report import write_run_report
@@ -17,6 +18,10 @@ from plant_sim.scenario import (
     read_scenario_data,
     scenario_from_dict,
 )
+
+if TYPE_CHECKING:
+    from plant_sim.lockstep.sitl import SitlResult
+    from plant_sim.lockstep.sitl_scene import SitlScene
 
 __all__ = ["fly_sil_and_report", "fly_sitl_and_report"]
 
@@ -83,7 +88,6 @@ def fly_sitl_and_report(
     on ArduPilot's ArduCopter SITL (plant-sim as the camera only), report like the
     plant-sim SIL run plus the speed figures; exit status as :func:`write_run_report`'s,
     2 on bad input."""
-
     from plant_sim.lockstep.sitl import (
         ARDUCOPTER_SITL_ENV,
         SitlOptions,
@@ -137,11 +141,11 @@ def fly_sitl_and_report(
     return _report_sitl(result, scene, out_dir, as_json, log)
 
 
-def _report_sitl(result, scene, out_dir: Path, as_json: bool, log: TextIO) -> int:
+def _report_sitl(
+    result: SitlResult, scene: SitlScene, out_dir: Path, as_json: bool, log: TextIO
+) -> int:
     """Verdict, figures and files of a SITL run (:func:`write_run_report`) plus its speed
     figures; the exit status."""
-    import json
-
     sc = scenario_from_dict({})
     sil = result.sil
     status = write_run_report(
@@ -166,12 +170,16 @@ def _report_sitl(result, scene, out_dir: Path, as_json: bool, log: TextIO) -> in
     return status
 
 
-def _sitl_scene_of(path: Path, log: TextIO):
+def _sitl_scene_of(path: Path, log: TextIO) -> SitlScene:
     """The scenario file at ``path`` placed in SITL's world; says how it was moved and what
-    SITL decides for itself."""
+    SITL decides for itself. A :class:`ScenarioError` names the file."""
     from plant_sim.lockstep.sitl_scene import sitl_scene
 
-    scene = sitl_scene(read_scenario_data(path))
+    data = read_scenario_data(path)
+    try:
+        scene = sitl_scene(data)
+    except ScenarioError as exc:
+        raise ScenarioError(f"{path}: {exc}") from None
     north, east = scene.shift_ne_m
     print(
         f"  scene moved by N{north:+g} E{east:+g} m so that its start is SITL's home; "

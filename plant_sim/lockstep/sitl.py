@@ -60,7 +60,6 @@ from plant_sim.lockstep.sitl_scene import SitlScene, paper_sitl_scene
 
 __all__ = [
     "ARDUCOPTER_SITL_ENV",
-    "SITL_GOAL_NED_M",
     "ArduCopterSitl",
     "SitlOptions",
     "SitlRig",
@@ -71,8 +70,6 @@ __all__ = [
 ]
 
 ARDUCOPTER_SITL_ENV = "ARDUCOPTER_SITL"
-#: The paper's §6 in SITL's LOCAL_NED: north from home at 7 m, the sphere half-way.
-SITL_GOAL_NED_M = paper_sitl_scene().goal_ned_m
 
 
 def _die_with_parent_hook() -> Callable[[], None] | None:
