@@ -56,8 +56,7 @@ _NEAR_UNIQUENESS = 50  # its uniqueness margin [%]
 _NEAR_SPECKLE_PX = 10  # its speckle window [coarse px]
 _NEAR_HALO_PX = 41  # main-pass matches this close to a too-near surface are unknown [px]
 _NEAR_HALO = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_NEAR_HALO_PX, _NEAR_HALO_PX))
-_NO_GRADIENT = np.zeros((0, 0), np.uint8)  # the edge gate is off
-_NO_TABLE = np.zeros(0, np.uint8)
+_NO_EDGES = np.zeros(0, np.int32)  # the edge gate is off
 _NO_COARSE = np.zeros((0, 0), np.int16)  # the coarse pass is off
 
 
@@ -124,23 +123,63 @@ def _abs_laplacian_sum(image, top, bottom):
     return total
 
 
-def _block_gradients(image: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
-    """Horizontal and vertical gradient magnitude (3x3 Sobel, saturated to uint8) averaged
-    over each pixel's block (uint8): a pixel whose block has less than ``ratio`` times as
-    much horizontal as vertical gradient lies on a near-horizontal edge, which only a
-    perfect rectification matches right (:func:`_gate` refuses it)."""
-    dx, dy = cv2.spatialGradient(image)  # 3x3 Sobel, both directions in one pass
-    ax = cv2.blur(cv2.convertScaleAbs(dx), (block, block))
-    ay = cv2.blur(cv2.convertScaleAbs(dy), (block, block))
-    return ax, ay
+def _edge_table(ratio: float, block: int) -> np.ndarray:
+    """Per horizontal block sum ``sx`` (of the saturated 3x3 Sobel magnitudes over a
+    ``block`` x ``block`` window), the least vertical block sum ``sy`` that makes the window
+    a near-horizontal edge, which only a perfect rectification matches right
+    (:func:`_gate` refuses it): horizontal gradient < ``ratio`` x vertical.
 
-
-def _scaled_gradient_table(ratio: float) -> np.ndarray:
-    """``convertScaleAbs(g, alpha=1 / ratio)`` for every uint8 ``g``: the gate compares
-    ``ax < ratio·ay`` as ``ax / ratio < ay`` in uint8; where ``ax / ratio`` saturates, ``ay``
-    (<= 255) cannot exceed it, which is the right answer."""
+    The comparison is the one ``cv2.blur`` means (``round(s / n)``, exact in integers for
+    the odd ``n = block²``) compared as ``convertScaleAbs(ax, alpha=1 / ratio) < ay``
+    (uint8; where ``ax / ratio`` saturates no ``ay`` exceeds it). Int32; ``2**30``: never.
+    """
+    n = block * block
     grey = np.arange(256, dtype=np.uint8).reshape(1, -1)
-    return cv2.convertScaleAbs(grey, alpha=1.0 / ratio).reshape(-1)
+    scaled = cv2.convertScaleAbs(grey, alpha=1.0 / ratio).reshape(-1).astype(np.int64)
+    sx = np.arange(255 * n + 1, dtype=np.int64)
+    ax = (2 * sx + n) // (2 * n)  # round(sx / n): n is odd, so never a tie
+    # round(sy / n) >= m  <=>  sy >= n·m - n // 2
+    least = n * (scaled[ax] + 1) - n // 2
+    return np.where(scaled[ax] >= 255, 2**30, least).astype(np.int32)
+
+
+@numba.njit(cache=True)
+def _reflect101(i, n):
+    """OpenCV's BORDER_REFLECT_101 index of ``i`` in ``range(n)`` (``gfedcb|abcdefgh|gfedcba``)."""
+    if n == 1:
+        return 0
+    while i < 0 or i >= n:
+        i = -i if i < 0 else 2 * n - 2 - i
+    return i
+
+
+@numba.njit(cache=True)
+def _abs_sobel(image):
+    """``|dx|``, ``|dy|`` of ``image`` (uint8) by the 3x3 Sobel kernels, saturated to uint8,
+    borders reflected (``cv2.spatialGradient`` then ``cv2.convertScaleAbs``, bit for bit).
+    Separable, row by row, in branch-free loops the compiler vectorises."""
+    height, width = image.shape
+    adx = np.empty((height, width), np.uint8)
+    ady = np.empty((height, width), np.uint8)
+    smooth = np.empty(width + 2, np.int32)  # [1 2 1] down the column, one column of border
+    diff = np.empty(width + 2, np.int32)  # [-1 0 1] down the column
+    xm, xp = _reflect101(-1, width), _reflect101(width, width)
+    for y in range(height):
+        above = image[_reflect101(y - 1, height)]
+        here = image[y]
+        below = image[_reflect101(y + 1, height)]
+        for x in range(width):
+            smooth[x + 1] = np.int32(above[x]) + 2 * np.int32(here[x]) + below[x]
+            diff[x + 1] = np.int32(below[x]) - above[x]
+        smooth[0], diff[0] = smooth[xm + 1], diff[xm + 1]
+        smooth[width + 1], diff[width + 1] = smooth[xp + 1], diff[xp + 1]
+        out_x, out_y = adx[y], ady[y]
+        for x in range(width):
+            dx = smooth[x + 2] - smooth[x]
+            dy = diff[x] + 2 * diff[x + 1] + diff[x + 2]
+            out_x[x] = min(abs(dx), 255)
+            out_y[x] = min(abs(dy), 255)
+    return adx, ady
 
 
 def configured_bm(
@@ -201,19 +240,75 @@ def _coarse_row(small, n_band, y, row):
 
 
 @numba.njit(cache=True)
-def _gate(disp, grad_x, grad_y, scaled_x, band_limit):
-    """The main pass's gates on ``disp`` (int16, 1/16 px), in place: -16 where the block's
-    horizontal gradient, scaled (``scaled_x[grad_x]``), is below its vertical one (a
-    near-horizontal edge; skipped when ``grad_x`` is empty) and in column ``x`` of the left
-    band where the disparity exceeds ``band_limit[x]`` (the match leans on the black band)."""
-    edges = grad_x.shape[0] > 0
-    n_band = band_limit.shape[0]
-    for y in range(disp.shape[0]):
-        for x in range(disp.shape[1]):
-            if (edges and scaled_x[grad_x[y, x]] < grad_y[y, x]) or (
-                x < n_band and disp[y, x] > band_limit[x]
-            ):
-                disp[y, x] = -_DISP_SCALE
+def _gate(disp, image, block, least_sy, band_limit):
+    """The main pass's gates on ``disp`` (int16, 1/16 px), in place: -16 where ``image``'s
+    block around the pixel is a near-horizontal edge (its horizontal Sobel sum ``sx`` and
+    vertical ``sy`` over the ``block`` x ``block`` window, borders reflected, have
+    ``sy >= least_sy[sx]``, :func:`_edge_table`; skipped when ``least_sy`` is empty) and in
+    column ``x`` of the left band where the disparity exceeds ``band_limit[x]`` (the match
+    leans on the black band)."""
+    height, width = disp.shape
+    n_band = min(band_limit.shape[0], width)
+    for y in range(height):
+        row = disp[y]
+        for x in range(n_band):
+            if row[x] > band_limit[x]:
+                row[x] = -_DISP_SCALE
+    if least_sy.shape[0] == 0:
+        return
+    radius = block // 2
+    adx, ady = _abs_sobel(image)
+    col_x = np.zeros(width, np.int32)  # window sums down each column, at row y
+    col_y = np.zeros(width, np.int32)
+    for k in range(-radius, radius + 1):
+        _add_row(col_x, adx[_reflect101(k, height)], 1)
+        _add_row(col_y, ady[_reflect101(k, height)], 1)
+    sum_x = np.empty(width, np.int32)  # window sums at row y
+    sum_y = np.empty(width, np.int32)
+    prefix = np.empty(width + 2 * radius + 1, np.int32)
+    for y in range(height):
+        if y > 0:
+            enter, leave = _reflect101(y + radius, height), _reflect101(y - radius - 1, height)
+            _add_row(col_x, adx[enter], 1)
+            _add_row(col_x, adx[leave], -1)
+            _add_row(col_y, ady[enter], 1)
+            _add_row(col_y, ady[leave], -1)
+        _row_window_sums(col_x, radius, prefix, sum_x)
+        _row_window_sums(col_y, radius, prefix, sum_y)
+        row = disp[y]
+        for x in range(width):
+            if sum_y[x] >= least_sy[sum_x[x]]:
+                row[x] = -_DISP_SCALE
+
+
+@numba.njit(cache=True)
+def _add_row(total, row, sign):
+    """``total += sign · row`` (int32 += uint8), a loop the compiler vectorises."""
+    for x in range(total.shape[0]):
+        total[x] += sign * np.int32(row[x])
+
+
+@numba.njit(cache=True)
+def _row_window_sums(col, radius, prefix, out):
+    """``out[x]`` = the sum of ``col[x - radius .. x + radius]``, borders reflected;
+    ``prefix`` (``len(col) + 2·radius + 1``) is scratch for the running sums. (The offsets
+    are slices, not index arithmetic, so the loops stay free of negative-index checks.)"""
+    width = col.shape[0]
+    total = 0
+    prefix[0] = 0
+    for k in range(radius):
+        total += col[_reflect101(k - radius, width)]
+        prefix[k + 1] = total
+    inner = prefix[radius + 1 : radius + 1 + width]
+    for x in range(width):
+        total += col[x]
+        inner[x] = total
+    for k in range(radius):
+        total += col[_reflect101(width + k, width)]
+        prefix[radius + width + k + 1] = total
+    ahead = prefix[2 * radius + 1 :]
+    for x in range(width):
+        out[x] = ahead[x] - prefix[x]
 
 
 @numba.njit(cache=True)
@@ -283,9 +378,10 @@ def _warm_up() -> None:
     for image in (decoded[0], np.zeros((8, 8), np.uint8)):
         noise_sigma(image)
         _quarter(image, np.zeros((4, 6), np.uint8)[1:3, 1:3])
-    gradient = np.zeros((4, 4), np.uint8)
-    _gate(main, gradient, gradient, np.zeros(256, np.uint8), np.zeros(2, np.int16))
-    _gate(main, _NO_GRADIENT, _NO_GRADIENT, _NO_TABLE, np.zeros(2, np.int16))
+    # the prefiltered left image is a view into its padded array (writeable, strided)
+    for image in (decoded[0][1:5, 2:6], np.zeros((6, 8), np.uint8)[1:5, 2:6]):
+        _gate(main, image, 3, np.zeros(9 * 255 + 1, np.int32), np.zeros(2, np.int16))
+        _gate(main, image, 3, _NO_EDGES, np.zeros(2, np.int16))
     coarse = np.full((3, 4), -16, np.int16)[1:, 1:3]
     for small in (coarse, _NO_COARSE):
         out = (np.empty((4, 4), np.float32), np.zeros((4, 4), np.uint8), np.zeros((2, 2), np.uint8))
@@ -366,12 +462,11 @@ class PaddedStereoBM:
         out = matcher.compute(left_padded, right_padded)
         disp = out[pad_y : pad_y + height, pad_x : pad_x + width]
         ratio = self.config.min_edge_ratio
-        grad_x, grad_y, scaled_x = _NO_GRADIENT, _NO_GRADIENT, _NO_TABLE
+        least_sy = _NO_EDGES
         if ratio > 0.0:
             # Aperture: along a near-horizontal edge a match is only as good as the
             # rectification (a 2 px vertical error on a 5° edge shifts it by 23 px).
-            grad_x, grad_y = _block_gradients(left, block)
-            scaled_x = self._table(("edge", ratio), lambda: _scaled_gradient_table(ratio))
+            least_sy = self._table(("edge", ratio, block), lambda: _edge_table(ratio, block))
         # The right camera sees column x - d only if x - d >= 0; a match whose right block
         # reaches into the black band (x - d < half a block + _EDGE_MARGIN_PX) leans on it
         # and is as likely wrong as right: unknown too.
@@ -381,7 +476,7 @@ class PaddedStereoBM:
             ("band", n_band, margin),
             lambda: _DISP_SCALE * (np.arange(n_band, dtype=np.int16) - margin),
         )
-        _gate(disp, grad_x, grad_y, scaled_x, limit)
+        _gate(disp, left, block, least_sy, limit)
         return disp
 
     def prefilter_sigma_px(self, frame: StereoFrame) -> tuple[float, float]:
