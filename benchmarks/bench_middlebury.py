@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 
 from companion.perception import Matcher, PerceptionConfig, StereoPerception
+from companion.stereo_bm import configured_bm
 from protocols.camera import StereoIntrinsics
 from protocols.stereo_frame import StereoFrame
 
@@ -126,16 +127,13 @@ def near_mask_scores(
 
 def _bare_matcher(perception: StereoPerception, intrinsics: StereoIntrinsics):
     """The OpenCV matcher with perception's settings, on the unpadded pair."""
-    cfg = perception.config
-    bare = cv2.StereoBM_create(
-        perception.source.num_disparities(intrinsics), perception.source.block_size(intrinsics)
+    source = perception.source
+    return configured_bm(
+        perception.config,
+        source.num_disparities(intrinsics),
+        source.block_size(intrinsics),
+        intrinsics.width_px,
     )
-    bare.setTextureThreshold(cfg.texture_threshold)
-    bare.setUniquenessRatio(cfg.uniqueness_ratio)
-    bare.setSpeckleWindowSize(cfg.speckle_window_px)
-    bare.setSpeckleRange(cfg.speckle_range_px)
-    bare.setDisp12MaxDiff(cfg.lr_max_diff_px)
-    return bare
 
 
 def main(argv: list[str] | None = None) -> None:

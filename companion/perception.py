@@ -133,8 +133,11 @@ class PerceptionConfig:
         320 × 240; scaled with the image area] is refused. Sensor noise on a textureless
         surface forms such regions of up to ~220 px with random (often too far) disparity;
         200 px removed all of them in 30 frames of a textureless wall (100 px let 7 through).
-    speckle_range_px : int
-        OpenCV speckle filter disparity range [px].
+    speckle_range_px : float
+        OpenCV speckle filter: neighbours whose disparities differ by at most this [px] are
+        one region. StereoBM applies it to its 1/16 px fixed-point output (it does not scale
+        it, unlike SGBM), so it is passed as ``round(16 · speckle_range_px)``; the default
+        3/16 px is the tuned value (the config took OpenCV's raw 3 as "px" before).
     prefilter_sigma_px : float or None
         Gaussian prefilter of both images before matching [px]; ``None`` adapts it to the
         sensor noise estimated in each frame (1 px on a clean image, ~1.7 px at σ 10,
@@ -189,7 +192,7 @@ class PerceptionConfig:
     uniqueness_ratio: int = 10
     texture_threshold: int = 10
     speckle_window_px: int = 200
-    speckle_range_px: int = 3
+    speckle_range_px: float = 0.1875
     lr_max_diff_px: int = 1
     prefilter_sigma_px: float | None = None
     min_edge_ratio: float = 0.1
@@ -217,6 +220,7 @@ class PerceptionConfig:
                 "safety_margin_m",
                 "cap_depth_m",
                 "min_obstacle_size_m",
+                "speckle_range_px",
             ),
         )
         if not (math.isfinite(self.max_range_m) and self.max_range_m > self.threshold_m):

@@ -191,7 +191,8 @@ def configured_bm(
     matcher.setTextureThreshold(config.texture_threshold)
     matcher.setUniquenessRatio(config.uniqueness_ratio)
     matcher.setSpeckleWindowSize(speckle_window_px(config.speckle_window_px, width_px))
-    matcher.setSpeckleRange(config.speckle_range_px)
+    # StereoBM compares the range with its 1/16 px fixed-point disparities as they are
+    matcher.setSpeckleRange(round(_DISP_SCALE * config.speckle_range_px))
     matcher.setDisp12MaxDiff(config.lr_max_diff_px)
     return matcher
 
@@ -542,7 +543,7 @@ class PaddedStereoBM:
             matcher.setTextureThreshold(_NEAR_TEXTURE)
             matcher.setUniquenessRatio(_NEAR_UNIQUENESS)
             matcher.setSpeckleWindowSize(_NEAR_SPECKLE_PX)
-            matcher.setSpeckleRange(1)
+            matcher.setSpeckleRange(1)  # 1/16 coarse px (StereoBM does not scale it)
             matcher.setDisp12MaxDiff(max(cfg.lr_max_diff_px, 0))
             self._matchers[key] = matcher
         pad_y = max(_NEAR_BLOCK_PX // 2, (_NEAR_BLOCK_PX + 2 - h4) // 2)

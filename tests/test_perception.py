@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from companion.perception import Matcher, PerceptionConfig, PerceptionResult, StereoPerception
+from companion.stereo_bm import configured_bm
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import GroundPlane, Sphere, World
 from protocols.camera import CameraModel
@@ -193,6 +194,19 @@ def test_config_from_dict():
         PerceptionConfig(block_size_px=8)
     with pytest.raises(ValueError):
         PerceptionConfig(matcher="census")
+
+
+def test_speckle_range_is_in_pixels():
+    """StereoBM compares the speckle range with its 1/16 px fixed-point disparities without
+    scaling it: the configured pixels reach OpenCV times 16 (the default, 3/16 px, is the
+    raw 3 the matcher was tuned with)."""
+    for range_px, fixed in ((0.1875, 3), (1.0, 16), (2.5, 40), (0.0, 0)):
+        cfg = PerceptionConfig(speckle_range_px=range_px)
+        assert configured_bm(cfg, 48, 9, 320).getSpeckleRange() == fixed, range_px
+    assert configured_bm(PerceptionConfig(), 48, 9, 320).getSpeckleRange() == 3
+    for bad in (-1.0, math.nan, "3"):
+        with pytest.raises(ValueError, match="speckle_range_px"):
+            PerceptionConfig(speckle_range_px=bad)
 
 
 def test_threshold_is_configurable(renderer):
