@@ -335,7 +335,11 @@ def _shade(
     ground_seed,
 ):
     """Grey value (before noise) of a ray from ``o`` that hit obstacle ``hit`` >= 0 or the
-    ground (-1)."""
+    ground (-1).
+
+    Each branch only picks the texture's plane coordinates, seed and normal: the texture
+    and the shading are written once (inlined into the renderer's loop, every call site of
+    a texture multiplies numba's compile time, not the speed)."""
     lz = -0.8
     footprint = t_best / fx * math.sqrt(aa)
     n_spheres = spheres.shape[0]
@@ -347,6 +351,7 @@ def _shade(
         r = spheres[hit, 3]
         tex = _sphere_texture(lat, px, py, pz, texture_cell, footprint, spheres[hit, 4])
         return _obstacle_grey(tex, spheres[hit, 5], px / r, py / r, pz / r)
+    cell = texture_cell
     if hit >= n_spheres and hit < n_spheres + n_boxes:
         j = hit - n_spheres
         p0 = ox + t_best * dx - boxes[j, 0]
@@ -357,32 +362,33 @@ def _shade(
         f1 = abs(p1) / boxes[j, 4]
         f2 = abs(p2) / boxes[j, 5]
         seed = boxes[j, 6]
+        contrast = boxes[j, 7]
         if f0 >= f1 and f0 >= f2:
-            tex = _ground_texture(lat, p1, p2, texture_cell, footprint, seed)
-            return _obstacle_grey(tex, boxes[j, 7], math.copysign(1.0, p0), 0.0, 0.0)
-        if f1 >= f2:
-            tex = _ground_texture(lat, p0, p2, texture_cell, footprint, seed + 2.0)
-            return _obstacle_grey(tex, boxes[j, 7], 0.0, math.copysign(1.0, p1), 0.0)
-        tex = _ground_texture(lat, p0, p1, texture_cell, footprint, seed + 4.0)
-        return _obstacle_grey(tex, boxes[j, 7], 0.0, 0.0, math.copysign(1.0, p2))
-    if hit >= 0:
+            a, b, nx, ny, nz = p1, p2, math.copysign(1.0, p0), 0.0, 0.0
+        elif f1 >= f2:
+            a, b, seed, nx, ny, nz = p0, p2, seed + 2.0, 0.0, math.copysign(1.0, p1), 0.0
+        else:
+            a, b, seed, nx, ny, nz = p0, p1, seed + 4.0, 0.0, 0.0, math.copysign(1.0, p2)
+    elif hit >= 0:
         m = hit - n_spheres - n_boxes
         px = ox + t_best * dx - cyls[m, 0]
         py = oy + t_best * dy - cyls[m, 1]
         pz = oz + t_best * dz - cyls[m, 2]
         r = cyls[m, 3]
         seed = cyls[m, 5]
+        contrast = cyls[m, 6]
         radial = math.sqrt(px * px + py * py)
         if abs(pz) >= cyls[m, 4] - 1e-6 and radial < r * (1.0 - 1e-6):  # a cap
-            tex = _ground_texture(lat, px, py, texture_cell, footprint, seed + 2.0)
-            return _obstacle_grey(tex, cyls[m, 6], 0.0, 0.0, math.copysign(1.0, pz))
-        arc = r * math.atan2(py, px)
-        tex = _ground_texture(lat, arc, pz, texture_cell, footprint, seed)
-        return _obstacle_grey(tex, cyls[m, 6], px / r, py / r, 0.0)
-    px = ox + t_best * dx
-    py = oy + t_best * dy
-    tex = _ground_texture(lat, px, py, ground_cell, footprint, ground_seed)
-    return 20.0 + 200.0 * (0.2 + 0.8 * tex) * (0.45 + 0.55 * -lz)
+            a, b, seed, nx, ny, nz = px, py, seed + 2.0, 0.0, 0.0, math.copysign(1.0, pz)
+        else:
+            a, b, nx, ny, nz = r * math.atan2(py, px), pz, px / r, py / r, 0.0
+    else:  # the ground
+        a, b, cell, seed = ox + t_best * dx, oy + t_best * dy, ground_cell, ground_seed
+        contrast, nx, ny, nz = 1.0, 0.0, 0.0, 0.0
+    tex = _ground_texture(lat, a, b, cell, footprint, seed)
+    if hit < 0:
+        return 20.0 + 200.0 * (0.2 + 0.8 * tex) * (0.45 + 0.55 * -lz)
+    return _obstacle_grey(tex, contrast, nx, ny, nz)
 
 
 # Fast-math flags without 'nnan'/'ninf': the sky's depth is +inf and must compare correctly.
