@@ -34,3 +34,7 @@ if ! command -v chromium >/dev/null 2>&1 && ! command -v chromium-browser >/dev/
         echo "setup: chromium missing (no apt): install Chromium for tests/test_view_sil.py" >&2
     fi
 fi
+# Compile the numba kernels into their cache once (~50 s on a fresh install, seconds after):
+# otherwise the first plant-sim, companion, Monte Carlo worker or test pays it at its first
+# frame.
+.venv/bin/stereo-avoid compile

@@ -26,6 +26,9 @@ Subcommands
 ``stereo-avoid sil [--scenario FILE] [--speedup N] [--out DIR] [--json]``
     plant-sim and the companion as two processes over MAVLink and Zenoh on loopback;
     the same verdict and figures, from plant-sim's ground-truth log.
+``stereo-avoid compile [--jobs J]``
+    Compile every numba kernel into numba's cache (:mod:`plant_sim.lockstep.kernels`), so
+    no process pays ~70 s of JIT at its first frame; ``scripts/setup.sh`` runs it.
 
 ``paper``, ``replay`` and ``sil`` take ``--rerun FILE.rrd|serve[:PORT]``: the run in Rerun
 (:mod:`plant_sim.lockstep.view`; needs the optional ``view`` extra).
@@ -273,6 +276,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     sil = sub.add_parser("sil", help="plant-sim + companion as processes on loopback")
     _add_sil(sil)
+    compile_ = sub.add_parser(
+        "compile", help="compile every numba kernel into its cache (setup runs it once)"
+    )
+    compile_.add_argument(
+        "--jobs", type=int, default=2, help="processes compiling at once (default 2)"
+    )
     for p in (paper, replay, sil):
         p.add_argument(
             "--rerun",
@@ -380,6 +389,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     if args.command == "replay":
         return _replay(args)
+    if args.command == "compile":
+        from plant_sim.lockstep.kernels import compile_kernels
+
+        compile_kernels(max(args.jobs, 1))
+        return 0
     if args.n < 1 or args.jobs < 1:
         print("stereo-avoid: --n and --jobs must be >= 1", file=sys.stderr)
         return 2
