@@ -9,7 +9,7 @@ import pytest
 from plant_sim.lockstep.montecarlo import run_batch, summarize
 from plant_sim.lockstep.scenes import FAMILIES, family_scene, mixed_scene, random_scene
 
-SEEDS = range(100, 112)
+SEEDS = range(100, 108)
 
 
 def test_random_scenes_are_reproducible_and_valid():
@@ -46,7 +46,7 @@ def test_scene_families_are_reproducible_and_what_they_say():
 
 @pytest.mark.slow
 def test_monte_carlo_sample_has_no_collision():
-    verdicts = run_batch(SEEDS, jobs=2)  # mixed: three of each family
+    verdicts = run_batch(SEEDS, jobs=2)  # mixed: two of each family
     summary = summarize(verdicts)
     assert summary["collision_rate"] == 0.0, summary["failed_seeds"]
     assert summary["safe_outcome_rate"] == 1.0, summary["failures_by_cause"]
