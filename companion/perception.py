@@ -77,6 +77,7 @@ __all__ = [
 _REFERENCE_WIDTH_PX = 320  # the paper's camera; block size scales from it
 _MIN_SIDE_CAP_PX = 20.0  # the size gate never asks for more than a 20 px square (at 320 px)
 _NO_EDGE = np.zeros((0, 2), np.int32)  # no contour samples (stride 1: the grid is every pixel)
+_MAX_SPECKLE_RANGE_PX = 1024.0  # beyond any disparity search; keeps 16 x it a C int for OpenCV
 
 
 class Matcher(enum.Enum):
@@ -238,6 +239,11 @@ class PerceptionConfig:
             raise ValueError(f"prefilter_sigma_px must be >= 0, got {self.prefilter_sigma_px!r}")
         if not (math.isfinite(self.min_edge_ratio) and 0.0 <= self.min_edge_ratio < 1.0):
             raise ValueError(f"min_edge_ratio must be in [0, 1), got {self.min_edge_ratio!r}")
+        if self.speckle_range_px > _MAX_SPECKLE_RANGE_PX:
+            raise ValueError(
+                f"speckle_range_px must be <= {_MAX_SPECKLE_RANGE_PX} (wider than any "
+                f"disparity search), got {self.speckle_range_px!r}"
+            )
         if self.lr_max_diff_px < -1:
             raise ValueError(f"lr_max_diff_px must be >= -1, got {self.lr_max_diff_px}")
         if self.min_range_m >= self.threshold_m:

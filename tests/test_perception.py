@@ -204,7 +204,7 @@ def test_speckle_range_is_in_pixels():
         cfg = PerceptionConfig(speckle_range_px=range_px)
         assert configured_bm(cfg, 48, 9, 320).getSpeckleRange() == fixed, range_px
     assert configured_bm(PerceptionConfig(), 48, 9, 320).getSpeckleRange() == 3
-    for bad in (-1.0, math.nan, "3"):
+    for bad in (-1.0, math.nan, "3", 1e12, math.inf):
         with pytest.raises(ValueError, match="speckle_range_px"):
             PerceptionConfig(speckle_range_px=bad)
 

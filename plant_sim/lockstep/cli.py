@@ -392,7 +392,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command == "compile":
         from plant_sim.lockstep.kernels import compile_kernels
 
-        compile_kernels(max(args.jobs, 1))
+        if args.jobs < 1:
+            print("stereo-avoid compile: --jobs must be >= 1", file=sys.stderr)
+            return 2
+        compile_kernels(args.jobs)
         return 0
     if args.n < 1 or args.jobs < 1:
         print("stereo-avoid: --n and --jobs must be >= 1", file=sys.stderr)

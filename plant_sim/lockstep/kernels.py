@@ -1,5 +1,5 @@
 """Compile every numba kernel into numba's cache before the first flight (``stereo-avoid
-compile``; ``scripts/setup.sh`` and the Docker build run it).
+compile``; ``scripts/setup.sh`` runs it).
 
 On a fresh install the kernels are compiled at their first call: ~70 s of CPU, most of it
 the stereo renderer, paid by whichever process starts first (plant-sim's first frame, a
