@@ -412,6 +412,78 @@ def test_goal_inside_a_boundary_ends_in_a_latched_hold_outside_it():
         np.testing.assert_array_equal(out.setpoint_ned_m, held)
 
 
+@dataclasses.dataclass(frozen=True)
+class _Piece:
+    """A map piece as guidance receives it (a keyed boundary sphere)."""
+
+    track_key: int
+    center_ned_m: tuple[float, float, float]
+    radius_m: float
+
+
+# The goal inside the obstacle seen as map pieces: the piece holding the goal (its blind
+# spot) behind a front piece that does not hold it but covers the point goal_standoff_m
+# before the goal's piece on the straight path (x = 12.5 from the north).
+GOAL_IN_PIECES_NED_M = CENTER_NED_M + np.array([0.5, 0.0, 0.0])
+BACK_PIECE = _Piece(1, tuple(CENTER_NED_M), 2.0)
+FRONT_PIECE = _Piece(2, (12.6, 0.3, -7.0), 1.2)
+
+
+def test_a_goal_inside_an_obstacle_of_several_pieces_stops_before_its_nearest_piece():
+    """The stop point is goal_standoff_m before the first piece of the goal's obstacle on the
+    straight path, not only before the piece that holds the goal: a stop point inside the
+    front piece made guidance hold wherever the vehicle was (reason goal_inside_boundary),
+    so where it stopped and what it reported hung on which pieces the last frames had
+    confirmed. Now it flies to the stop point and holds there, goal_unreachable."""
+    cfg = GuidanceConfig(**ONE_SHOT)
+    pieces = [BACK_PIECE, FRONT_PIECE]
+    assert np.linalg.norm(GOAL_IN_PIECES_NED_M - FRONT_PIECE.center_ned_m) > FRONT_PIECE.radius_m
+    entry_x = 12.6 + math.sqrt(1.2**2 - 0.3**2)  # the path along x enters the front piece
+    stop = np.array([entry_x + cfg.goal_standoff_m, 0.0, -7.0])
+    pos = np.array([17.0, 0.0, -7.0])
+    state, out = _step(GuidanceState(), 0.0, pos, [-1.0, 0.0, 0.0], GOAL_IN_PIECES_NED_M, pieces)
+    assert out.mode is Mode.NAVIGATE, out.reason
+    np.testing.assert_allclose(out.setpoint_ned_m, stop, atol=1e-9)
+    pos = stop + np.array([0.2, 0.0, 0.0])  # arrived (within the standoff)
+    state, out = _step(state, 0.1, pos, [-0.3, 0.0, 0.0], GOAL_IN_PIECES_NED_M, pieces)
+    assert out.mode is Mode.HOLD and out.reason is Reason.GOAL_UNREACHABLE
+    for sphere in pieces:
+        assert np.linalg.norm(out.setpoint_ned_m - sphere.center_ned_m) > sphere.radius_m
+
+
+@pytest.mark.parametrize("order", [(0, 1), (1, 0), (0,), (1,)])
+def test_the_reason_for_a_goal_inside_an_obstacle_does_not_hang_on_which_piece_came_first(order):
+    """Frames arrive late or are dropped under load: whichever pieces are confirmed when, a
+    hold for the goal inside the obstacle is reported as goal_unreachable, and the vehicle
+    is never held inside a boundary."""
+    extra = _Piece(3, (11.0, -1.5, -7.0), 1.0)  # a side piece, touching the back one
+    pieces = [BACK_PIECE, FRONT_PIECE, extra]
+    state = GuidanceState()
+    for k, x in enumerate(np.linspace(17.0, 14.0, 31)):
+        seen = [pieces[i] for i in order] if k < 10 else pieces  # the rest come in later
+        pos = np.array([x, 0.0, -7.0])
+        state, out = _step(state, k * DT_S, pos, [-1.0, 0.0, 0.0], GOAL_IN_PIECES_NED_M, seen)
+        if out.mode is Mode.HOLD:
+            assert out.reason is Reason.GOAL_UNREACHABLE, (k, out.reason)
+            for sphere in seen:
+                assert np.linalg.norm(out.setpoint_ned_m - sphere.center_ned_m) > sphere.radius_m
+    assert out.mode is Mode.HOLD  # at x = 14: past the stop point before the front piece
+
+
+def test_a_stop_point_never_lies_in_a_boundary_near_the_goals_obstacle():
+    """A separate boundary closer than goal_standoff_m to the goal's obstacle counts as part
+    of it for the stop point: stopping between the two is no place to hold."""
+    cfg = GuidanceConfig(**ONE_SHOT)
+    near = _Piece(4, (12.9, 0.0, -7.0), 0.8)  # 0.1 m from the back piece, not touching it
+    gap = np.linalg.norm(np.subtract(near.center_ned_m, BACK_PIECE.center_ned_m))
+    assert 0.0 < gap - near.radius_m - BACK_PIECE.radius_m < cfg.goal_standoff_m
+    pos = np.array([17.0, 0.0, -7.0])
+    pieces = [BACK_PIECE, near]
+    _, out = _step(GuidanceState(), 0.0, pos, [-1.0, 0.0, 0.0], GOAL_IN_PIECES_NED_M, pieces)
+    assert out.mode is Mode.NAVIGATE, out.reason
+    np.testing.assert_allclose(out.setpoint_ned_m, [13.7 + cfg.goal_standoff_m, 0.0, -7.0])
+
+
 def test_a_surface_just_past_the_goal_needs_no_go_around():
     """The goal 0.2 m outside the inflated boundary (0.7 m from the real surface)."""
     goal = CENTER_NED_M + np.array([INFLATED.radius_m + 0.2, 0.0, 0.0])

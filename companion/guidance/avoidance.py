@@ -32,7 +32,8 @@ Each step
    path bulges away from the obstacle; without this rule the flag chatters there.
 6. Active obstacle: the threat with the nearest surface, or the kept one if nearer.
    None → NAVIGATE (setpoint = goal). A threat whose sphere holds the goal → HOLD
-   (``GOAL_INSIDE_BOUNDARY``): the goal cannot be reached safely.
+   (``GOAL_UNREACHABLE``): a guard only, as the goal guidance steers to is never inside
+   a confirmed boundary (below).
 
 No progress: when the distance to the goal has not fallen ``stall_progress_m`` below its
 best for ``stall_timeout_s`` outside a HOLD, guidance holds where the vehicle is
@@ -43,8 +44,18 @@ first step toward a goal, restarts in any other HOLD and stands still within
 
 Unreachable goal: when the goal lies inside a confirmed boundary sphere, guidance steers
 to the *stop point* instead, ``goal_standoff_m`` before the straight path to the goal
-enters that sphere, and holds there (``GOAL_UNREACHABLE``, latched while the goal stays
-inside): a stable, reported stop outside the obstacle, never a go-around.
+enters the goal's obstacle, and holds there (``GOAL_UNREACHABLE``, latched while the
+goal stays inside): a stable, reported stop outside the obstacle, never a go-around. The
+goal's obstacle is every sphere holding the goal and, transitively, every sphere whose
+surface comes within ``goal_standoff_m`` of one of theirs: an obstacle arrives as
+several map pieces, and the piece holding the goal (its blind spot) lies behind pieces
+that do not. Stopping short of the goal's piece alone put the stop point inside a front
+piece whenever one covered it; guidance then held wherever the vehicle was with another
+reason, so the place and the reported reason of the stop hung on which pieces the last
+frames had confirmed (frame timing, CPU load). Now the stop point lies outside every
+confirmed sphere (any sphere holding it would be within ``goal_standoff_m`` of the one
+the path enters), and the reason for holding short of a goal inside an obstacle is
+always ``GOAL_UNREACHABLE``.
 7. AVOID: :func:`~companion.guidance.planner.choose_aiming_point` over all remembered
    obstacles, candidates from the cluster of cones overlapping the active and threatening
    ones. Nothing free → HOLD (``NO_FREE_DIRECTION``). Eq. (28)'s reference is the
@@ -138,7 +149,6 @@ class Reason(Enum):
     GOAL_BLOCKED = "goal_blocked"
     INSIDE_BOUNDARY = "inside_boundary"
     NO_FREE_DIRECTION = "no_free_direction"
-    GOAL_INSIDE_BOUNDARY = "goal_inside_boundary"
     GOAL_UNREACHABLE = "goal_unreachable"
     """The goal lies inside a confirmed boundary: holding at the stop point outside it."""
     NO_PROGRESS = "no_progress"
@@ -202,6 +212,16 @@ class Progress:
     best_distance_m: float
     stuck_s: float = 0.0
     stalled: bool = False
+
+
+def _stop_point(pos: np.ndarray, goal: np.ndarray, tracks, cfg) -> np.ndarray | None:
+    """The stop point short of a goal inside a confirmed boundary (see "Unreachable goal"
+    in the module docstring), or None when the goal is outside every one."""
+    holding = [i for i, t in enumerate(tracks) if _inside_ball(goal, t.sphere)]
+    if not holding:
+        return None
+    obstacle = _same_obstacle(tracks, holding, gap_m=cfg.goal_standoff_m)
+    return _stop_short(pos, goal, [tracks[i] for i in obstacle], cfg.goal_standoff_m)
 
 
 def _stop_short(pos: np.ndarray, goal: np.ndarray, blocking, standoff_m: float) -> np.ndarray:
@@ -320,11 +340,11 @@ def guidance_step(
     apex = pos.copy()  # one read-only apex shared by this step's cones
     cones = [_collision_cone(apex, t.sphere) for t in tracks]
     # Unreachable goal (inside a confirmed boundary): the goal becomes the stop point just
-    # outside it; once there (or once held for this reason) the vehicle holds, reported.
-    blocking = [t for t in tracks if _inside_ball(goal, t.sphere)]
-    unreachable = bool(blocking)
+    # outside its obstacle; once there (or once held for this reason) the vehicle holds.
+    stop = _stop_point(pos, goal, tracks, cfg)
+    unreachable = stop is not None
     if unreachable:
-        goal = _stop_short(pos, goal, blocking, cfg.goal_standoff_m)
+        goal = stop
     f = _Frame(time_s, pos, goal, _reference(pos, vel, goal, cfg), tracks, cones)
     live_ids = {t.track_id for t in tracks}
     d = _Decision(setpoint=goal, cleared={i for i in state.cleared_ids if i in live_ids})
@@ -449,7 +469,7 @@ def _avoid_threats(state, f: _Frame, d: _Decision, cfg) -> None:
     if d.reason is not Reason.HYSTERESIS:
         d.clear_since = None
     if active in threats and _inside_ball(f.goal, cones[active]):
-        d.mode, d.reason = Mode.HOLD, Reason.GOAL_INSIDE_BOUNDARY
+        d.mode, d.reason = Mode.HOLD, Reason.GOAL_UNREACHABLE  # a guard: see _stop_point
     else:
         _plan_aim(state, f, sorted({active, *threats}), d, cfg)
 
@@ -464,7 +484,7 @@ def _keep_active(state, f: _Frame, threats: list[int], d: _Decision, cfg):
         return kept, kept_reason
     cone = f.cones[kept]
     behind = not f.has_ref or float(f.ref @ cone.axis_ned) <= 0.0
-    obstacle = _same_obstacle(f.tracks, kept)
+    obstacle = _same_obstacle(f.tracks, [kept])
     if any(f.goal_blocked(i) for i in obstacle):
         kept_reason = Reason.GOAL_BLOCKED
     elif behind:
@@ -482,8 +502,9 @@ def _keep_active(state, f: _Frame, threats: list[int], d: _Decision, cfg):
     return kept, kept_reason
 
 
-def _same_obstacle(tracks, seed: int) -> list[int]:
-    """Indices of the spheres touching ``seed``'s, transitively: one obstacle's map pieces.
+def _same_obstacle(tracks, seeds: Iterable[int], gap_m: float = 0.0) -> list[int]:
+    """Indices of the spheres touching the ``seeds``' (or within ``gap_m`` of them),
+    transitively: one obstacle's map pieces.
 
     The active obstacle is kept while the straight path to the goal crosses any of its
     pieces, and passing it clears all of them at once. Deciding on the active piece alone
@@ -493,11 +514,12 @@ def _same_obstacle(tracks, seed: int) -> list[int]:
     """
     centers = [np.asarray(t.sphere.center_ned_m) for t in tracks]
     radii = [float(t.sphere.radius_m) for t in tracks]
-    group, frontier = {seed}, [seed]
+    group = set(seeds)
+    frontier = sorted(group)
     while frontier:
         a = frontier.pop()
         for j in range(len(tracks)):
-            if j not in group and norm3(centers[a] - centers[j]) <= radii[a] + radii[j]:
+            if j not in group and norm3(centers[a] - centers[j]) <= radii[a] + radii[j] + gap_m:
                 group.add(j)
                 frontier.append(j)
     return sorted(group)
