@@ -7,4 +7,7 @@ bash scripts/setup.sh
 export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 .venv/bin/ruff check .
 .venv/bin/ruff format --check .
-.venv/bin/python -m pytest "$@"
+# Two workers by default (PYTEST_WORKERS=0, or `-n 0`: one process). --dist loadfile:
+# a module's tests share one worker, so module-scoped fixtures (a lockstep run, the SITL
+# binary) are built once and a file's flights never run beside each other.
+.venv/bin/python -m pytest -n "${PYTEST_WORKERS:-2}" --dist loadfile "$@"
