@@ -234,6 +234,22 @@ def _wait_heartbeat_mode(gcs, custom_mode: int, timeout_s: float) -> None:
     raise AssertionError(f"autopilot not in mode {custom_mode} within {timeout_s} s")
 
 
+def _wait_autopilot_time(truth_path: Path, seconds: float, timeout_s: float = 60.0) -> None:
+    """Wait for ``seconds`` of autopilot time, read from plant-sim's truth log (SITL's own
+    clock): on a loaded machine SITL runs below its ``--speedup``, so a wall-clock sleep of
+    ``seconds / SPEEDUP`` may cover much less of its time."""
+    start = None
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        t = _read_truth(truth_path).get("time_s") if truth_path.is_file() else None
+        if t is not None and len(t):
+            start = float(t[-1]) if start is None else start
+            if float(t[-1]) - start >= seconds:
+                return
+        time.sleep(0.2)
+    raise AssertionError(f"{seconds} s of autopilot time did not pass in {timeout_s} s of wall")
+
+
 def _first_after(rig, n_before: int, phase: str, timeout_s: float = 20.0) -> dict:
     """The first ``phase`` event after the first ``n_before`` phase events."""
     deadline = time.monotonic() + timeout_s
@@ -269,7 +285,7 @@ def test_loiter_takeover_on_arducopter_sitl_releases_then_resumes_in_guided(sitl
                 sticks.set_mode(LOITER)
                 released = rig.wait_event("phase", 20, cond=lambda f: f["phase"] == "released")
                 _wait_heartbeat_mode(gcs, LOITER, 10)
-                time.sleep(8.0 / SPEEDUP)  # 8 s of LOITER (autopilot time)
+                _wait_autopilot_time(rig.out / "truth.csv", 8.0)  # 8 s of LOITER
                 n_before = len(rig.companion.events("phase"))
                 sticks.set_mode(GUIDED)
                 resumed = _first_after(rig, n_before, "active")
