@@ -8,7 +8,8 @@ near pass (fulfils :mod:`companion.depth_source`'s contract).
    is searched: OpenCV computes nothing in the leftmost ``numDisparities`` columns of an
    unpadded pair, although only what lies outside the right camera's view (at 3 m the
    0.2 m baseline hides ≈ 3.8°) is physically unmatchable. Left/right consistency
-   (``disp12MaxDiff``) and uniqueness refuse occluded and ambiguous pixels; a pixel on a
+   (``disp12MaxDiff``) and uniqueness refuse occluded and ambiguous pixels; OpenCV's
+   speckle filter runs on the frame's pixels (:mod:`companion.speckle`); a pixel on a
    near-horizontal edge (whose match depends on perfect rectification) and a match leaning
    on the black padding are refused.
 3. A coarse pass at a quarter of the resolution ranges surfaces nearer than ``min_range_m``
@@ -35,13 +36,14 @@ from companion.depth_source import (
     drop_small_far_blocks,
     drop_small_far_regions,
 )
+from companion.speckle import filter_speckles
 from protocols.camera import StereoIntrinsics
 from protocols.stereo_frame import PixelEncoding, StereoFrame
 
 if TYPE_CHECKING:
     from companion.perception import PerceptionConfig
 
-__all__ = ["PaddedStereoBM", "configured_bm", "noise_sigma", "speckle_window_px"]
+__all__ = ["PaddedStereoBM", "configured_bm", "noise_sigma", "speckle_params", "speckle_window_px"]
 
 _REFERENCE_WIDTH_PX = 320  # the paper's camera; block size scales from it
 _PREFILTER_BASE_PX = 1.0  # Gaussian prefilter sigma on a clean image [px]
@@ -183,18 +185,27 @@ def _abs_sobel(image):
 
 
 def configured_bm(
-    config: PerceptionConfig, n_disp: int, block_px: int, width_px: int
+    config: PerceptionConfig, n_disp: int, block_px: int, width_px: int, *, speckle: bool = True
 ) -> cv2.StereoBM:
     """``cv2.StereoBM`` with the perception config's gates (texture, uniqueness, speckle
-    window scaled to ``width_px``, left/right check) for ``n_disp`` disparities."""
+    window scaled to ``width_px``, left/right check) for ``n_disp`` disparities; without
+    its speckle filter if not ``speckle`` (the caller filters: :func:`speckle_params`)."""
     matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=block_px)
     matcher.setTextureThreshold(config.texture_threshold)
     matcher.setUniquenessRatio(config.uniqueness_ratio)
-    matcher.setSpeckleWindowSize(speckle_window_px(config.speckle_window_px, width_px))
-    # StereoBM compares the range with its 1/16 px fixed-point disparities as they are
-    matcher.setSpeckleRange(round(_DISP_SCALE * config.speckle_range_px))
+    window, range_fixed = speckle_params(config, width_px)
+    matcher.setSpeckleWindowSize(window if speckle else 0)
+    matcher.setSpeckleRange(range_fixed)
     matcher.setDisp12MaxDiff(config.lr_max_diff_px)
     return matcher
+
+
+def speckle_params(config: PerceptionConfig, width_px: int) -> tuple[int, int]:
+    """The speckle filter's (largest speckle [px], neighbour difference [1/16 px]) for an
+    image ``width_px`` wide, as ``cv2.filterSpeckles`` takes them. (StereoBM compares the
+    range with its 1/16 px fixed-point disparities as they are, unlike SGBM.)"""
+    window = speckle_window_px(config.speckle_window_px, width_px)
+    return window, round(_DISP_SCALE * config.speckle_range_px)
 
 
 def _auto_block_size(width_px: int) -> int:
@@ -381,6 +392,7 @@ def _warm_up() -> None:
         _quarter(image, np.zeros((4, 6), np.uint8)[1:3, 1:3])
     # the prefiltered left image is a view into its padded array (writeable, strided)
     for image in (decoded[0][1:5, 2:6], np.zeros((6, 8), np.uint8)[1:5, 2:6]):
+        filter_speckles(main, -16, 2, 3)
         _gate(main, image, 3, np.zeros(9 * 255 + 1, np.int32), np.zeros(2, np.int16))
         _gate(main, image, 3, _NO_EDGES, np.zeros(2, np.int16))
     coarse = np.full((3, 4), -16, np.int16)[1:, 1:3]
@@ -442,7 +454,9 @@ class PaddedStereoBM:
         width = intrinsics.width_px
         matcher = self._matchers.get(key)
         if matcher is None:
-            matcher = self._matchers[key] = configured_bm(cfg, n_disp, block, width)
+            # its speckle filter runs on the frame's pixels alone (disparity_fixed)
+            matcher = configured_bm(cfg, n_disp, block, width, speckle=False)
+            self._matchers[key] = matcher
         return matcher, n_disp, block
 
     def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
@@ -462,6 +476,11 @@ class PaddedStereoBM:
         left = left_padded[pad_y : pad_y + height, pad_x : pad_x + width]
         out = matcher.compute(left_padded, right_padded)
         disp = out[pad_y : pad_y + height, pad_x : pad_x + width]
+        # OpenCV's speckle filter (companion.speckle: 0.8 of StereoBM's own time here), on
+        # the frame's pixels: StereoBM leaves those of the padding unmatched
+        window, range_fixed = speckle_params(self.config, width)
+        if window > 0:
+            filter_speckles(disp, -_DISP_SCALE, window, range_fixed)
         ratio = self.config.min_edge_ratio
         least_sy = _NO_EDGES
         if ratio > 0.0:
