@@ -4,9 +4,10 @@ Pipeline for one rectified frame (:meth:`StereoPerception.process`):
 
 1. Depth: a depth source (:mod:`companion.depth_source`: rectified pair in, disparity,
    depth and validity out) — by default :class:`~companion.stereo_bm.PaddedStereoBM`:
-   OpenCV ``StereoBM`` on the pair padded so that every column is searched, gated by
-   left/right consistency, uniqueness, texture and edge checks, plus a quarter-resolution
-   pass for surfaces nearer than ``min_range_m`` (SGBM was retired, see :class:`Matcher`).
+   OpenCV ``StereoBM`` on the pair padded so that every column that can hold an obstacle
+   pixel is searched, gated by left/right consistency, uniqueness, texture and edge
+   checks, plus a quarter-resolution pass for surfaces nearer than ``min_range_m`` (SGBM
+   was retired, see :class:`Matcher`).
    The result is the **depth map** ``depth_m`` (NaN = unknown, see below).
 2. Obstacle pixels: valid disparity ``d ≥ f·b / threshold_m`` (depth below the threshold,
    Eq. 27, compared in disparity space so no per-pixel division).

@@ -3,15 +3,16 @@ near pass (fulfils :mod:`companion.depth_source`'s contract).
 
 1. Both images are smoothed by a Gaussian whose width follows the sensor noise estimated in
    the frame (faint texture lifted above the noise).
-2. The main pass: ``StereoBM`` searching down to ``min_range_m``, on the pair padded by the
-   disparity range on the left (and half a block on the other sides) so that every column
-   is searched: OpenCV computes nothing in the leftmost ``numDisparities`` columns of an
-   unpadded pair, although only what lies outside the right camera's view (at 3 m the
-   0.2 m baseline hides ≈ 3.8°) is physically unmatchable. Left/right consistency
-   (``disp12MaxDiff``) and uniqueness refuse occluded and ambiguous pixels; OpenCV's
-   speckle filter runs on the frame's pixels (:mod:`companion.speckle`); a pixel on a
-   near-horizontal edge (whose match depends on perfect rectification) and a match leaning
-   on the black padding are refused.
+2. The main pass: ``StereoBM`` searching down to ``min_range_m``, on the pair padded on the
+   left (and by half a block on the other sides) so that every column that can hold an
+   obstacle pixel is searched: OpenCV computes nothing in the leftmost ``numDisparities``
+   columns of an unpadded pair, although only what lies outside the right camera's view
+   (at 3 m the 0.2 m baseline hides ≈ 3.8°) is physically unmatchable. The few leftmost
+   columns that can only see beyond the obstacle stage's reach stay unsearched, unknown
+   (:meth:`PaddedStereoBM.unsearched_columns`). Left/right consistency (``disp12MaxDiff``)
+   and uniqueness refuse occluded and ambiguous pixels; OpenCV's speckle filter runs on the
+   frame's pixels (:mod:`companion.speckle`); a pixel on a near-horizontal edge (whose match
+   depends on perfect rectification) and a match leaning on the black padding are refused.
 3. A coarse pass at a quarter of the resolution ranges surfaces nearer than ``min_range_m``
    (which the main pass would miss or alias to a larger depth) down to ``near_range_m``,
    and fills the main pass's holes; main-pass matches around a too-near surface are unknown.
@@ -74,9 +75,11 @@ def _padded(image: np.ndarray, pad_x: int, pad_y: int) -> np.ndarray:
     on the other sides.
 
     OpenCV's matchers compute nothing in the leftmost ``numDisparities`` columns and the
-    half-block border; on the padded pair every real pixel is searched over the full range,
-    and a match into the black band (outside the right camera's view) has no texture to lock
-    on, fails the left/right check, or is refused by :meth:`PaddedStereoBM.disparity_fixed`.
+    half-block border (the first computed column is ``numDisparities + block // 2 - 1``);
+    on the padded pair every real pixel right of those the pad leaves out is searched over
+    the full range, and a match into the black band (outside the right camera's view) has
+    no texture to lock on, fails the left/right check, or is refused by
+    :meth:`PaddedStereoBM.disparity_fixed`.
     """
     out = cv2.copyMakeBorder(image, pad_y, pad_y, pad_x, pad_y, cv2.BORDER_REPLICATE)
     out[:, :pad_x] = 0
@@ -446,6 +449,26 @@ class PaddedStereoBM:
         """Matching block size [px] for this image width."""
         return self.config.block_size_px or _auto_block_size(intrinsics.width_px)
 
+    def unsearched_columns(self, intrinsics: StereoIntrinsics) -> int:
+        """How many leftmost columns the main pass leaves unsearched (unknown): those that
+        can hold no pixel the obstacle stage uses, less half a block.
+
+        Column ``x`` holds a match only where the right camera sees it a margin inside its
+        edge (disparity ≤ ``x - margin`` px, :meth:`disparity_fixed`), so the columns left
+        of ``ceil(f·b / reach) + margin`` can only see surfaces beyond the obstacle stage's
+        reach (``threshold_m + extent_margin_m``: 7 m, 10.3 px, column 17 at the paper's
+        camera). Searching them would cost a tenth of the matcher's time for far-space
+        evidence in the outer 2° of the view. The search starts half a block before that
+        column, so that the first column that can hold an obstacle pixel is matched among
+        searched neighbours, as with the full padding.
+        """
+        cfg = self.config
+        block = self.block_size(intrinsics)
+        reach_px = intrinsics.focal_baseline_m_px / (cfg.threshold_m + cfg.extent_margin_m)
+        wanted = math.ceil(reach_px) + _EDGE_MARGIN_PX  # + margin - half a block
+        # OpenCV's first computed column is numDisparities + half a block - 1
+        return min(wanted, self.num_disparities(intrinsics) + block // 2 - 1)
+
     def _matcher(self, intrinsics: StereoIntrinsics) -> tuple[cv2.StereoMatcher, int, int]:
         cfg = self.config
         n_disp = self.num_disparities(intrinsics)
@@ -462,16 +485,18 @@ class PaddedStereoBM:
     def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
         """Disparity of the frame's left image: int16, 1/16 px units, negative where unmatched.
 
-        The pair is padded before matching so that every column is searched (see
-        :func:`_padded`); a pixel whose match would lie left of the right image (outside the
-        right camera's view) is unmatched.
+        The pair is padded before matching so that every column right of
+        :meth:`unsearched_columns` is searched (see :func:`_padded`); a pixel whose match
+        would lie left of the right image (outside the right camera's view) is unmatched.
         """
         if frame.encoding is not PixelEncoding.MONO8:
             raise ValueError(f"unsupported pixel encoding {frame.encoding!r}")
         matcher, n_disp, block = self._matcher(frame.intrinsics)
         height, width = frame.left.shape
         # Half a block on each side; more on a frame shorter than a block (OpenCV refuses it).
-        pad_x, pad_y = n_disp, max(block // 2, (block + 2 - height) // 2)
+        pad_y = max(block // 2, (block + 2 - height) // 2)
+        # OpenCV computes nothing left of padded column n_disp + block // 2 - 1
+        pad_x = n_disp + block // 2 - 1 - self.unsearched_columns(frame.intrinsics)
         left_padded, right_padded = self._prefiltered(frame, pad_x, pad_y)
         left = left_padded[pad_y : pad_y + height, pad_x : pad_x + width]
         out = matcher.compute(left_padded, right_padded)

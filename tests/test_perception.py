@@ -11,7 +11,7 @@ import pytest
 from companion.perception import Matcher, PerceptionConfig, PerceptionResult, StereoPerception
 from companion.stereo_bm import configured_bm
 from plant_sim.stereo_camera import StereoCameraRenderer
-from plant_sim.world import GroundPlane, Sphere, World
+from plant_sim.world import Box, GroundPlane, Sphere, World
 from protocols.camera import CameraModel
 from protocols.frames import rotation_321
 from protocols.stereo_frame import StereoFrame, decode, encode
@@ -392,6 +392,38 @@ def test_only_what_the_right_camera_cannot_see_is_unknown(renderer, perception):
     seen[:, n_band:] = False  # inside the old blind band and visible to both cameras
     assert seen.sum() >= 30 * CAMERA.height_px  # ~36 columns at 2.5 m (d ≈ 28 px)
     assert np.mean(np.isfinite(result.depth_m[seen])) >= 0.8
+
+
+@pytest.mark.parametrize("wall_m", [2.5, 4.4, 6.9, 12.0])
+def test_every_column_that_can_hold_an_obstacle_pixel_is_searched(renderer, perception, wall_m):
+    """A textured wall filling the view: every column where the right camera sees it a
+    margin inside its edge (disparity <= x - 6 px, the band gate) is ranged, from the first
+    such column on, for walls nearer than the obstacle stage's reach (threshold 4 m +
+    extent 3 m). The leftmost columns the main pass leaves unsearched could see nothing
+    within reach, and are unmatched there; a wall beyond reach is ranged right of them."""
+    wall = Box((wall_m + 0.1, 0.0, -7.0), (0.2, 40.0, 40.0))
+    world = World(boxes=(wall,), ground=None)
+    pos = np.array([0.0, 0.0, -7.0])
+    out = renderer.render(world, pos, LEVEL)
+    frame = StereoFrame(0, 0, CAMERA.intrinsics, out.left, out.right)
+    result = perception.process(frame, pos, LEVEL)
+    k = CAMERA.intrinsics
+    cfg = perception.config
+    unsearched = perception.source.unsearched_columns(k)
+    reach_px = k.focal_baseline_m_px / (cfg.threshold_m + cfg.extent_margin_m)
+    margin_px = 4 + 2  # half the 9 px block + the edge margin: the band gate's
+    assert unsearched > 0
+    assert unsearched - 1 - margin_px < reach_px  # its last column sees only beyond reach
+    main = perception.source.disparity_fixed(frame)
+    assert np.all(main[:, :unsearched] < 0)  # (the coarse pass may still fill them)
+    d_px = k.focal_baseline_m_px / wall_m
+    first = max(math.floor(d_px) + 1 + margin_px, unsearched)
+    band = (slice(8, -8), slice(first, 64))  # the bare matcher's blind band, recovered
+    ranged = np.isfinite(result.depth_m[band])
+    per_column = ranged.mean(axis=0)
+    assert per_column.min() >= 0.9, (first + np.argmin(per_column), per_column.min())
+    rel = np.abs(result.depth_m[band][ranged] / out.depth_left_m[band][ranged] - 1.0)
+    assert np.median(rel) < 0.2 / d_px  # a fifth of a pixel of disparity (Eq. 27)
 
 
 def _first_detected_deg(renderer, perception, world, pos, yaws_deg):
