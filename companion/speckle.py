@@ -121,7 +121,8 @@ def filter_speckles(disp, new_val, max_size, max_diff):
         if root != i:
             count[root] += count[i]
     removed = 0
-    stack = np.empty((2, max(max_size, 0) + 1), np.int64)
+    # a speckle has at most max_size pixels, and no more than the map
+    stack = np.empty((2, min(max(max_size, 0), height * width) + 1), np.int64)
     for i in range(1, n + 1):
         if parent[i] == i and count[i] <= max_size:
             removed += _clear_region(disp, seed[i], new_val, max_diff, stack)

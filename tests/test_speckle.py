@@ -42,6 +42,12 @@ def test_an_empty_map_is_left_alone():
         assert filter_speckles(np.zeros(shape, np.int16), -16, 10, 1) == 0
 
 
+def test_a_window_larger_than_the_map_removes_every_region_without_a_huge_buffer():
+    disp = np.arange(12, dtype=np.int16).reshape(3, 4)
+    assert filter_speckles(disp, -16, 2**40, 1) == 12
+    assert np.all(disp == -16)
+
+
 def test_a_region_of_exactly_max_size_is_a_speckle_and_one_more_pixel_is_not():
     """OpenCV's rule: a region of at most ``max_size`` pixels is removed."""
     disp = np.full((5, 9), -16, np.int16)
