@@ -103,8 +103,11 @@ class AvoidancePipeline:
         )
         self.envelope_config = EnvelopeConfig() if envelope is None else envelope
 
-    def process(self, frame: StereoFrame, pose: PoseAtCapture) -> PipelineOutput:
-        """Run one frame; ``pose`` must be the vehicle's at ``frame.capture_ns``."""
+    def process(
+        self, frame: StereoFrame, pose: PoseAtCapture, *, steering: bool = True
+    ) -> PipelineOutput:
+        """Run one frame; ``pose`` must be the vehicle's at ``frame.capture_ns``;
+        ``steering``: whether the vehicle flies the output (guidance's stall count)."""
         seen = self.perception.process(frame, pose.pos_ned_m, pose.R_ned_from_frd)
         if seen.depth_m is not None:
             self.known_space.integrate(
@@ -126,6 +129,7 @@ class AvoidancePipeline:
             goal_ned_m=self.goal_ned_m,
             detections=boundaries,
             yaw_rad=pose.yaw_rad,
+            steering=steering,
         )
         bounded = envelope_step(
             pos_ned_m=pose.pos_ned_m,

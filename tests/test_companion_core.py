@@ -79,6 +79,7 @@ class Rig:
         self._seq = 0
         self._tick = 0
         self.twin = None  # a second companion's heartbeat, sent every second if set
+        self.frame_lag_s = 0.0  # frames captured this long before they arrive
 
     def message(self, msg, src=(1, 1)):
         """``msg`` as received from ``src``: packed and parsed like off the wire."""
@@ -136,6 +137,7 @@ class Rig:
         flat = np.full((self.camera.height_px, self.camera.width_px), 128, dtype=np.uint8)
         host_clock = self.core.config.link.frame_clock is FrameClock.HOST
         capture_ns = self.now_ns if host_clock else self.boot_ms * 1_000_000
+        capture_ns -= round(self.frame_lag_s * 1e9)
         f = StereoFrame(self._seq, capture_ns, self.camera.intrinsics, flat, flat.copy())
         self._seq += 1
         self.feed(FrameReceived(f, self.now_ns, self.now_ns))
@@ -216,6 +218,29 @@ def test_core_failsafe_holds_on_stale_frames_and_resumes():
     assert len(rig.events("resume")) == 1
     assert rig.custom_mode == GUIDED
     assert len(rig.setpoints()) > n_setpoints
+
+
+def test_time_in_a_failsafe_hold_is_not_counted_as_guidance_making_no_progress():
+    """Frames that keep coming but late (older than frame_timeout_s on arrival): the core
+    holds (BRAKE) while guidance keeps stepping without being flown. Longer than
+    stall_timeout_s of that is not NO_PROGRESS; the same time steering a vehicle that does
+    not move is."""
+    base = CompanionConfig()
+    cfg = dataclasses.replace(
+        base,
+        waypoints_ned_m=((20.0, 0.0, -7.0),),
+        guidance=dataclasses.replace(base.guidance, stall_timeout_s=3.0),
+    )
+    rig = _steering_rig(cfg)
+    rig.frame_lag_s = 0.5  # frame_timeout_s is 0.3 s
+    rig.run(5.0)
+    assert [h["reason"] for h in rig.events("hold")] == ["stale_frames"]
+    assert rig.custom_mode == BRAKE
+    assert rig.core.counters["frames_processed"] > 100  # guidance stepped all along
+    rig.frame_lag_s = 0.0
+    rig.run(5.0)  # 1 s to resume, then 3 s steering without moving
+    assert rig.events("resume")
+    assert [h["reason"] for h in rig.events("hold")] == ["stale_frames", "no_progress"]
 
 
 def test_core_failsafe_on_stale_telemetry_with_host_stamped_frames():

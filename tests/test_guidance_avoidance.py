@@ -801,6 +801,34 @@ def test_no_progress_timer_pauses_in_another_hold_and_can_be_disabled():
     assert all(o.mode is Mode.NAVIGATE for o in outs)
 
 
+def test_steps_the_vehicle_does_not_fly_do_not_count_as_stalling():
+    """Guidance steps while the companion is not in control (``steering=False``: its
+    failsafe hold, a pilot's mode): that time stands still in the stall count, whatever
+    its length; the count goes on from where it was once steering again."""
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=5.0, stall_progress_m=0.5)
+    pos, goal = np.array([20.0, 0.0, -7.0]), np.array([0.0, 0.0, -7.0])
+    state = GuidanceState()
+    k = 0
+    for steering, seconds in ((True, 2.0), (False, 30.0), (True, 2.9)):
+        for _ in range(round(seconds / DT_S)):
+            state, out = guidance_step(
+                state,
+                time_s=k * DT_S,
+                pos_ned_m=pos,
+                vel_ned_mps=[0.0, 0.0, 0.0],
+                goal_ned_m=goal,
+                config=cfg,
+                steering=steering,
+            )
+            k += 1
+            assert out.mode is Mode.NAVIGATE
+    assert state.progress.stuck_s == pytest.approx(4.9, abs=2 * DT_S)
+    for _ in range(round(0.2 / DT_S)):
+        state, out = _step(state, k * DT_S, pos, [0.0, 0.0, 0.0], goal, (), cfg)
+        k += 1
+    assert out.mode is Mode.HOLD and out.reason is Reason.NO_PROGRESS
+
+
 def test_hovering_at_the_goal_is_not_a_stall():
     cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=5.0, stall_progress_m=0.5)
     goal = np.array([0.0, 0.0, -7.0])

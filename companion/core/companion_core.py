@@ -430,6 +430,16 @@ class CompanionCore:
             counter, "%s: dropped %s %s (%d so far)", counter, what, values, self.counters[counter]
         )
 
+    def _steering(self, now_s: float) -> bool:
+        """Our setpoints are flown now: the autopilot in a mode we steer, healthy inputs,
+        and alone on the link."""
+        return (
+            self.modes.steering
+            and self.failsafe.status.health.ok
+            and self.policy is not None
+            and self._may_steer(now_s)
+        )
+
     def _may_steer(self, now_s: float) -> bool:
         """Alone on the link, and it was heard long enough to know (wall seconds)."""
         return not self._takeover_blocked and now_s >= self._listen_until_s
@@ -769,8 +779,12 @@ class CompanionCore:
         self._observe(frame.capture_ns)
         pose = lookup.pose
         assert pose is not None
+        # Whether the vehicle flies what this frame yields (not in our failsafe hold, a
+        # pilot's mode or beside another source): time it does not, guidance does not
+        # count as its own lack of progress.
+        steering = self._steering(self._now_s)
         try:
-            result = self.mission.step(frame, pose)
+            result = self.mission.step(frame, pose, steering=steering)
         except Exception as exc:  # a bad frame must never stop the companion (cv2.error too)
             self.counters["pipeline_errors"] += 1
             self._drop_log("pipeline", "frame %d: pipeline error %s", frame.sequence, exc)
@@ -781,12 +795,8 @@ class CompanionCore:
         self._check_failsafe(self._now_s)
         sent = False
         target = PositionTarget(tuple(float(x) for x in out.setpoint_ned_m), float(out.yaw_rad))
-        if (
-            self.modes.steering
-            and self.failsafe.status.health.ok
-            and self.policy is not None
-            and self._may_steer(self._now_s)
-        ):
+        if self._steering(self._now_s):
+            assert self.policy is not None
             if self.policy.on_new_target(target, self._now_s):
                 self._send_target(target, self._now_s, frame.capture_ns)
                 sent = True

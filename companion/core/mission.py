@@ -88,8 +88,11 @@ class Mission:
     def on_last_waypoint(self) -> bool:
         return self.waypoint + 1 >= len(self.waypoints_ned_m)
 
-    def step(self, frame: StereoFrame, pose: PoseAtCapture) -> MissionStep:
-        """Run one frame; ``pose`` is the vehicle's at ``frame.capture_ns``.
+    def step(
+        self, frame: StereoFrame, pose: PoseAtCapture, *, steering: bool = True
+    ) -> MissionStep:
+        """Run one frame; ``pose`` is the vehicle's at ``frame.capture_ns``; ``steering``
+        says whether the vehicle flies the output (:meth:`Pipeline.process`).
 
         Raises whatever the pipeline raises on a bad frame (the caller counts and drops
         it); the mission's state is unchanged by a frame that raised, except for a
@@ -98,7 +101,7 @@ class Mission:
         notices: list[Notice] = []
         events: list[Event] = []
         self._advance_waypoint(pose.pos_ned_m, notices)
-        out = self.pipeline.process(frame, pose)
+        out = self.pipeline.process(frame, pose, steering=steering)
         self._check_goal(pose.pos_ned_m, frame.capture_ns, notices, events)
         self._report_changes(out, frame.capture_ns, notices, events)
         return MissionStep(out, self.waypoint, tuple(notices), tuple(events))

@@ -293,6 +293,7 @@ def guidance_step(
     detections: Iterable[SphereLike] = (),
     yaw_rad: float | None = None,
     config: GuidanceConfig | None = None,
+    steering: bool = True,
 ) -> tuple[GuidanceState, GuidanceOutput]:
     """Advance guidance by one perception frame.
 
@@ -313,6 +314,9 @@ def guidance_step(
         setpoint is too close to define a direction.
     config : GuidanceConfig, optional
         Defaults to ``GuidanceConfig()``.
+    steering : bool
+        Whether the vehicle flies this step's setpoint (not in the companion's failsafe hold
+        or a pilot's mode): time it does not is not counted toward ``NO_PROGRESS``.
 
     Returns
     -------
@@ -353,12 +357,9 @@ def guidance_step(
         _escape_boundary(state, f, inside, d, cfg)
     else:
         _avoid_threats(state, f, d, cfg)
-    if unreachable and (
-        (state.mode is Mode.HOLD and state.unreachable) or f.goal_dist < cfg.goal_standoff_m
-    ):
-        d.mode, d.reason = Mode.HOLD, Reason.GOAL_UNREACHABLE
-        d.aim, d.aim_dir = None, None
-    progress = _watch_progress(state, f, tuple(goal_in), d, cfg)
+    if unreachable:
+        _hold_at_stop_point(state, f, d, cfg)
+    progress = _watch_progress(state, f, tuple(goal_in), d, cfg, steering)
     hold = _latch_hold(state, f, d)
     yaw = _yaw(state, f, d, yaw_rad, cfg)
     return _outputs(f, d, memory, hold, yaw, progress)
@@ -563,14 +564,28 @@ def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
     d.setpoint = f.pos + choice.direction_ned * reach
 
 
+def _hold_at_stop_point(state: GuidanceState, f: _Frame, d: _Decision, cfg) -> None:
+    """The goal is unreachable and ``f.goal`` is the stop point before its obstacle: HOLD
+    (``GOAL_UNREACHABLE``) once within ``goal_standoff_m`` of it, and while held for it."""
+    if (state.mode is Mode.HOLD and state.unreachable) or f.goal_dist < cfg.goal_standoff_m:
+        d.mode, d.reason = Mode.HOLD, Reason.GOAL_UNREACHABLE
+        d.aim, d.aim_dir = None, None
+
+
 def _watch_progress(
-    state: GuidanceState, f: _Frame, goal: tuple[float, float, float], d: _Decision, cfg
+    state: GuidanceState,
+    f: _Frame,
+    goal: tuple[float, float, float],
+    d: _Decision,
+    cfg,
+    steering: bool,
 ) -> Progress:
     """No progress toward ``goal`` for ``stall_timeout_s`` of steering outside a HOLD →
     HOLD (``NO_PROGRESS``), latched until the goal changes. The count restarts in other
     HOLDs and stands still within ``2 · stall_progress_m`` of the goal (hovering there is
     arriving, not stalling; circling past it is not progress); a gap between steps (no
-    frames, a failsafe hold) does not count."""
+    frames) and a step the vehicle does not fly (``steering`` false: a failsafe hold, a
+    pilot's mode) do not count."""
     progress = state.progress
     dist = norm3(np.asarray(goal) - f.pos)
     if progress is None or progress.goal_ned_m != goal:
@@ -581,7 +596,8 @@ def _watch_progress(
         return progress
     if dist <= progress.best_distance_m - cfg.stall_progress_m or d.mode is Mode.HOLD:
         return Progress(goal, min(dist, progress.best_distance_m))
-    if dist <= 2.0 * cfg.stall_progress_m:  # hovering at the goal: the count stands still
+    if not steering or dist <= 2.0 * cfg.stall_progress_m:
+        # not flying our setpoints, or hovering at the goal: the count stands still
         return Progress(goal, min(dist, progress.best_distance_m), progress.stuck_s)
     dt = f.time_s - state.time_s if state.time_s is not None else 0.0
     stuck_s = progress.stuck_s + (dt if dt <= _MAX_STEP_GAP_S else 0.0)
@@ -678,6 +694,7 @@ class Guidance:
         goal_ned_m,
         detections: Iterable[SphereLike] = (),
         yaw_rad: float | None = None,
+        steering: bool = True,
     ) -> GuidanceOutput:
         """Run :func:`guidance_step` on the held state; returns the output."""
         self.state, output = guidance_step(
@@ -689,5 +706,6 @@ class Guidance:
             detections=detections,
             yaw_rad=yaw_rad,
             config=self.config,
+            steering=steering,
         )
         return output

@@ -95,7 +95,8 @@ class GuidanceConfig:
         the free direction nearest the velocity tilt by where the pieces fall; a
         multirotor keeps its altitude unless climbing is clearly shorter.
     stall_timeout_s : float
-        No progress toward the goal for this long outside a HOLD → a latched, reported
+        No progress toward the goal for this long outside a HOLD, flying guidance's
+        setpoints (a failsafe hold or a pilot's mode does not count) → a latched, reported
         HOLD (``NO_PROGRESS``) where the vehicle is [s, simulation time]; 0 disables.
         A detour that never gets nearer (circling a goal next to an obstacle, a way ahead
         that stays unseen) ends in a stop the pilot is told of, not endless wandering.
