@@ -81,6 +81,25 @@ _NO_EDGE = np.zeros((0, 2), np.int32)  # no contour samples (stride 1: the grid 
 _MAX_SPECKLE_RANGE_PX = 1024.0  # beyond any disparity search; keeps 16 x it a C int for OpenCV
 
 
+_C_INT_MAX = 2**31 - 1  # OpenCV takes these settings as C ints
+# a speckle larger than the whole reference image (320 × 240) means nothing
+_MATCHER_INTS = {
+    "speckle_window_px": (0, 320 * 240),
+    "texture_threshold": (0, _C_INT_MAX),
+    "uniqueness_ratio": (0, _C_INT_MAX),
+    "lr_max_diff_px": (-1, _C_INT_MAX),
+}
+
+
+def _check_matcher_ints(config: PerceptionConfig) -> None:
+    """The matcher's integer settings are integers within their range: a config value such
+    as 1e30 or 2.5 is an error here, not an OverflowError at every frame."""
+    for name, (low, high) in _MATCHER_INTS.items():
+        value = getattr(config, name)
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise ValueError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
+
+
 class Matcher(enum.Enum):
     """OpenCV stereo matcher.
 
@@ -245,8 +264,7 @@ class PerceptionConfig:
                 f"speckle_range_px must be <= {_MAX_SPECKLE_RANGE_PX} (wider than any "
                 f"disparity search), got {self.speckle_range_px!r}"
             )
-        if self.lr_max_diff_px < -1:
-            raise ValueError(f"lr_max_diff_px must be >= -1, got {self.lr_max_diff_px}")
+        _check_matcher_ints(self)
         if self.min_range_m >= self.threshold_m:
             raise ValueError(
                 f"min_range_m {self.min_range_m} must be below threshold_m {self.threshold_m}"

@@ -209,6 +209,22 @@ def test_speckle_range_is_in_pixels():
             PerceptionConfig(speckle_range_px=bad)
 
 
+@pytest.mark.parametrize(
+    ("name", "bad"),
+    [
+        ("speckle_window_px", -5),
+        ("speckle_window_px", 10**30),  # reached OpenCV (and the speckle kernel) per frame
+        ("speckle_window_px", 2.5),
+        ("texture_threshold", 2**31),
+        ("uniqueness_ratio", True),
+        ("lr_max_diff_px", -2),
+    ],
+)
+def test_matcher_integer_settings_are_checked_at_configuration(name, bad):
+    with pytest.raises(ValueError, match=name):
+        PerceptionConfig(**{name: bad})
+
+
 def test_threshold_is_configurable(renderer):
     """A 6 m threshold reports the paper's obstacle at 5 m; the default 4 m does not."""
     pos = np.array([10.0 - 1.5 - 5.0, 0.0, -7.0])
