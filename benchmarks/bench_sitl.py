@@ -8,7 +8,7 @@ and plant-sim camera-only latency (pose sample received → frame published, wal
 p50/p99 from the real-time run. Prints figures; asserts nothing.
 
 Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_sitl.py [--speedups 2,3,5]``
-(needs ``$ARDUCOPTER_SITL`` or ``../shared/ardupilot-sitl/arducopter``).
+(needs ``$ARDUCOPTER_SITL``: the real autopilot is opt-in).
 """
 
 from __future__ import annotations
@@ -21,7 +21,12 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from plant_sim.lockstep.sitl import SitlOptions, find_arducopter_sitl, run_sitl_sil  # noqa: E402
+from plant_sim.lockstep.sitl import (  # noqa: E402
+    SITL_HOWTO,
+    SitlOptions,
+    find_arducopter_sitl,
+    run_sitl_sil,
+)
 
 
 def _fly(binary: Path, speedup: float) -> dict:
@@ -59,7 +64,7 @@ def main() -> int:
     args = parser.parse_args()
     binary = find_arducopter_sitl()
     if binary is None:
-        print("no ArduCopter SITL binary ($ARDUCOPTER_SITL)", file=sys.stderr)
+        print(f"bench_sitl: {SITL_HOWTO}", file=sys.stderr)
         return 2
     rows = [_fly(binary, 1.0)]
     reference = rows[0]

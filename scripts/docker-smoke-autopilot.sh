@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Docker smoke test of the companion alone against an autopilot on the host (not part of
 # the default test run; run it when docker/ changes): docker/compose.autopilot.yaml runs
-# the companion container; ArduCopter SITL (../shared/ardupilot-sitl/arducopter or
-# $ARDUCOPTER_SITL) and plant-sim as the camera only (`plant-sim --pose-from`, on the
+# the companion container; ArduCopter SITL (the binary named by $ARDUCOPTER_SITL, which a
+# user builds from ArduPilot's repository) and plant-sim as the camera only (`plant-sim --pose-from`, on the
 # host, frames over Zenoh into the container's published port) run on this host.
 #
 # Checks, in order (each prints a PASS/FAIL line):
@@ -48,8 +48,9 @@ import time
 from pathlib import Path
 
 from plant_sim.lockstep.sil import free_port
+from plant_sim.lockstep.sitl_scene import paper_sitl_scene
 from plant_sim.lockstep.sitl import (
-    SITL_SCENARIO_TOML,
+    SITL_HOWTO,
     ArduCopterSitl,
     find_arducopter_sitl,
     free_sitl_instance,
@@ -73,9 +74,8 @@ def verdict(ok: bool, text: str) -> None:
 
 binary = find_arducopter_sitl()
 if binary is None:
-    sys.exit("docker-smoke-autopilot: no ArduCopter SITL (../shared/ardupilot-sitl/arducopter "
-             "or $ARDUCOPTER_SITL)")
-(RUN / "scenario.toml").write_text(SITL_SCENARIO_TOML)
+    sys.exit(f"docker-smoke-autopilot: {SITL_HOWTO}")
+(RUN / "scenario.json").write_text(json.dumps(paper_sitl_scene().scenario, indent=2) + "\n")
 (RUN / "wpnav100.parm").write_text("WPNAV_SPEED 100\n")  # GUIDED targets at <= 1 m/s
 instance = free_sitl_instance()
 zenoh_port = free_port(socket.SOCK_STREAM)
@@ -149,7 +149,7 @@ try:
     plant = subprocess.Popen(
         [
             ".venv/bin/plant-sim", "--pose-from", sitl.url(1),
-            "--scenario", str(RUN / "scenario.toml"),
+            "--scenario", str(RUN / "scenario.json"),
             "--zenoh-config", "docker/config/zenoh/publisher.json5",
             "--zenoh-connect", f"tcp/127.0.0.1:{zenoh_port}",
             "--vehicle-id", "sim1", "--log-dir", str(RUN),

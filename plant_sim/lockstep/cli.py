@@ -352,8 +352,9 @@ def _add_sil(sil: argparse.ArgumentParser) -> None:
         choices=["plant-sim", "plant-sim-px4", "arducopter-sitl"],
         default="plant-sim",
         help="plant-sim as an ArduCopter (default) or as a PX4 (plant-sim-px4: the "
-        "companion's OFFBOARD path), or ArduPilot's ArduCopter SITL ($ARDUCOPTER_SITL or "
-        "../shared/ardupilot-sitl/arducopter) with plant-sim as the camera only; "
+        "companion's OFFBOARD path), or ArduPilot's ArduCopter SITL (the binary "
+        "named by $ARDUCOPTER_SITL; none ships with this project) with plant-sim as the "
+        "camera only; "
         "--speedup is then SITL's",
     )
     sil.add_argument(

@@ -89,7 +89,7 @@ def fly_sitl_and_report(
     plant-sim SIL run plus the speed figures; exit status as :func:`write_run_report`'s,
     2 on bad input."""
     from plant_sim.lockstep.sitl import (
-        ARDUCOPTER_SITL_ENV,
+        SITL_HOWTO,
         SitlOptions,
         find_arducopter_sitl,
         run_sitl_sil,
@@ -99,12 +99,7 @@ def fly_sitl_and_report(
     log = sys.stderr if as_json else sys.stdout
     binary = find_arducopter_sitl()
     if binary is None:
-        print(
-            f"stereo-avoid sil: no ArduCopter SITL binary: set ${ARDUCOPTER_SITL_ENV} or put "
-            "it at ../shared/ardupilot-sitl/arducopter (build: ./waf configure --board sitl "
-            "&& ./waf copter in an ArduPilot checkout)",
-            file=sys.stderr,
-        )
+        print(f"stereo-avoid sil: {SITL_HOWTO}", file=sys.stderr)
         return 2
     for path in params_files:
         if not path.is_file():

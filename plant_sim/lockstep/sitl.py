@@ -3,8 +3,8 @@ ArduCopter SITL, with plant-sim as the camera only.
 
 Three processes, all on 127.0.0.1, all stopped at the end:
 
-* ``arducopter`` (ArduPilot SITL, from ``$ARDUCOPTER_SITL`` or
-  ``../shared/ardupilot-sitl/arducopter`` beside the checkout) in a fresh temporary folder
+* ``arducopter`` (ArduPilot SITL, from ``$ARDUCOPTER_SITL`` only: no binary ships with
+  this project, a user builds one from ArduPilot's repository) in a fresh temporary folder
   (it writes ``eeprom.bin``, ``logs/``, ``terrain/`` into its working directory), on a free
   instance ``-I N``: SERIAL0 on TCP 5760+10N (the companion), SERIAL1 on 5762+10N
   (plant-sim), SERIAL2 on 5763+10N (free for a ground station), ``--speedup K``,
@@ -44,7 +44,6 @@ from pathlib import Path
 import numpy as np
 
 from plant_sim.lockstep.sil import (
-    REPO,
     ChildProcess,
     SilResult,
     _avoid_intervals,
@@ -60,6 +59,7 @@ from plant_sim.lockstep.sitl_scene import SitlScene, paper_sitl_scene
 
 __all__ = [
     "ARDUCOPTER_SITL_ENV",
+    "SITL_HOWTO",
     "ArduCopterSitl",
     "SitlOptions",
     "SitlRig",
@@ -70,6 +70,15 @@ __all__ = [
 ]
 
 ARDUCOPTER_SITL_ENV = "ARDUCOPTER_SITL"
+
+#: What every SITL entry point (tests, CLI, benchmark, Docker smoke test) says when
+#: ``$ARDUCOPTER_SITL`` names no executable: where a binary comes from.
+SITL_HOWTO = (
+    f"no ArduCopter SITL binary: set ${ARDUCOPTER_SITL_ENV} to an ArduCopter SITL executable "
+    "(build it from ArduPilot's repository as its documentation 'Setting up SITL on Linux' "
+    "says: ./waf configure --board sitl && ./waf copter → build/sitl/bin/arducopter, with "
+    "Tools/autotest/default_params/copter.parm copied beside it as copter.parm)"
+)
 
 
 def _die_with_parent_hook() -> Callable[[], None] | None:
@@ -90,17 +99,16 @@ def _die_with_parent_hook() -> Callable[[], None] | None:
 
 
 def find_arducopter_sitl(environ: Mapping[str, str] | None = None) -> Path | None:
-    """The ArduCopter SITL binary: ``$ARDUCOPTER_SITL``, else
-    ``../shared/ardupilot-sitl/arducopter`` relative to the repository; None if neither
-    is an executable file."""
+    """The ArduCopter SITL binary named by ``$ARDUCOPTER_SITL``; None when the variable is
+    unset or names no executable file (then say :data:`SITL_HOWTO`). There is no other
+    place it is looked for: the real autopilot is opt-in."""
     env = os.environ if environ is None else environ
-    candidates = []
-    if env.get(ARDUCOPTER_SITL_ENV):
-        candidates.append(Path(env[ARDUCOPTER_SITL_ENV]))
-    candidates.append(REPO.parent / "shared" / "ardupilot-sitl" / "arducopter")
-    for path in candidates:
-        if path.is_file() and os.access(path, os.X_OK):
-            return path.resolve()
+    value = env.get(ARDUCOPTER_SITL_ENV, "")
+    if not value:
+        return None
+    path = Path(value)
+    if path.is_file() and os.access(path, os.X_OK):
+        return path.resolve()
     return None
 
 
