@@ -104,10 +104,17 @@ class AvoidancePipeline:
         self.envelope_config = EnvelopeConfig() if envelope is None else envelope
 
     def process(
-        self, frame: StereoFrame, pose: PoseAtCapture, *, steering: bool = True
+        self,
+        frame: StereoFrame,
+        pose: PoseAtCapture,
+        *,
+        steering: bool = True,
+        latency_s: float | None = None,
     ) -> PipelineOutput:
         """Run one frame; ``pose`` must be the vehicle's at ``frame.capture_ns``;
-        ``steering``: whether the vehicle flies the output (guidance's stall count)."""
+        ``steering``: whether the vehicle flies the output (guidance's stall count);
+        ``latency_s``: the measured latency budget [s] for the stopping rule (None: the
+        envelope's configured ``latency_s``; :mod:`companion.guidance.latency`)."""
         seen = self.perception.process(frame, pose.pos_ned_m, pose.R_ned_from_frd)
         if seen.depth_m is not None:
             self.known_space.integrate(
@@ -141,6 +148,7 @@ class AvoidancePipeline:
             vehicle_radius_m=self.perception.config.vehicle_radius_m,
             max_path_elevation_rad=self.guidance.config.max_aim_elevation_rad,
             config=self.envelope_config,
+            latency_s=latency_s,
         )
         return PipelineOutput(
             perception=seen, guidance=decision, envelope=bounded, boundaries=boundaries

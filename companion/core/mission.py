@@ -89,10 +89,18 @@ class Mission:
         return self.waypoint + 1 >= len(self.waypoints_ned_m)
 
     def step(
-        self, frame: StereoFrame, pose: PoseAtCapture, *, steering: bool = True
+        self,
+        frame: StereoFrame,
+        pose: PoseAtCapture,
+        *,
+        steering: bool = True,
+        latency_s: float | None = None,
     ) -> MissionStep:
         """Run one frame; ``pose`` is the vehicle's at ``frame.capture_ns``; ``steering``
-        says whether the vehicle flies the output (:meth:`Pipeline.process`).
+        says whether the vehicle flies the output (:meth:`Pipeline.process`); ``latency_s``
+        is the latency budget [s] the caller measured (the data age of recent commands,
+        :class:`~companion.guidance.latency.DataAgeWindow`; None: the configured floor, as
+        in lockstep, where a frame's setpoint acts at its capture time).
 
         Raises whatever the pipeline raises on a bad frame (the caller counts and drops
         it); the mission's state is unchanged by a frame that raised, except for a
@@ -101,7 +109,7 @@ class Mission:
         notices: list[Notice] = []
         events: list[Event] = []
         self._advance_waypoint(pose.pos_ned_m, notices)
-        out = self.pipeline.process(frame, pose, steering=steering)
+        out = self.pipeline.process(frame, pose, steering=steering, latency_s=latency_s)
         self._check_goal(pose.pos_ned_m, frame.capture_ns, notices, events)
         self._report_changes(out, frame.capture_ns, notices, events)
         return MissionStep(out, self.waypoint, tuple(notices), tuple(events))

@@ -16,8 +16,10 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    (``vehicle_radius_m`` wide, the radius perception inflates boundaries by: one vehicle
    size; ``vehicle_half_height_m`` high; ``KnownSpace.free_distance_m``), up to
    ``lookahead_m``.
-3. **Stopping distance** at the current speed: ``d_stop(v) = latency_s·v + v²/(2·accel_mps2)``
-   (reaction over the frame → command → autopilot latency, then constant braking).
+3. **Stopping distance** at the current speed: ``d_stop(v) = τ·v + v²/(2·accel_mps2)``
+   (reaction over the frame → command → autopilot latency ``τ``, then constant braking).
+   ``τ`` is the measured latency budget passed in (:mod:`companion.guidance.latency`: a
+   high percentile of the data ages of recent commands), never below ``latency_s``.
 4. **Carrot**: the position target is ``p + c·u`` with
    ``c = min(|s - p|, F - d_stop(v) - margin_m)``, set to 0 below ``min_advance_m``
    (then the target is the vehicle's own position: brake). The autopilot holds the last
@@ -25,7 +27,7 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    space by ``margin_m``.
    Never the far goal when the goal lies beyond what was seen.
 5. **Speed limit** stated to the autopilot: the largest ``v`` with
-   ``latency_s·v + v²/(2·accel_mps2) + margin_m ≤ F``, i.e.
+   ``τ·v + v²/(2·accel_mps2) + margin_m ≤ F``, i.e.
    ``v = a·(−τ + √(τ² + 2(F − margin)/a))``, capped at ``max_speed_mps``; ``overspeed``
    is raised when the measured speed exceeds it by ``overspeed_tolerance_mps``.
 6. **Look before moving**: the yaw guidance commands faces ``u`` (not the carrot, which
@@ -59,6 +61,13 @@ FreeDistanceFn = Callable[..., float]
 pipeline's obstacle extents bound: :func:`companion.guidance.map_boundaries.solid_extent`)."""
 
 
+_BOUNDS = (  # (field, min, max) beyond "finite and >= 0"
+    ("latency_window_s", 0.0, 60.0),  # and > 0
+    ("latency_percentile", 50.0, 100.0),
+    ("unmeasured_latency_s", 0.0, 1.0),
+)
+
+
 @dataclass(frozen=True)
 class EnvelopeConfig:
     """Parameters of the safety envelope (named assumptions, SI units).
@@ -67,7 +76,18 @@ class EnvelopeConfig:
     ----------
     latency_s : float
         Capture → command acting on the vehicle [s]: a frame period (33 ms), perception
-        and link (≤ 15 ms p99) and the autopilot's reaction, rounded up.
+        and link (≤ 15 ms p99) and the autopilot's reaction, rounded up. The *floor* of the
+        latency budget: the companion measures the data age of its commands and budgets
+        more when they are older (:mod:`companion.guidance.latency`).
+    latency_window_s : float
+        Data ages of the frames captured this long before the newest are forgotten [s,
+        frame clock], (0, 60].
+    latency_percentile : float
+        The percentile of the window's data ages that is budgeted, [50, 100].
+    unmeasured_latency_s : float
+        Latency the data age does not contain, added to it [s], [0, 1]: the autopilot's
+        reaction after a setpoint arrives and up to a frame period (0.1: the floor 0.15 s
+        less the ≤ 50 ms age of an idle companion).
     accel_mps2 : float
         Braking deceleration the autopilot achieves [m/s²]. 2.0: below the paper
         vehicle's g·tan 15° = 2.63 and ArduCopter's default WPNAV_ACCEL 2.5 m/s².
@@ -95,6 +115,9 @@ class EnvelopeConfig:
     """
 
     latency_s: float = 0.15
+    latency_window_s: float = 2.5
+    latency_percentile: float = 95.0
+    unmeasured_latency_s: float = 0.1
     accel_mps2: float = 2.0
     margin_m: float = 0.3
     vehicle_half_height_m: float = 0.2
@@ -108,6 +131,10 @@ class EnvelopeConfig:
         check_numbers(self, (f.name for f in dataclasses.fields(self)), as_float=True)
         if self.accel_mps2 <= 0.0:
             raise ValueError(f"accel_mps2 must be > 0, got {self.accel_mps2!r}")
+        for name, low, high in _BOUNDS:
+            value = getattr(self, name)
+            if not low <= value <= high or (name == "latency_window_s" and value == 0.0):
+                raise ValueError(f"{name} must be in [{low}, {high}], got {value!r}")
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> EnvelopeConfig:
@@ -137,6 +164,9 @@ class EnvelopeOutput:
         The carrot is nearer than guidance's setpoint (what lies beyond was not seen free).
     overspeed : bool
         Measured speed above the limit (plus tolerance).
+    latency_s : float
+        The latency ``τ`` budgeted in the stopping rule [s] (the measured budget, at
+        least ``EnvelopeConfig.latency_s``).
     """
 
     setpoint_ned_m: np.ndarray
@@ -147,6 +177,7 @@ class EnvelopeOutput:
     speed_mps: float
     limited: bool
     overspeed: bool
+    latency_s: float = 0.15
 
 
 def stopping_distance_m(speed_mps: float, latency_s: float, accel_mps2: float) -> float:
@@ -193,6 +224,7 @@ def envelope_step(
     vehicle_radius_m: float,
     max_path_elevation_rad: float,
     config: EnvelopeConfig | None = None,
+    latency_s: float | None = None,
 ) -> EnvelopeOutput:
     """Bound guidance's setpoint by known-free space and the stopping distance.
 
@@ -212,6 +244,10 @@ def envelope_step(
         Steepest climb or descent of the path [rad]: guidance's aiming-elevation limit
         (``GuidanceConfig.max_aim_elevation_rad``, inside the camera's vertical view).
     config : EnvelopeConfig, optional
+    latency_s : float, optional
+        The latency budget ``τ`` to use [s] (:meth:`~companion.guidance.latency.
+        DataAgeWindow.budget_s`); never below ``config.latency_s``, which is used when it
+        is None or not a finite number.
 
     Returns
     -------
@@ -222,7 +258,10 @@ def envelope_step(
     vel = np.asarray(vel_ned_mps, dtype=float)
     target = np.asarray(setpoint_ned_m, dtype=float)
     speed = math.sqrt(float(vel @ vel))
-    d_stop = stopping_distance_m(speed, cfg.latency_s, cfg.accel_mps2)
+    tau = cfg.latency_s
+    if latency_s is not None and math.isfinite(latency_s) and latency_s > tau:
+        tau = float(latency_s)
+    d_stop = stopping_distance_m(speed, tau, cfg.accel_mps2)
     to_setpoint = target - pos
     dist = math.sqrt(float(to_setpoint @ to_setpoint))
     if dist < 1e-6:
@@ -249,9 +288,7 @@ def envelope_step(
         clamped = not np.allclose(direction * dist, to_setpoint, atol=1e-9)
         limited = clamped or reach < dist - 1e-9
         carrot = pos + direction * reach if limited else target.copy()
-    limit = min(
-        speed_limit_mps(free, cfg.latency_s, cfg.accel_mps2, cfg.margin_m), cfg.max_speed_mps
-    )
+    limit = min(speed_limit_mps(free, tau, cfg.accel_mps2, cfg.margin_m), cfg.max_speed_mps)
     carrot.setflags(write=False)
     direction.setflags(write=False)
     return EnvelopeOutput(
@@ -263,4 +300,5 @@ def envelope_step(
         speed_mps=speed,
         limited=limited,
         overspeed=speed > limit + cfg.overspeed_tolerance_mps,
+        latency_s=tau,
     )
