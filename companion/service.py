@@ -169,6 +169,9 @@ class CompanionService:
             if frame is not None:
                 now_ns = time.monotonic_ns()
                 self._step(FrameReceived(frame, now_ns, now_ns))
+                # at once: the core takes the frame's data age (capture → its setpoint on
+                # the wire) from the next input's clock (companion.guidance.latency)
+                self._step(Tick(time.monotonic_ns()))
             self._report(time.monotonic())
 
     def _step(self, event: Input) -> None:
@@ -191,7 +194,11 @@ class CompanionService:
             elif isinstance(out, Event):
                 self._event(out)
             elif isinstance(out, Status) and self._status is not None:
-                self._status.publish(_with_latency(out, returned_ns, sent_ns))
+                doc = _with_latency(out, returned_ns, sent_ns)
+                if isinstance(doc.get("pipeline"), dict):
+                    superseded = self.slot.counters.superseded
+                    doc["pipeline"] = {**doc["pipeline"], "frames_superseded": superseded}
+                self._status.publish(doc)
 
     def _event(self, event: Event) -> None:
         line = f"COMPANION EVENT {event.name} {json.dumps(event.fields, default=str)}"

@@ -52,6 +52,7 @@ from companion.core.events import (
 )
 from companion.core.mission import Mission
 from companion.failsafe import FailsafeMonitor, Health
+from companion.guidance.latency import DataAgeWindow
 from companion.link.flavour import (
     Flavour,
     control_mode,
@@ -117,6 +118,7 @@ _COUNTERS = (
     "link_losses",
     "autopilot_restarts",
     "mode_releases",
+    "mode_requests",
     "pipeline_errors",
     "speed_limits_sent",
     "speed_limits_accepted",
@@ -244,7 +246,22 @@ class CompanionCore:
             f"t={'-' if newest is None else f'{newest * 1e-9:.1f}s'} pos={pos} phase={phase} "
             f"mode={mode} health={self.failsafe.status.health.value} "
             f"frames {self.counters['frames_processed']} setpoints "
-            f"{self.counters['setpoints_sent']}"
+            f"{self.counters['setpoints_sent']}; {self._pipeline_text()}"
+        )
+
+    def _pipeline_text(self) -> str:
+        """Rate, data age p50/p99, latency budget, speed limit and mode requests."""
+        f = self._pipeline_figures()
+
+        def num(value, fmt: str) -> str:
+            return "-" if value is None else format(value, fmt)
+
+        return (
+            f"processing {num(f['rate_hz'], '.1f')} Hz, data age p50 "
+            f"{num(f['data_age_p50_ms'], '.0f')} p99 {num(f['data_age_p99_ms'], '.0f')} ms, "
+            f"latency budget {f['latency_budget_s']:.2f} s, speed limit "
+            f"{num(f['speed_limit_mps'], '.1f')} m/s, mode requests "
+            f"{self.counters['mode_requests']}"
         )
 
     # ---- per-connection state ------------------------------------------------------
@@ -274,6 +291,14 @@ class CompanionCore:
         self._telemetry_newest_ns: int | None = None  # read by the Zenoh thread too
         self.boot_time = BootTimeMonitor(backstep_ms=_REBOOT_BACKSTEP_MS)
         self._newest_frame_ns: int | None = None  # processed
+        env = cfg.envelope
+        self.data_age = DataAgeWindow(
+            env.latency_s, env.latency_window_s, env.latency_percentile, env.unmeasured_latency_s
+        )
+        # the frame whose command left in the last step: (capture_ns, host ns at the
+        # step's start, its data age then [s]); its age is taken at the next input
+        self._age_pending: tuple[int, int, float] | None = None
+        self._speed_limit_mps: float | None = None  # the envelope's, last processed frame
         self._newest_seen_ns: int | None = None  # newest frame-clock stamp observed
         self._last_capture_ns: int | None = None
         self._streams_acked = 0  # accepted SET_MESSAGE_INTERVAL since the last request
@@ -288,6 +313,7 @@ class CompanionCore:
         self._now_ns = event.now_ns
         self._now_s = event.now_ns * 1e-9
         self._out = []
+        self._measure_data_age()
         if isinstance(event, Tick):
             self._timers(self._now_s)
             self._check_failsafe(self._now_s)
@@ -715,6 +741,7 @@ class CompanionCore:
     def _request_mode(self, request) -> None:
         cfg = self.config.link
         self._last_mode_request = request
+        self.counters["mode_requests"] += 1
         _log.info("requesting %s", request.name)
         self._send(set_mode_command(cfg.target_system, cfg.target_component, request))
 
@@ -783,8 +810,11 @@ class CompanionCore:
         # pilot's mode or beside another source): time it does not, guidance does not
         # count as its own lack of progress.
         steering = self._steering(self._now_s)
+        age_s = self._frame_age_s(frame.capture_ns)
         try:
-            result = self.mission.step(frame, pose, steering=steering)
+            result = self.mission.step(
+                frame, pose, steering=steering, latency_s=self.data_age.budget_s(age_s)
+            )
         except Exception as exc:  # a bad frame must never stop the companion (cv2.error too)
             self.counters["pipeline_errors"] += 1
             self._drop_log("pipeline", "frame %d: pipeline error %s", frame.sequence, exc)
@@ -792,6 +822,8 @@ class CompanionCore:
         out = result.output
         self.counters["frames_processed"] += 1
         self._newest_frame_ns = frame.capture_ns
+        self._age_pending = (frame.capture_ns, self._now_ns, 0.0 if age_s is None else age_s)
+        self._speed_limit_mps = float(out.envelope.speed_limit_mps)
         self._check_failsafe(self._now_s)
         sent = False
         target = PositionTarget(tuple(float(x) for x in out.setpoint_ned_m), float(out.yaw_rad))
@@ -818,6 +850,8 @@ class CompanionCore:
             pos_ned_m=[round(float(x), 4) for x in pose.pos_ned_m],
             waypoint=result.waypoint,
             setpoint_sent=sent,
+            pipeline=self._pipeline_figures(out.envelope.latency_s),
+            mode_requests=self.counters["mode_requests"],
         )
         self._out.append(Status(document, recv_ns, self._now_ns, host_capture))
         if self.report_pipeline:  # a viewer is attached (companion.viz)
@@ -825,6 +859,51 @@ class CompanionCore:
             self._out.append(
                 FrameProcessed(frame, pose, result, pipeline.goal_ned_m, pipeline.known_space, sent)
             )
+
+    # ---- the latency budget (issue 32) ---------------------------------------------
+    def _frame_age_s(self, capture_ns: int) -> float | None:
+        """Age of a frame's data now [s, frame clock] (None: no clock yet)."""
+        now_frame = self.clock.now_frame_ns(self._now_ns, self._newest_seen_ns)
+        return None if now_frame is None else (now_frame - capture_ns) * 1e-9
+
+    def _frame_clock_rate(self) -> float:
+        """Frame-clock seconds per host second (plant-sim at --speedup N: N)."""
+        if self.clock.frame_clock is FrameClock.HOST:
+            return 1.0
+        rate = self.clock.autopilot.rate
+        return min(max(rate, 0.01), 1000.0) if math.isfinite(rate) else 1.0
+
+    def _measure_data_age(self) -> None:
+        """The last frame's command left during its step: its data age is its age at the
+        step's start plus the host time since then (this input's ``now_ns``, which the
+        service steps right after carrying a frame's outputs out) on the frame clock."""
+        if self._age_pending is None:
+            return
+        capture_ns, started_ns, age_at_start_s = self._age_pending
+        self._age_pending = None
+        compute_s = (self._now_ns - started_ns) * 1e-9 * self._frame_clock_rate()
+        self.data_age.add(capture_ns, age_at_start_s + compute_s)
+
+    def _pipeline_figures(self, latency_s: float | None = None) -> dict[str, Any]:
+        """Processing rate, data age p50/p99, latency budget and speed limit (status)."""
+        stats = self.data_age.stats()
+
+        def ms(value: float | None) -> float | None:
+            return None if value is None else round(value * 1e3, 1)
+
+        return {
+            "rate_hz": None if stats.rate_hz is None else round(stats.rate_hz, 2),
+            "data_age_p50_ms": ms(stats.p50_s),
+            "data_age_p99_ms": ms(stats.p99_s),
+            "latency_budget_s": round(
+                self.data_age.budget_s() if latency_s is None else latency_s, 4
+            ),
+            "speed_limit_mps": None
+            if self._speed_limit_mps is None
+            else round(self._speed_limit_mps, 3),
+            "ages_rejected": self.data_age.rejected,
+            "ages_clamped": self.data_age.clamped,
+        }
 
     def _state_speed_limit(self, limit_mps: float, now_s: float) -> None:
         """ArduPilot: the envelope's speed limit as MAV_CMD_DO_CHANGE_SPEED (see
