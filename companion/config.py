@@ -28,8 +28,10 @@ optional, and an unknown key anywhere is an error that names it (``link.rate`` �
     config_file = "zenoh.json5"
 
     [failsafe]
-    frame_timeout_s = 0.3                # frame clock (simulation time in the SIL)
-    telemetry_timeout_s = 0.3
+    frame_timeout_s = 0.3                # frames late: hold position (frame clock, sim time in SIL)
+    telemetry_timeout_s = 0.3            # telemetry late: hold position
+    frame_loss_s = 2.0                   # no frames this long: BRAKE/LOITER (last resort)
+    telemetry_loss_s = 2.0               # no telemetry this long: BRAKE/LOITER (last resort)
     resume_after_s = 1.0                 # after a hold: healthy this long before resuming
     link_timeout_s = 1.5                 # wall time without any message → link lost
     frame_time_window_s = 2.0            # capture time this far from the clock: refused
@@ -150,9 +152,13 @@ class LinkConfig:
 class FailsafeConfig:
     """When to stop steering and hold (frame clock = simulation time in the SIL)."""
 
-    frame_timeout_s: float = 0.3  # newest frame older than this → hold
-    telemetry_timeout_s: float = 0.3  # newest pose older than this → hold
-    resume_after_s: float = 1.0  # after a hold, healthy this long before resuming (hysteresis)
+    frame_timeout_s: float = 0.3  # newest frame older than this → hold position [s]
+    telemetry_timeout_s: float = 0.3  # newest pose older than this → hold position [s]
+    # the last resort: the autopilot's own hold (BRAKE/LOITER, PX4 hold) only when no frame
+    # (no pose) arrived for this long [s, frame clock]; > the timeouts above
+    frame_loss_s: float = 2.0
+    telemetry_loss_s: float = 2.0
+    resume_after_s: float = 1.0  # settle: after a hold, healthy this long before resuming [s]
     link_timeout_s: float = 1.5  # wall time without any autopilot message → link lost
     max_pose_extrapolation_s: float = 0.05  # frames newer than the newest pose by ≤ this
     pose_history_s: float = 2.0  # how far back poses are kept
@@ -163,6 +169,15 @@ class FailsafeConfig:
             value = getattr(self, f.name)
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"failsafe.{f.name} must be finite and > 0, got {value!r}")
+        for loss, late in (
+            ("frame_loss_s", "frame_timeout_s"),
+            ("telemetry_loss_s", "telemetry_timeout_s"),
+        ):
+            if not getattr(self, loss) > getattr(self, late):
+                raise ConfigError(
+                    f"failsafe.{loss} ({getattr(self, loss)!r}) must be longer than "
+                    f"failsafe.{late} ({getattr(self, late)!r})"
+                )
 
 
 @dataclass(frozen=True)
@@ -376,7 +391,12 @@ def _add_behaviour_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-request-mode", action="store_true", help="never request GUIDED/OFFBOARD")
     p.add_argument("--frame-clock", choices=[c.value for c in FrameClock])
     p.add_argument("--telemetry-rate-hz", type=float)
-    p.add_argument("--frame-timeout-s", type=float, help="hold if frames are older [s]")
+    p.add_argument("--frame-timeout-s", type=float, help="hold position if frames are older [s]")
+    p.add_argument(
+        "--frame-loss-s",
+        type=float,
+        help="request BRAKE/LOITER (PX4: hold) if no frame came for this long [s]",
+    )
     p.add_argument("--telemetry-timeout-s", type=float, help="hold if poses are older [s]")
     p.add_argument("--obstacle-distance", action="store_true", help="send OBSTACLE_DISTANCE")
 
@@ -473,6 +493,7 @@ def config_from_args(
         "failsafe",
         {
             "frame_timeout_s": args.frame_timeout_s,
+            "frame_loss_s": args.frame_loss_s,
             "telemetry_timeout_s": args.telemetry_timeout_s,
         },
     )

@@ -202,29 +202,37 @@ def test_core_engages_guided_and_steers_after_listening():
 
 
 def test_core_failsafe_holds_on_stale_frames_and_resumes():
-    """No frames for frame_timeout_s (frame clock) → BRAKE and a hold event; frames back
-    for resume_after_s → GUIDED again and a resume event."""
+    """Issue 32: no frames for frame_timeout_s (frame clock) → a position hold in GUIDED
+    (no mode request); none for frame_loss_s → BRAKE, the last resort; frames back for
+    resume_after_s → GUIDED again and a resume event."""
     rig = _steering_rig()
     rig.run(1.0, frames=False)
     holds = rig.events("hold")
-    assert [h["reason"] for h in holds] == ["stale_frames"]
-    assert holds[0]["command"] == "BRAKE"
+    assert [(h["reason"], h["command"]) for h in holds] == [("stale_frames", "hold position")]
+    assert rig.custom_mode == GUIDED and rig.core.counters["mode_requests"] == 0
+    rig.run(1.5, frames=False)  # 2.5 s without frames > frame_loss_s (2 s)
+    holds = rig.events("hold")
+    assert [(h["reason"], h["command"]) for h in holds] == [
+        ("stale_frames", "hold position"),
+        ("frames_lost", "BRAKE"),
+    ]
     assert rig.custom_mode == BRAKE
-    assert rig.core.counters["hold_commands"] == 1
+    assert rig.core.counters["hold_commands"] == 1  # one hold, escalated
     n_setpoints = len(rig.setpoints())
     rig.run(0.5)
     assert not rig.events("resume")  # healthy for less than resume_after_s (1 s)
     rig.run(1.0)
     assert len(rig.events("resume")) == 1
     assert rig.custom_mode == GUIDED
+    assert rig.core.counters["mode_requests"] == 2  # BRAKE, then GUIDED
     assert len(rig.setpoints()) > n_setpoints
 
 
 def test_time_in_a_failsafe_hold_is_not_counted_as_guidance_making_no_progress():
     """Frames that keep coming but late (older than frame_timeout_s on arrival): the core
-    holds (BRAKE) while guidance keeps stepping without being flown. Longer than
-    stall_timeout_s of that is not NO_PROGRESS; the same time steering a vehicle that does
-    not move is."""
+    holds position (in GUIDED, issue 32) while guidance keeps stepping without being flown.
+    Longer than stall_timeout_s of that is not NO_PROGRESS; the same time steering a
+    vehicle that does not move is."""
     base = CompanionConfig()
     cfg = dataclasses.replace(
         base,
@@ -235,7 +243,7 @@ def test_time_in_a_failsafe_hold_is_not_counted_as_guidance_making_no_progress()
     rig.frame_lag_s = 0.5  # frame_timeout_s is 0.3 s
     rig.run(5.0)
     assert [h["reason"] for h in rig.events("hold")] == ["stale_frames"]
-    assert rig.custom_mode == BRAKE
+    assert rig.custom_mode == GUIDED
     assert rig.core.counters["frames_processed"] > 100  # guidance stepped all along
     rig.frame_lag_s = 0.0
     rig.run(5.0)  # 1 s to resume, then 3 s steering without moving

@@ -51,7 +51,8 @@ from companion.core.events import (
     Tick,
 )
 from companion.core.mission import Mission
-from companion.failsafe import FailsafeMonitor, Health
+from companion.failsafe import FailsafeMonitor, Health, Response
+from companion.guidance.hold import hold_point, inside_any
 from companion.guidance.latency import DataAgeWindow
 from companion.link.flavour import (
     Flavour,
@@ -119,6 +120,8 @@ _COUNTERS = (
     "autopilot_restarts",
     "mode_releases",
     "mode_requests",
+    "mode_holds",
+    "hold_targets_moved",
     "pipeline_errors",
     "speed_limits_sent",
     "speed_limits_accepted",
@@ -162,9 +165,7 @@ class CompanionCore:
             horizon_ns=round(fs.pose_history_s * 1e9),
             max_extrapolation_ns=round(fs.max_pose_extrapolation_s * 1e9),
         )
-        self.failsafe = FailsafeMonitor(
-            fs.frame_timeout_s, fs.telemetry_timeout_s, fs.resume_after_s
-        )
+        self.failsafe = _failsafe_monitor(config)
         self.modes = ModeWatch(request_mode=link.request_mode, prestream_s=link.px4_prestream_s)
         self.policy: SetpointPolicy | None = None
         self.speed_policy = SpeedLimitPolicy()
@@ -279,11 +280,11 @@ class CompanionCore:
         self.poses.clear()
         self.modes.reset()
         self.policy = None
-        self.failsafe = FailsafeMonitor(
-            cfg.failsafe.frame_timeout_s,
-            cfg.failsafe.telemetry_timeout_s,
-            cfg.failsafe.resume_after_s,
-        )
+        self.failsafe = _failsafe_monitor(cfg)
+        self._hold = Response.STEER  # the hold the companion commands (failsafe)
+        self._hold_target: PositionTarget | None = None  # latched at a hold's start
+        self._hold_moved_told = False  # "hold target moved out of a boundary" said
+        self._boundaries: tuple = ()  # the last processed frame's boundaries
         self._last_boot_ms: int | None = None
         self._wpnav_speed_mps: float | None = None  # the autopilot's own speed limit
         self._next_param_request_s = 0.0
@@ -778,13 +779,7 @@ class CompanionCore:
             self._count_drop("frames_implausible_time", "frame", (frame.sequence, frame.capture_ns))
             return
         if self._takeoff_busy():
-            self._observe(frame.capture_ns)
-            self.counters["frames_during_takeoff"] += 1  # not steering before the climb
-            assert self.takeoff is not None
-            self.takeoff.on_frame(self._now_s)
-            if self._newest_frame_ns is None or frame.capture_ns > self._newest_frame_ns:
-                self._newest_frame_ns = frame.capture_ns  # the camera works: health
-            self._drive_takeoff(self._now_s)
+            self._frame_during_takeoff(frame)
             return
         if self._last_capture_ns is not None and frame.capture_ns <= self._last_capture_ns:
             self.counters["frames_stale"] += 1
@@ -820,10 +815,7 @@ class CompanionCore:
             self._drop_log("pipeline", "frame %d: pipeline error %s", frame.sequence, exc)
             return
         out = result.output
-        self.counters["frames_processed"] += 1
-        self._newest_frame_ns = frame.capture_ns
-        self._age_pending = (frame.capture_ns, self._now_ns, 0.0 if age_s is None else age_s)
-        self._speed_limit_mps = float(out.envelope.speed_limit_mps)
+        self._processed(frame.capture_ns, out, age_s, pose.pos_ned_m)
         self._check_failsafe(self._now_s)
         sent = False
         target = PositionTarget(tuple(float(x) for x in out.setpoint_ned_m), float(out.yaw_rad))
@@ -859,6 +851,25 @@ class CompanionCore:
             self._out.append(
                 FrameProcessed(frame, pose, result, pipeline.goal_ned_m, pipeline.known_space, sent)
             )
+
+    def _frame_during_takeoff(self, frame: StereoFrame) -> None:
+        self._observe(frame.capture_ns)
+        self.counters["frames_during_takeoff"] += 1  # not steering before the climb
+        assert self.takeoff is not None
+        self.takeoff.on_frame(self._now_s)
+        if self._newest_frame_ns is None or frame.capture_ns > self._newest_frame_ns:
+            self._newest_frame_ns = frame.capture_ns  # the camera works: health
+        self._drive_takeoff(self._now_s)
+
+    def _processed(self, capture_ns: int, out, age_s: float | None, pos_ned_m) -> None:
+        """A frame went through the mission: health, its data age to take at the next
+        input, the figures, and a hold target kept out of the boundaries it showed."""
+        self.counters["frames_processed"] += 1
+        self._newest_frame_ns = capture_ns
+        self._age_pending = (capture_ns, self._now_ns, 0.0 if age_s is None else age_s)
+        self._speed_limit_mps = float(out.envelope.speed_limit_mps)
+        self._boundaries = tuple(out.boundaries)
+        self._recheck_hold_target(pos_ned_m)
 
     # ---- the latency budget (issue 32) ---------------------------------------------
     def _frame_age_s(self, capture_ns: int) -> float | None:
@@ -980,28 +991,68 @@ class CompanionCore:
         """Keep-alive / PX4 stream / hold: (re)send the appropriate target."""
         if self.policy is None or not self._may_steer(now_s):
             return
-        if self.modes.streaming_hold or (
-            self.modes.steering and not self.failsafe.status.health.ok and self._must_stream()
-        ):
-            target = self._hold_target()
+        if self.modes.streaming_hold or (self.modes.steering and self._hold is not Response.STEER):
+            target = self._hold_target or self._current_hold()
+        elif self.modes.steering and not self.failsafe.status.health.ok and self._must_stream():
+            target = self._current_hold()
         elif self.modes.steering and (self.failsafe.status.health.ok or self.policy.last is None):
             target = self.policy.last
             if target is None and self._must_stream():
-                target = self._hold_target()
+                target = self._current_hold()
         else:
             return
         if target is not None:
             self._send_target(target, now_s, None)
 
-    def _hold_target(self) -> PositionTarget | None:
+    def _current_hold(self) -> PositionTarget | None:
+        """Hold where the vehicle is (out of a boundary it is in), no braking point."""
+        return self._hold_point_target(moving=False)
+
+    def _hold_point_target(self, *, moving: bool = True) -> PositionTarget | None:
+        """The braking point of the newest pose, never inside a boundary
+        (:func:`companion.guidance.hold.hold_point`); says so once per hold if moved."""
         newest = self.poses.newest_ns
         if newest is None:
             return None
         lookup = self.poses.at(newest)
         if lookup.pose is None:
             return None
-        p = lookup.pose.pos_ned_m
-        return PositionTarget((float(p[0]), float(p[1]), float(p[2])), lookup.pose.yaw_rad)
+        pose = lookup.pose
+        point = hold_point(
+            pose.pos_ned_m,
+            pose.vel_ned_mps if moving else (0.0, 0.0, 0.0),
+            self._boundaries,
+            latency_s=self.data_age.budget_s(),
+            accel_mps2=self.config.envelope.accel_mps2,
+            clearance_m=self.config.guidance.escape_clearance_m,
+        )
+        if point.moved and not self._hold_moved_told:
+            self._hold_moved_told = True
+            self.counters["hold_targets_moved"] += 1
+            self._notice(f"Hold target kept out of a boundary ({point.placement.value})")
+            self._event(
+                "hold_target_moved",
+                placement=point.placement.value,
+                setpoint_ned_m=[round(x, 3) for x in point.pos_ned_m],
+                pos_ned_m=[round(float(x), 3) for x in pose.pos_ned_m],
+            )
+        return PositionTarget(point.pos_ned_m, pose.yaw_rad)
+
+    def _recheck_hold_target(self, pos_ned_m) -> None:
+        """In a position hold, a frame that shows the vehicle or its target inside a
+        boundary (drift, a late frame) moves the target out at once."""
+        if self._hold is not Response.HOLD_POSITION or self._hold_target is None:
+            return
+        if not (
+            inside_any(pos_ned_m, self._boundaries)
+            or inside_any(self._hold_target.pos_ned_m, self._boundaries)
+        ):
+            return
+        target = self._hold_point_target()
+        if target is not None and target != self._hold_target:
+            self._hold_target = target
+            if self.modes.steering and self.policy is not None and self._may_steer(self._now_s):
+                self._send_target(target, self._now_s, None)
 
     def _send_obstacle_distance(self, out, pose, hfov_deg: float) -> None:
         """OBSTACLE_DISTANCE over the camera's own field of view (from the frame's model)."""
@@ -1021,45 +1072,68 @@ class CompanionCore:
 
     # ---- failsafe ------------------------------------------------------------------
     def _check_failsafe(self, now_s: float) -> None:
+        """Late inputs: a position hold in the control mode; lost inputs: the autopilot's
+        hold mode (the last resort); healthy for the settle time: steer again."""
         now_frame = self.clock.now_frame_ns(self._now_ns, self._newest_seen_ns)
         changed = self.failsafe.update(now_frame, self._newest_frame_ns, self.poses.newest_ns)
-        if changed is None or self.modes.flavour is None:
+        if self.modes.flavour is None:
             return  # (during a takeoff the health is tracked for the status line only)
-        status = self.failsafe.status
-        if changed.ok:
-            before = self.modes.phase
-            request = self.modes.set_hold(now_s, False)
-            if before is ControlPhase.HOLD:
-                self._notice("Frames and telemetry healthy: avoidance resumes")
-                self._event("resume")
-            if request is not None:
-                self._request_mode(request)
-            self._after_phase_change(before, now_s)
+        response = self.failsafe.response
+        if response is self._hold or Response.STEER < response < self._hold:
             return
-        if not self._engaged or changed in (Health.NO_FRAMES, Health.NO_CLOCK):
-            _log.info("not steering yet: %s", changed.value)
+        if response is Response.STEER:
+            self._end_hold(now_s)
+            return
+        status = self.failsafe.status
+        if not self._engaged or status.health in (Health.NO_FRAMES, Health.NO_CLOCK):
+            if changed is not None:
+                _log.info("not steering yet: %s", changed.value)
             return
         before = self.modes.phase
-        request = self.modes.set_hold(now_s, True)
-        if self.modes.phase is ControlPhase.HOLD and before is not ControlPhase.HOLD:
+        if self._hold is Response.STEER:
             self.counters["hold_commands"] += 1
-            ages = f"frames {_age(status.frame_age_s)}, telemetry {_age(status.telemetry_age_s)}"
-            what = request.name if request is not None else "hold position"
-            self._notice(f"Failsafe {changed.value}: {what}", _SEV_WARNING)
-            _log.warning("failsafe %s (%s): commanding %s", changed.value, ages, what)
-            self._event(
-                "hold",
-                reason=changed.value,
-                command=what,
-                frame_age_s=status.frame_age_s,
-                telemetry_age_s=status.telemetry_age_s,
-                newest_frame_ns=self._newest_frame_ns,
-                now_frame_ns=now_frame,
-            )
-            if request is not None:
-                self._request_mode(request)
-            else:
-                self._resend_now(now_s)
+            self._hold_moved_told = False
+            self._hold_target = None
+        self._hold = response
+        self._hold_target = self._hold_target or self._hold_point_target()
+        request = None
+        if response is Response.HOLD_MODE:
+            self.counters["mode_holds"] += 1
+            request = self.modes.set_hold(now_s, True)
+        what = request.name if request is not None else "hold position"
+        ages = f"frames {_age(status.frame_age_s)}, telemetry {_age(status.telemetry_age_s)}"
+        self._notice(f"Failsafe {status.health.value}: {what}", _SEV_WARNING)
+        _log.warning("failsafe %s (%s): commanding %s", status.health.value, ages, what)
+        self._event(
+            "hold",
+            reason=status.health.value,
+            command=what,
+            frame_age_s=status.frame_age_s,
+            telemetry_age_s=status.telemetry_age_s,
+            newest_frame_ns=self._newest_frame_ns,
+            now_frame_ns=now_frame,
+            setpoint_ned_m=None
+            if self._hold_target is None
+            else [round(x, 3) for x in self._hold_target.pos_ned_m],
+        )
+        if request is not None:
+            self._request_mode(request)
+        else:
+            self._resend_now(now_s)
+        self._after_phase_change(before, now_s)
+
+    def _end_hold(self, now_s: float) -> None:
+        """Healthy for the settle time: guidance's setpoints again (the control mode)."""
+        before, was = self.modes.phase, self._hold
+        self._hold, self._hold_target = Response.STEER, None
+        request = self.modes.set_hold(now_s, False)
+        if was is not Response.STEER:
+            self._notice("Frames and telemetry healthy: avoidance resumes")
+            self._event("resume")
+            if self.policy is not None:
+                self.policy.reset()  # the next guidance setpoint goes out at once
+        if request is not None:
+            self._request_mode(request)
         self._after_phase_change(before, now_s)
 
     # ---- reporting -----------------------------------------------------------------
@@ -1068,7 +1142,7 @@ class CompanionCore:
             return CompanionState.LINK_LOST if self.counters["link_losses"] else CompanionState.BOOT
         if not self._may_steer(self._now_s):
             return CompanionState.STANDBY
-        if self.modes.phase is ControlPhase.HOLD:
+        if self.modes.phase is ControlPhase.HOLD or self._hold is not Response.STEER:
             return CompanionState.HOLD
         if self.modes.steering and self.failsafe.status.health.ok:
             return CompanionState.ACTIVE
@@ -1111,6 +1185,17 @@ def _statustext(msg) -> str:
     text = msg.text if isinstance(msg.text, str) else msg.text.decode("ascii", "replace")
     text = text.split("\x00", 1)[0]
     return "".join(c if " " <= c <= "~" else "?" for c in text)
+
+
+def _failsafe_monitor(config: CompanionConfig) -> FailsafeMonitor:
+    fs = config.failsafe
+    return FailsafeMonitor(
+        fs.frame_timeout_s,
+        fs.telemetry_timeout_s,
+        fs.resume_after_s,
+        frame_loss_s=fs.frame_loss_s,
+        telemetry_loss_s=fs.telemetry_loss_s,
+    )
 
 
 def _age(value: float | None) -> str:

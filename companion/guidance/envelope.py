@@ -215,6 +215,13 @@ def _path_direction(to_setpoint: np.ndarray, max_elev_rad: float) -> np.ndarray:
     )
 
 
+def _budget_s(cfg: EnvelopeConfig, latency_s: float | None) -> float:
+    """The latency budget passed in, never below ``cfg.latency_s`` (nor NaN) [s]."""
+    if latency_s is not None and math.isfinite(latency_s) and latency_s > cfg.latency_s:
+        return float(latency_s)
+    return cfg.latency_s
+
+
 def envelope_step(
     *,
     pos_ned_m,
@@ -258,9 +265,7 @@ def envelope_step(
     vel = np.asarray(vel_ned_mps, dtype=float)
     target = np.asarray(setpoint_ned_m, dtype=float)
     speed = math.sqrt(float(vel @ vel))
-    tau = cfg.latency_s
-    if latency_s is not None and math.isfinite(latency_s) and latency_s > tau:
-        tau = float(latency_s)
+    tau = _budget_s(cfg, latency_s)
     d_stop = stopping_distance_m(speed, tau, cfg.accel_mps2)
     to_setpoint = target - pos
     dist = math.sqrt(float(to_setpoint @ to_setpoint))
@@ -271,17 +276,8 @@ def envelope_step(
         limited = False
     else:
         direction = _path_direction(to_setpoint, max_path_elevation_rad)
-        free = float(
-            free_distance(
-                pos,
-                direction,
-                vehicle_radius_m,
-                cfg.lookahead_m,
-                cfg.vehicle_half_height_m,
-                vehicle_radius_m,
-                cfg.near_field_m,
-            )
-        )
+        section = (vehicle_radius_m, cfg.lookahead_m, cfg.vehicle_half_height_m)
+        free = float(free_distance(pos, direction, *section, vehicle_radius_m, cfg.near_field_m))
         reach = min(dist, max(0.0, free - d_stop - cfg.margin_m))
         if reach < min(cfg.min_advance_m, dist):
             reach = 0.0

@@ -1,0 +1,150 @@
+"""Where to hold when the inputs degrade: the braking point, never inside a boundary.
+
+A hold for late inputs (:mod:`companion.failsafe`, ``Response.HOLD_POSITION``) is a
+position target sent in the control mode. The vehicle cannot stop where it is: it stops
+at the *braking point*, ``p + v̂·d_stop(|v|)`` with ``d_stop = τ·v + v²/(2a)`` (the
+envelope's stopping rule with the latency budget ``τ``). A target behind it would make the
+autopilot brake harder than it can and come back; one beyond would let it drift on.
+
+Invariant 3 of the safety envelope (DESIGN.md): no target lies inside an inflated boundary
+(the known-space map's collision safety boundaries, :mod:`companion.guidance.map_boundaries`).
+So, in order:
+
+1. The vehicle is inside a boundary (drift, a jump of the estimate, a late frame): the
+   target is the way out of the deepest one, :func:`~companion.guidance.cone.escape_point`
+   (radially out, ``clearance_m`` beyond its surface), as guidance's own escape
+   (:attr:`HoldPlacement.ESCAPE`). If that point lies in another boundary: the current
+   position (:attr:`HoldPlacement.CURRENT`), and never deeper.
+2. The braking point is inside a boundary: the farthest point of the segment from the
+   vehicle to it that is outside every boundary, i.e. on the path the vehicle is flying
+   through space the envelope let it into (:attr:`HoldPlacement.SHORTENED`).
+3. Otherwise the braking point itself (:attr:`HoldPlacement.BRAKING_POINT`).
+
+Pure: arrays in, a point out.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.guidance.cone import SphereLike, escape_point
+from companion.guidance.envelope import stopping_distance_m
+
+__all__ = ["HoldPlacement", "HoldPoint", "hold_point", "inside_any"]
+
+
+class HoldPlacement(enum.Enum):
+    """Where the hold target was put, and why."""
+
+    BRAKING_POINT = "braking_point"
+    SHORTENED = "shortened"  # braking point inside a boundary: short of it on the path
+    ESCAPE = "escape"  # vehicle inside a boundary: out of it
+    CURRENT = "current"  # vehicle inside and no way out found: where it is
+
+
+@dataclass(frozen=True)
+class HoldPoint:
+    """A hold target [m, NED] and where it was put."""
+
+    pos_ned_m: tuple[float, float, float]
+    placement: HoldPlacement
+
+    @property
+    def moved(self) -> bool:
+        """The braking point was not used as it is (worth telling the operator once)."""
+        return self.placement is not HoldPlacement.BRAKING_POINT
+
+
+def _inside(point: np.ndarray, sphere: SphereLike) -> bool:
+    centre = np.asarray(sphere.center_ned_m, dtype=float)
+    return float(np.linalg.norm(point - centre)) < float(sphere.radius_m)
+
+
+def inside_any(point_ned_m, boundaries: Sequence[SphereLike]) -> bool:
+    """Whether ``point_ned_m`` lies in the open ball of any boundary."""
+    p = np.asarray(point_ned_m, dtype=float)
+    return any(_inside(p, b) for b in boundaries)
+
+
+def _entry_fraction(a: np.ndarray, b: np.ndarray, sphere: SphereLike) -> float:
+    """Smallest ``t ∈ [0, 1]`` with ``a + t(b − a)`` on the sphere, entering it (1 if never)."""
+    c = np.asarray(sphere.center_ned_m, dtype=float)
+    r = float(sphere.radius_m)
+    d = b - a
+    f = a - c
+    qa = float(d @ d)
+    if qa <= 0.0:
+        return 1.0
+    qb = 2.0 * float(f @ d)
+    qc = float(f @ f) - r * r
+    disc = qb * qb - 4.0 * qa * qc
+    if disc <= 0.0:
+        return 1.0
+    t = (-qb - math.sqrt(disc)) / (2.0 * qa)
+    return t if 0.0 <= t <= 1.0 else 1.0
+
+
+def hold_point(
+    pos_ned_m,
+    vel_ned_mps,
+    boundaries: Sequence[SphereLike],
+    *,
+    latency_s: float,
+    accel_mps2: float,
+    clearance_m: float = 0.0,
+    standoff_m: float = 0.05,
+) -> HoldPoint:
+    """The hold target for a vehicle at ``pos_ned_m`` flying ``vel_ned_mps`` (module doc).
+
+    Parameters
+    ----------
+    pos_ned_m, vel_ned_mps : array_like, shape (3,)
+        Newest position [m] and velocity [m/s], NED.
+    boundaries : sequence of SphereLike
+        Inflated collision safety boundaries (centre, radius) [m, NED].
+    latency_s : float
+        Latency budget ``τ`` of the stopping rule [s].
+    accel_mps2 : float
+        Braking deceleration [m/s²].
+    clearance_m : float
+        Escape distance beyond a boundary's surface [m] (guidance's
+        ``escape_clearance_m``).
+    standoff_m : float
+        A shortened target stays this far before the boundary along the path [m].
+    """
+    pos = np.asarray(pos_ned_m, dtype=float)
+    vel = np.asarray(vel_ned_mps, dtype=float)
+    if not np.all(np.isfinite(vel)):
+        vel = np.zeros(3)  # no usable velocity: hold where it is
+    containing = [b for b in boundaries if _inside(pos, b)]
+    if containing:
+        deepest = max(
+            containing,
+            key=lambda b: (
+                float(b.radius_m)
+                - float(np.linalg.norm(pos - np.asarray(b.center_ned_m, dtype=float)))
+            ),
+        )
+        out = escape_point(pos, deepest, clearance_m=clearance_m, reference_ned=vel)
+        if inside_any(out, boundaries):
+            return HoldPoint(_tuple(pos), HoldPlacement.CURRENT)
+        return HoldPoint(_tuple(out), HoldPlacement.ESCAPE)
+    speed = float(np.linalg.norm(vel))
+    if speed < 1e-6:
+        return HoldPoint(_tuple(pos), HoldPlacement.BRAKING_POINT)
+    brake = pos + vel / speed * stopping_distance_m(speed, latency_s, accel_mps2)
+    t = min((_entry_fraction(pos, brake, b) for b in boundaries), default=1.0)
+    if t >= 1.0:
+        return HoldPoint(_tuple(brake), HoldPlacement.BRAKING_POINT)
+    length = float(np.linalg.norm(brake - pos))
+    t = max(0.0, t - standoff_m / length)
+    return HoldPoint(_tuple(pos + t * (brake - pos)), HoldPlacement.SHORTENED)
+
+
+def _tuple(p: np.ndarray) -> tuple[float, float, float]:
+    return (float(p[0]), float(p[1]), float(p[2]))
