@@ -262,6 +262,8 @@ def test_sil_paper_scenario_with_signing_matches_lockstep(tmp_path, lockstep_ver
 
 
 def test_frames_stop_hold_within_half_a_second_then_resume(rig):
+    """Frames stop for ~1.5 s (< frame_loss_s): a position hold in GUIDED within 0.5 s of
+    simulation time, no BRAKE (issue 32: no mode flapping), then resume."""
     companion = rig.companion("--vehicle-id", "fwd")
     plant = rig.plant(connect=False)
     fwd = Forwarder(rig)
@@ -271,7 +273,8 @@ def test_frames_stop_hold_within_half_a_second_then_resume(rig):
         time.sleep(0.2)
         last_capture_s = fwd.last_capture_ns * 1e-9
         hold = rig.wait_event(companion, "hold", 5)
-        assert hold["reason"] == "stale_frames" and hold["command"] == "BRAKE"
+        assert hold["reason"] == "stale_frames" and hold["command"] == "hold position"
+        assert hold["now_frame_ns"] * 1e-9 - last_capture_s <= 0.5, hold
         time.sleep(1.0)
         fwd.paused.clear()
         rig.wait_event(companion, "resume", 5)
@@ -281,21 +284,13 @@ def test_frames_stop_hold_within_half_a_second_then_resume(rig):
     plant.stop()
     companion.stop()
     truth = _read_truth(rig.tmp / "run0" / "truth.csv")
-    # the autopilot's own log: BRAKE within 0.5 s of simulation time of the last frame
     import csv
 
     with (rig.tmp / "run0" / "truth.csv").open() as fh:
         rows = list(csv.DictReader(fh))
-    # (the first BRAKE after the pause: a loaded machine may stall frames for 0.3 s earlier
-    # too, and the companion rightly holds then as well)
-    brake_t = min(
-        float(r["time_s"])
-        for r in rows
-        if r["mode"] == "BRAKE" and float(r["time_s"]) > last_capture_s
-    )
-    assert brake_t - last_capture_s <= 0.5, (brake_t, last_capture_s, rig.logs())
-    after = [r["mode"] for r in rows if float(r["time_s"]) > brake_t]
-    assert after[-1] == "GUIDED"  # resumed
+    after = [r["mode"] for r in rows if float(r["time_s"]) > last_capture_s]
+    assert "BRAKE" not in after  # the hold was a position target in GUIDED
+    assert after[-1] == "GUIDED"
     assert min(v for v in truth["surface_distance_m"]) > 0.25
 
 
