@@ -107,6 +107,7 @@ def control_law(
     state: np.ndarray,
     pos_sp_m: np.ndarray,
     vel_sp_mps: np.ndarray,
+    acc_sp_mps2: np.ndarray,
     yaw_sp_ned_rad: float,
     gains_pos: np.ndarray,
     gains_att: np.ndarray,
@@ -122,6 +123,8 @@ def control_law(
     state : (12,) paper-frame state (see :mod:`plant_sim.dynamics`).
     pos_sp_m : (3,) paper-frame position target; NaN on an axis leaves it uncontrolled.
     vel_sp_mps : (3,) paper-frame velocity target (feed-forward); NaN means 0.
+    acc_sp_mps2 : (3,) paper-frame acceleration feed-forward ``u_d`` of Eq. (22) (the
+        second derivative of a shaped reference); NaN means 0.
     yaw_sp_ned_rad : MAVLink NED heading to hold.
     gains_pos, gains_att : (3, 2) per-axis ``[k_angle_or_pos, k_rate]`` from the LQ design.
     """
@@ -131,12 +134,13 @@ def control_law(
     st, ct = math.sin(theta), math.cos(theta)
     sp, cp = math.sin(psi), math.cos(psi)
 
-    # ---- position subsystem: LQ tracker on ξ̈ = a (Eq. 22 with x_d = [y_d, 0], u_d = 0)
+    # ---- position subsystem: LQ tracker on ξ̈ = a (Eq. 22, x_d = [y_d, ẏ_d], u_d = ÿ_d)
     a_des = np.empty(3)
     for i in range(3):
         e = 0.0 if math.isnan(pos_sp_m[i]) else state[i] - pos_sp_m[i]
         v_d = 0.0 if math.isnan(vel_sp_mps[i]) else vel_sp_mps[i]
-        a_des[i] = -gains_pos[i, 0] * e - gains_pos[i, 1] * (state[3 + i] - v_d)
+        u_d = 0.0 if math.isnan(acc_sp_mps2[i]) else acc_sp_mps2[i]
+        a_des[i] = u_d - gains_pos[i, 0] * e - gains_pos[i, 1] * (state[3 + i] - v_d)
 
     # feedback linearization of Eq. (12): add back G and (1/m) R K_t Rᵀ ξ̇
     r00, r01, r02 = ct * cp, -ct * sp, st

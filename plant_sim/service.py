@@ -411,6 +411,7 @@ class PlantService:
             vel_ned_mps=(float(v[0]), float(v[1]), float(v[2])),
             yaw_rad=snap.yaw_rad,
             on_ground=snap.on_ground,
+            tilt_saturated=snap.tilt_saturated,
         )
 
     def _apply_machine(self) -> None:

@@ -29,17 +29,19 @@ class Setpoint:
     """What the flight controller tracks, in LOCAL_NED.
 
     ``pos_ned_m`` and ``vel_ned_mps`` may each be None (not controlled); with both None
-    the vehicle holds zero velocity. ``yaw_rad`` None keeps the previous heading target;
-    ``yaw_rate_radps`` turns the heading target at that rate.
+    the vehicle holds zero velocity. ``acc_ned_mps2`` is an acceleration feed-forward (a
+    shaped reference's second derivative), None for none. ``yaw_rad`` None keeps the
+    previous heading target; ``yaw_rate_radps`` turns the heading target at that rate.
     """
 
     pos_ned_m: tuple[float, float, float] | None = None
     vel_ned_mps: tuple[float, float, float] | None = None
     yaw_rad: float | None = None
     yaw_rate_radps: float | None = None
+    acc_ned_mps2: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
-        for name in ("pos_ned_m", "vel_ned_mps"):
+        for name in ("pos_ned_m", "vel_ned_mps", "acc_ned_mps2"):
             value = getattr(self, name)
             if value is None:
                 continue
@@ -101,6 +103,7 @@ def _advance(
         dt_s,
         pos_sp_m,
         vel_sp_mps,
+        acc_sp_mps2,
         yaw_rate_sp_radps,
         gains_pos,
         gains_att,
@@ -120,6 +123,7 @@ def _advance(
                     state,
                     pos_sp_m,
                     vel_sp_mps,
+                    acc_sp_mps2,
                     yaw_sp_ned_rad,
                     gains_pos,
                     gains_att,
@@ -226,6 +230,7 @@ class Quadrotor:
         self._on_ground = False
         self._pos_sp = np.full(3, np.nan)
         self._vel_sp = np.full(3, np.nan)
+        self._acc_sp = np.full(3, np.nan)
         self._yaw_sp_rad = float(yaw_rad)
         self._yaw_rate_sp = math.nan
         self.set_setpoint(Setpoint(pos_ned_m=tuple(pos_ned_m), yaw_rad=float(yaw_rad)))
@@ -252,6 +257,11 @@ class Quadrotor:
             if sp.vel_ned_mps is None
             else paper_frames.paper_from_ned(np.asarray(sp.vel_ned_mps))
         )
+        self._acc_sp = (
+            np.full(3, np.nan)
+            if sp.acc_ned_mps2 is None
+            else paper_frames.paper_from_ned(np.asarray(sp.acc_ned_mps2))
+        )
         if sp.yaw_rad is not None:
             self._yaw_sp_rad = float(sp.yaw_rad)
         self._yaw_rate_sp = math.nan if sp.yaw_rate_radps is None else float(sp.yaw_rate_radps)
@@ -261,9 +271,11 @@ class Quadrotor:
         """What the controller tracks now (yaw target included, turned by any yaw rate)."""
         pos = None if np.isnan(self._pos_sp).all() else paper_frames.ned_from_paper(self._pos_sp)
         vel = None if np.isnan(self._vel_sp).all() else paper_frames.ned_from_paper(self._vel_sp)
+        acc = None if np.isnan(self._acc_sp).all() else paper_frames.ned_from_paper(self._acc_sp)
         return Setpoint(
             pos_ned_m=None if pos is None else tuple(np.nan_to_num(pos)),
             vel_ned_mps=None if vel is None else tuple(np.nan_to_num(vel)),
+            acc_ned_mps2=None if acc is None else tuple(np.nan_to_num(acc)),
             yaw_rad=_wrap_pi(self._yaw_sp_rad),
             yaw_rate_radps=None if math.isnan(self._yaw_rate_sp) else self._yaw_rate_sp,
         )
@@ -287,6 +299,7 @@ class Quadrotor:
             self._dt_s,
             self._pos_sp,
             self._vel_sp,
+            self._acc_sp,
             self._yaw_rate_sp,
             self._gains_pos,
             self._gains_att,

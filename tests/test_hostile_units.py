@@ -99,12 +99,12 @@ def test_do_reposition_projects_onto_local_ned_and_round_trips():
     lat, lon, _ = EARTH.geodetic_e7((30.0, -12.0, 0.0))
     outcome = _run(MavCmd.DO_REPOSITION, (-1, 0, 0, math.nan, lat, lon, 9.0), machine, frame=6)
     assert outcome.result is MavResult.ACCEPTED
-    n, e, d = machine.setpoint.pos_ned_m
+    n, e, d = machine.reported_target.pos_ned_m
     assert abs(n - 30.0) < 0.01 and abs(e + 12.0) < 0.01 and abs(d + 9.0) < 1e-9
     # AMSL frame: 600 m AMSL with the origin at 584 m → 16 m up
     outcome = _run(MavCmd.DO_REPOSITION, (-1, 0, 0, 90.0, lat, lon, 600.0), machine, frame=5)
     assert outcome.result is MavResult.ACCEPTED
-    assert abs(machine.setpoint.pos_ned_m[2] + 16.0) < 1e-9
+    assert abs(machine.reported_target.pos_ned_m[2] + 16.0) < 1e-9
     assert abs(machine.setpoint.yaw_rad - math.pi / 2) < 1e-9
 
 

@@ -59,7 +59,7 @@ def test_offboard_needs_a_setpoint_stream_faster_than_2_hz():
     assert not ok and temporary and "setpoint stream" in text
     for t in (1.0, 1.5, 2.0):  # 2 Hz: not more than 2 Hz
         px4.setpoint(TARGET, _kin(t))
-    assert px4.machine.setpoint.pos_ned_m != TARGET.pos_ned_m  # not flown outside OFFBOARD
+    assert px4.machine.reported_target.pos_ned_m != TARGET.pos_ned_m  # not flown outside OFFBOARD
     assert not px4.set_mode(OFFBOARD, _kin(2.0))[0]
     assert not px4.set_mode(OFFBOARD, _kin(2.6))[0]  # the newest is 0.6 s old
     for k in range(1, 6):  # 10 Hz for 0.5 s
@@ -68,7 +68,7 @@ def test_offboard_needs_a_setpoint_stream_faster_than_2_hz():
     assert ok and text is None and px4.custom_mode == OFFBOARD
     px4.setpoint(TARGET, _kin(2.6))
     assert px4.machine.mode is FlightMode.GUIDED
-    assert px4.machine.setpoint.pos_ned_m == TARGET.pos_ned_m  # flown in OFFBOARD
+    assert px4.machine.reported_target.pos_ned_m == TARGET.pos_ned_m  # flown in OFFBOARD
 
 
 def test_offboard_loss_after_com_of_loss_t_holds_and_says_so():

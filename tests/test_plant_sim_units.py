@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import itertools
 import math
 import re
 import struct
@@ -127,9 +128,20 @@ def test_velocity_target_times_out_after_guid_timeout_then_brakes():
     assert m.setpoint.vel_ned_mps == (1.0, 0.0, 0.0)
     assert m.update(_kin(3.9, vel=(1, 0, 0))) == []
     notices = m.update(_kin(4.1, vel=(1, 0, 0)))
-    assert notices and m.setpoint.vel_ned_mps == (0.0, 0.0, 0.0)
-    m.update(_kin(5.0, pos=(3.0, 0.0, -7.0)))  # stopped → hold where it stopped
-    assert m.setpoint.pos_ned_m == (3.0, 0.0, -7.0)
+    assert notices  # timed out: brakes at WPNAV_ACCEL from the vehicle's 1 m/s
+    accel = ModeTimings().guided_limits.accel_ne_mps2
+    pos_at_timeout = m.setpoint.pos_ned_m
+    assert m.setpoint.vel_ned_mps[0] == pytest.approx(1.0, abs=0.02)
+    t, speeds = 4.1, []
+    while t < 6.0:
+        t += 0.02
+        m.update(_kin(t, vel=(1, 0, 0)))
+        speeds.append(m.setpoint.vel_ned_mps[0] if m.setpoint.vel_ned_mps else 0.0)
+    assert all(b <= a + 1e-12 for a, b in itertools.pairwise(speeds))  # decelerates
+    assert speeds[-1] == 0.0 and m.setpoint.vel_ned_mps is None  # then holds a position
+    # where it stopped: at least the v²/(2a) of a stop at WPNAV_ACCEL past the timeout
+    travelled = m.setpoint.pos_ned_m[0] - pos_at_timeout[0]
+    assert 1.0 / (2 * accel) - 0.02 <= travelled <= 1.0 / (2 * accel) + 1.0 * 1.0, travelled
 
 
 def test_position_target_persists_and_faces_the_target():

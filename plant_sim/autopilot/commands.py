@@ -61,6 +61,7 @@ class MavCmd(enum.IntEnum):
     NAV_LAND = 21
     NAV_TAKEOFF = 22
     DO_SET_MODE = 176
+    DO_CHANGE_SPEED = 178
     DO_REPOSITION = 192
     COMPONENT_ARM_DISARM = 400
     GET_HOME_POSITION = 410
@@ -159,6 +160,14 @@ def handle_command(
         if not base & CUSTOM_MODE_ENABLED:
             return _refuse(MavResult.DENIED, "DO_SET_MODE: only custom modes are supported")
         return _custom_mode(p2, machine, kin)
+    if command == MavCmd.DO_CHANGE_SPEED:
+        kind = _as_int(p1, 0, 3)
+        if kind is None or p1 != kind:
+            return _bad("Change speed", "speed type", p1)
+        if not math.isfinite(p2):
+            return _bad("Change speed", "speed", p2)
+        reason = machine.change_speed(("ne", "ne", "up", "down")[kind], p2)
+        return _ok() if reason is None else _refuse(MavResult.FAILED, reason)
     if command == MavCmd.DO_REPOSITION:
         if earth is None:
             return CommandOutcome(MavResult.UNSUPPORTED)

@@ -7,10 +7,21 @@ simulation seconds passed in by the caller: no sockets, no clocks.
 
 Physical meaning of each mode in the SIL (there is no RC transmitter):
 
-* GUIDED — tracks SET_POSITION_TARGET_LOCAL_NED targets; position targets persist, velocity
-  targets expire after ``guided_velocity_timeout_s`` (GUID_TIMEOUT) into a brake-and-hold;
-  NAV_TAKEOFF climbs at ``takeoff_climb_mps``.
-* LOITER, BRAKE — brake to zero velocity, then hold the position where the vehicle stopped.
+* GUIDED — tracks SET_POSITION_TARGET_LOCAL_NED targets; position targets persist and are
+  approached along a path shaped like ArduCopter's position controller (WPNAV_SPEED,
+  WPNAV_ACCEL, WPNAV_SPEED_UP/DN, WPNAV_ACCEL_Z, PSC_JERK_XY/Z:
+  :mod:`plant_sim.autopilot.shaping`); MAV_CMD_DO_CHANGE_SPEED replaces the speed limit
+  until the position sub-mode restarts (mode entry, end of a takeoff), as ArduCopter's
+  ``pva_control_start``. Velocity targets expire after ``guided_velocity_timeout_s``
+  (GUID_TIMEOUT) into a brake-and-hold; NAV_TAKEOFF climbs at ``takeoff_climb_mps``.
+  Entering GUIDED decelerates at WPNAV_ACCEL and holds.
+* BRAKE — decelerates at 7.5 m/s² (ArduCopter's BRAKE_MODE_DECEL_RATE), then holds the
+  point where it stopped.
+* LOITER (centred sticks) — decelerates by LOIT_ACC_MAX·|v|/LOIT_SPEED at once and, after
+  LOIT_BRK_DELAY, by a braking deceleration rising at LOIT_BRK_JERK to LOIT_BRK_DECEL;
+  then holds.
+* Every deceleration is at most what the airframe can do at its tilt limit (ANGLE_MAX):
+  ``0.8·g·tan(ANGLE_MAX)``.
 * STABILIZE — centred sticks: level attitude at hover throttle, which in this drag-only
   world decays to zero velocity; modelled as zero-velocity hold.
 * LAND — descend at ``land_speed_mps`` over the current north/east; disarm on touchdown.
@@ -22,8 +33,9 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
+from plant_sim.autopilot.shaping import BrakeProfile, ShapingLimits, TargetShaper
 from plant_sim.vehicle import Setpoint
 from protocols.mavlink_modes import ArduCopterMode
 
@@ -95,6 +107,31 @@ class ModeTimings:
     brake_done_speed_mps: float = 0.2  # BRAKE/LOITER switch to position hold below this
     face_target_min_dist_m: float = 2.0  # turn to face a target farther than this
     face_velocity_min_mps: float = 0.5  # turn to face a velocity faster than this
+    # GUIDED position-target shaping (ArduCopter defaults; parameters in comments)
+    guided_limits: ShapingLimits = ShapingLimits(  # noqa: RUF009 (frozen: shared is safe)
+        speed_ne_mps=10.0,  # WPNAV_SPEED 1000 cm/s
+        speed_up_mps=2.5,  # WPNAV_SPEED_UP 250 cm/s
+        speed_down_mps=1.5,  # WPNAV_SPEED_DN 150 cm/s
+        accel_ne_mps2=2.5,  # WPNAV_ACCEL 250 cm/s²
+        accel_d_mps2=1.0,  # WPNAV_ACCEL_Z 100 cm/s²
+        jerk_ne_mps3=5.0,  # PSC_JERK_XY 5 m/s³
+        jerk_d_mps3=5.0,  # PSC_JERK_Z 5 m/s³
+    )
+    brake: BrakeProfile = BrakeProfile(7.5, 5.0)  # noqa: RUF009 BRAKE mode: 750 cm/s²
+    loiter: BrakeProfile = BrakeProfile(  # noqa: RUF009 LOITER, centred sticks
+        decel_mps2=2.5,  # LOIT_BRK_DECEL 250 cm/s²
+        jerk_mps3=5.0,  # LOIT_BRK_JERK 500 cm/s³
+        delay_s=1.0,  # LOIT_BRK_DELAY 1 s
+        drag_per_s=0.4,  # LOIT_ACC_MAX / LOIT_SPEED = 500 / 1250 1/s
+    )
+    max_decel_mps2: float = math.inf  # what the airframe can do: 0.8·g·tan(ANGLE_MAX)
+    # The jerk the airframe follows [m/s³]: the paper's attitude loop (Eq. 31, dominant
+    # pole ≈ −1.4 1/s) tilts ~5× slower than ArduCopter's, so a reference whose
+    # acceleration changes faster is not followed and the vehicle overshoots its speed.
+    # Calibrated on ArduCopter SITL's WPNAV_SPEED 100 leg (top speed 1.01–1.10 m/s;
+    # plant-sim 1.07): the reference's jerk is min(PSC_JERK_XY, this).
+    airframe_jerk_mps3: float = 2.0
+    saturated_lead_m: float = 0.5  # a tilt-saturated vehicle this far behind holds the path
 
 
 @dataclass(frozen=True)
@@ -106,6 +143,7 @@ class Kinematics:
     vel_ned_mps: tuple[float, float, float]
     yaw_rad: float
     on_ground: bool
+    tilt_saturated: bool = False  # the controller is at its tilt limit (cannot follow)
 
 
 @dataclass(frozen=True)
@@ -165,6 +203,11 @@ class FlightModeMachine:
         self._vel_target_time_s = -math.inf
         self._yaw_rad: float | None = kin.yaw_rad
         self.setpoint = Setpoint(pos_ned_m=kin.pos_ned_m, yaw_rad=kin.yaw_rad)
+        self._target_yaw: tuple[float | None, float | None] = (kin.yaw_rad, None)
+        self.shaper = TargetShaper(timings.guided_limits)
+        self.shaper.reset(kin.pos_ned_m, kin.vel_ned_mps)
+        self._shaper_time_s = kin.time_s
+        self.speed_override: dict[str, float] = {}  # DO_CHANGE_SPEED: field → value
         if self.armed and not self.landed:
             self._enter_mode(kin)
 
@@ -179,6 +222,20 @@ class FlightModeMachine:
         if self._phase is _Phase.DESCEND:
             return LandedState.LANDING
         return LandedState.IN_AIR
+
+    @property
+    def reported_target(self) -> Setpoint:
+        """What POSITION_TARGET_LOCAL_NED reports: in GUIDED with a position target, the
+        target itself (as ArduCopter reports its guided target), not the shaped path the
+        controller is on its way along; otherwise what the controller tracks."""
+        if self._phase is _Phase.GUIDED_POS:
+            yaw, yaw_rate = self._target_yaw
+            return Setpoint(
+                pos_ned_m=self.shaper.target_ned_m,
+                yaw_rad=self._yaw_rad if yaw is None else yaw,
+                yaw_rate_radps=yaw_rate,
+            )
+        return self.setpoint
 
     # ---- commands ------------------------------------------------------------------
     def arm(
@@ -243,6 +300,11 @@ class FlightModeMachine:
             return "Guided target ignored: not flying (arm and take off first)"
         yaw = target.yaw_rad
         if target.pos_ned_m is not None:
+            if self._phase is not _Phase.GUIDED_POS:
+                # ArduCopter's pos_control_start: limits back to the parameters
+                self.speed_override = {}
+                self._start_shaping(kin, self._guided_limits())
+            self.shaper.go_to(target.pos_ned_m)
             self._phase = _Phase.GUIDED_POS
             if yaw is None and target.yaw_rate_radps is None:
                 dn = target.pos_ned_m[0] - kin.pos_ned_m[0]
@@ -261,6 +323,7 @@ class FlightModeMachine:
                 yaw = math.atan2(v[1], v[0])
         else:
             # yaw / yaw-rate only: keep what is tracked, change the heading
+            self._target_yaw = (yaw, target.yaw_rate_radps)
             self.setpoint = Setpoint(
                 pos_ned_m=self.setpoint.pos_ned_m,
                 vel_ned_mps=self.setpoint.vel_ned_mps,
@@ -268,13 +331,35 @@ class FlightModeMachine:
                 yaw_rate_radps=target.yaw_rate_radps,
             )
             return None
-        self._set(
-            pos=target.pos_ned_m,
-            vel=target.vel_ned_mps,
-            yaw=yaw,
-            yaw_rate=target.yaw_rate_radps,
-        )
+        if target.pos_ned_m is not None:
+            self._target_yaw = (yaw, target.yaw_rate_radps)
+            self._follow_shaper(kin)
+            return None
+        self._set(vel=target.vel_ned_mps, yaw=yaw, yaw_rate=target.yaw_rate_radps)
         return None
+
+    def change_speed(self, kind: str, speed_mps: float) -> str | None:
+        """MAV_CMD_DO_CHANGE_SPEED: ``kind`` is ``"ne"`` (param1 0 or 1), ``"up"`` (2) or
+        ``"down"`` (3); applies to GUIDED's position controller until it restarts, as
+        ArduCopter's ``ModeGuided::set_speed_xy_cms`` & co. Refusal or None."""
+        if not (math.isfinite(speed_mps) and speed_mps > 0.0):
+            return f"Change speed: bad speed {speed_mps!r}"
+        if self.mode is not FlightMode.GUIDED:
+            return f"Change speed: not in GUIDED (mode {self.mode.name})"
+        field = {"ne": "speed_ne_mps", "up": "speed_up_mps", "down": "speed_down_mps"}[kind]
+        self.speed_override[field] = float(speed_mps)
+        self.shaper.set_limits(self._guided_limits())
+        return None
+
+    def _guided_limits(self) -> ShapingLimits:
+        t = self.timings
+        limits = replace(t.guided_limits, **self.speed_override)
+        return replace(
+            limits,
+            accel_ne_mps2=min(limits.accel_ne_mps2, t.max_decel_mps2),
+            jerk_ne_mps3=min(limits.jerk_ne_mps3, t.airframe_jerk_mps3),
+            jerk_d_mps3=min(limits.jerk_d_mps3, t.airframe_jerk_mps3),
+        )
 
     # ---- time ----------------------------------------------------------------------
     def update(self, kin: Kinematics) -> list[str]:
@@ -317,10 +402,11 @@ class FlightModeMachine:
             return notices
 
         phase = self._phase
-        if phase is _Phase.BRAKE:
-            if math.sqrt(sum(v * v for v in kin.vel_ned_mps)) < t.brake_done_speed_mps:
+        if phase in (_Phase.BRAKE, _Phase.GUIDED_POS):
+            self._step_shaper(kin)
+            if phase is _Phase.BRAKE and not self.shaper.stopping:
                 self._phase = _Phase.HOLD
-                self._set(pos=kin.pos_ned_m, yaw=self._yaw_rad)
+                self._set(pos=tuple(self.shaper.pos_ned_m), yaw=self._yaw_rad)
         elif phase is _Phase.TAKEOFF:
             down = self._ramp_down(kin.time_s, t.takeoff_climb_mps)
             self._set(pos=(*self._ref_ne_m, down), vel=None, yaw=self._yaw_rad)
@@ -357,11 +443,11 @@ class FlightModeMachine:
             return math.inf
         return self._ground_down_m - kin.pos_ned_m[2]
 
-    def _set(self, *, pos=None, vel=None, yaw=None, yaw_rate=None) -> None:
+    def _set(self, *, pos=None, vel=None, yaw=None, yaw_rate=None, acc=None) -> None:
         if yaw is not None:
             self._yaw_rad = yaw
         self.setpoint = Setpoint(
-            pos_ned_m=pos, vel_ned_mps=vel, yaw_rad=yaw, yaw_rate_radps=yaw_rate
+            pos_ned_m=pos, vel_ned_mps=vel, yaw_rad=yaw, yaw_rate_radps=yaw_rate, acc_ned_mps2=acc
         )
 
     def _start_ramp(self, kin: Kinematics, ne: tuple[float, float]) -> None:
@@ -378,9 +464,53 @@ class FlightModeMachine:
             return min(goal, start + travel)
         return max(goal, start - travel)
 
-    def _brake(self, kin: Kinematics) -> None:
+    def _start_shaping(self, kin: Kinematics, limits: ShapingLimits) -> None:
+        """Put the shaped reference on the vehicle, with ``limits``."""
+        self.shaper.set_limits(limits)
+        self.shaper.reset(kin.pos_ned_m, kin.vel_ned_mps)
+        self._shaper_time_s = kin.time_s
+        self._target_yaw = (self._yaw_rad, None)
+
+    def _step_shaper(self, kin: Kinematics) -> None:
+        dt = kin.time_s - self._shaper_time_s
+        self._shaper_time_s = kin.time_s
+        behind = None
+        if kin.tilt_saturated:
+            lead = math.dist(self.shaper.pos_ned_m, kin.pos_ned_m)
+            if lead > self.timings.saturated_lead_m:
+                behind = kin.pos_ned_m
+        self.shaper.step(dt, hold_ahead_ned_m=behind, vehicle_vel_ned_mps=kin.vel_ned_mps)
+        self._follow_shaper(kin)
+
+    def _follow_shaper(self, kin: Kinematics) -> None:
+        """Track the shaped reference: its position, its velocity and acceleration as
+        feed-forward (the LQ tracker's ``x_d``, ``u_d``)."""
+        yaw, yaw_rate = self._target_yaw
+        self._set(
+            pos=tuple(self.shaper.pos_ned_m),
+            vel=tuple(self.shaper.vel_ned_mps),
+            acc=tuple(self.shaper.acc_ned_mps2),
+            yaw=yaw,
+            yaw_rate=yaw_rate,
+        )
+        del kin
+
+    def _brake(self, kin: Kinematics, profile: BrakeProfile | None = None) -> None:
+        """Decelerate by ``profile`` (default: GUIDED's WPNAV_ACCEL and jerk), then hold."""
+        t = self.timings
+        if profile is None:
+            limits = self._guided_limits()
+            profile = BrakeProfile(limits.accel_ne_mps2, limits.jerk_ne_mps3)
+        profile = replace(
+            profile,
+            decel_mps2=min(profile.decel_mps2, t.max_decel_mps2),
+            jerk_mps3=min(profile.jerk_mps3, t.airframe_jerk_mps3),
+        )
         self._phase = _Phase.BRAKE
-        self._set(vel=(0.0, 0.0, 0.0), yaw=kin.yaw_rad)
+        self._start_shaping(kin, self._guided_limits())
+        self._target_yaw = (kin.yaw_rad, None)
+        self.shaper.stop(profile)
+        self._follow_shaper(kin)
 
     def _descend(self, kin: Kinematics) -> None:
         self._phase = _Phase.DESCEND
@@ -420,5 +550,10 @@ class FlightModeMachine:
             self._goal_down_m = min(floor_down, kin.pos_ned_m[2])
             self._phase = _Phase.RTL_CLIMB
             self._set(pos=kin.pos_ned_m, yaw=kin.yaw_rad)
-        else:  # GUIDED, LOITER, BRAKE, STABILIZE: stop, then hold
+        elif mode is FlightMode.BRAKE:
+            self._brake(kin, self.timings.brake)
+        elif mode is FlightMode.LOITER:
+            self._brake(kin, self.timings.loiter)
+        else:  # GUIDED, STABILIZE: stop, then hold
+            self.speed_override = {}
             self._brake(kin)

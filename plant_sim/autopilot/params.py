@@ -12,6 +12,10 @@ import math
 from dataclasses import dataclass, replace
 
 from plant_sim.autopilot.modes import ModeTimings
+from plant_sim.autopilot.shaping import BrakeProfile, ShapingLimits
+
+#: g for the airframe's deceleration bound g·tan(ANGLE_MAX) [m/s²]
+GRAVITY_MPS2 = 9.81
 
 __all__ = [
     "PARAM_SPECS",
@@ -68,6 +72,17 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("LAND_SPEED", ParamType.INT16, 50, 30, 200),  # cm/s
     ParamSpec("RTL_ALT", ParamType.INT32, 1500, 200, 300000),  # cm
     ParamSpec("WPNAV_SPEED_UP", ParamType.REAL32, 150.0, 10.0, 1000.0),  # cm/s
+    ParamSpec("WPNAV_SPEED", ParamType.REAL32, 1000.0, 10.0, 2000.0),  # cm/s
+    ParamSpec("WPNAV_SPEED_DN", ParamType.REAL32, 150.0, 10.0, 500.0),  # cm/s
+    ParamSpec("WPNAV_ACCEL", ParamType.REAL32, 250.0, 50.0, 500.0),  # cm/s²
+    ParamSpec("WPNAV_ACCEL_Z", ParamType.REAL32, 100.0, 50.0, 500.0),  # cm/s²
+    ParamSpec("PSC_JERK_XY", ParamType.REAL32, 5.0, 1.0, 20.0),  # m/s³
+    ParamSpec("PSC_JERK_Z", ParamType.REAL32, 5.0, 5.0, 50.0),  # m/s³
+    ParamSpec("LOIT_SPEED", ParamType.REAL32, 1250.0, 20.0, 3500.0),  # cm/s
+    ParamSpec("LOIT_ACC_MAX", ParamType.REAL32, 500.0, 100.0, 981.0),  # cm/s²
+    ParamSpec("LOIT_BRK_DECEL", ParamType.REAL32, 250.0, 25.0, 250.0),  # cm/s²
+    ParamSpec("LOIT_BRK_JERK", ParamType.REAL32, 500.0, 500.0, 5000.0),  # cm/s³
+    ParamSpec("LOIT_BRK_DELAY", ParamType.REAL32, 1.0, 0.0, 2.0),  # s
     ParamSpec("ANGLE_MAX", ParamType.INT16, 1500, read_only=True),  # cdeg (paper: 15°)
     ParamSpec("FS_GCS_ENABLE", ParamType.INT8, 0, 0, 7),
     ParamSpec("BRD_SAFETY_DEFLT", ParamType.INT8, 0, read_only=True),
@@ -147,4 +162,22 @@ def timings_from_params(base: ModeTimings, table: ParamTable) -> ModeTimings:
         land_speed_mps=table.value("LAND_SPEED") / 100.0,
         rtl_alt_m=table.value("RTL_ALT") / 100.0,
         takeoff_climb_mps=table.value("WPNAV_SPEED_UP") / 100.0,
+        guided_limits=ShapingLimits(
+            speed_ne_mps=table.value("WPNAV_SPEED") / 100.0,
+            speed_up_mps=table.value("WPNAV_SPEED_UP") / 100.0,
+            speed_down_mps=table.value("WPNAV_SPEED_DN") / 100.0,
+            accel_ne_mps2=table.value("WPNAV_ACCEL") / 100.0,
+            accel_d_mps2=table.value("WPNAV_ACCEL_Z") / 100.0,
+            jerk_ne_mps3=table.value("PSC_JERK_XY"),
+            jerk_d_mps3=table.value("PSC_JERK_Z"),
+        ),
+        loiter=BrakeProfile(
+            decel_mps2=table.value("LOIT_BRK_DECEL") / 100.0,
+            jerk_mps3=table.value("LOIT_BRK_JERK") / 100.0,
+            delay_s=table.value("LOIT_BRK_DELAY"),
+            drag_per_s=table.value("LOIT_ACC_MAX") / table.value("LOIT_SPEED"),
+        ),
+        max_decel_mps2=0.8
+        * GRAVITY_MPS2
+        * math.tan(math.radians(table.value("ANGLE_MAX") / 100.0)),
     )

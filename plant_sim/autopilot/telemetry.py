@@ -235,7 +235,7 @@ class TelemetryBuilder:
         if name == "HOME_POSITION":
             return self.home_position(machine, snap.time_s)
         if name == "POSITION_TARGET_LOCAL_NED":
-            return self.position_target(machine.setpoint, snap)
+            return self.position_target(machine.reported_target, snap)
         if name == "AUTOPILOT_VERSION":
             return self.autopilot_version()
         if name == "SYSTEM_TIME":
