@@ -131,7 +131,11 @@ class ModeTimings:
     # Calibrated on ArduCopter SITL's WPNAV_SPEED 100 leg (top speed 1.01–1.10 m/s;
     # plant-sim 1.07): the reference's jerk is min(PSC_JERK_XY, this).
     airframe_jerk_mps3: float = 2.0
-    saturated_lead_m: float = 0.5  # a tilt-saturated vehicle this far behind holds the path
+    saturated_lead_m: float = 0.5
+    # GUIDED position targets through the shaping above (SIM_GUID_SHAPE 1) or straight to
+    # the LQ loop (0, the default until the lockstep harness flies the same autopilot and
+    # the paper airframe's 0.2 m overshoot of a shaped target is mended: issue 31 note)
+    guided_shaping: bool = False  # a tilt-saturated vehicle this far behind holds the path
 
 
 @dataclass(frozen=True)
@@ -228,7 +232,7 @@ class FlightModeMachine:
         """What POSITION_TARGET_LOCAL_NED reports: in GUIDED with a position target, the
         target itself (as ArduCopter reports its guided target), not the shaped path the
         controller is on its way along; otherwise what the controller tracks."""
-        if self._phase is _Phase.GUIDED_POS:
+        if self._phase is _Phase.GUIDED_POS and self.timings.guided_shaping:
             yaw, yaw_rate = self._target_yaw
             return Setpoint(
                 pos_ned_m=self.shaper.target_ned_m,
@@ -333,7 +337,10 @@ class FlightModeMachine:
             return None
         if target.pos_ned_m is not None:
             self._target_yaw = (yaw, target.yaw_rate_radps)
-            self._follow_shaper(kin)
+            if self.timings.guided_shaping:
+                self._follow_shaper(kin)
+            else:  # the target straight to the LQ loop: the airframe's own limits
+                self._set(pos=target.pos_ned_m, yaw=yaw, yaw_rate=target.yaw_rate_radps)
             return None
         self._set(vel=target.vel_ned_mps, yaw=yaw, yaw_rate=target.yaw_rate_radps)
         return None
@@ -344,6 +351,8 @@ class FlightModeMachine:
         ArduCopter's ``ModeGuided::set_speed_xy_cms`` & co. Refusal or None."""
         if not (math.isfinite(speed_mps) and speed_mps > 0.0):
             return f"Change speed: bad speed {speed_mps!r}"
+        if not self.timings.guided_shaping:
+            return "Change speed: GUIDED flies at the airframe's limits (SIM_GUID_SHAPE 0)"
         if self.mode is not FlightMode.GUIDED:
             return f"Change speed: not in GUIDED (mode {self.mode.name})"
         field = {"ne": "speed_ne_mps", "up": "speed_up_mps", "down": "speed_down_mps"}[kind]
@@ -402,7 +411,7 @@ class FlightModeMachine:
             return notices
 
         phase = self._phase
-        if phase in (_Phase.BRAKE, _Phase.GUIDED_POS):
+        if phase is _Phase.BRAKE or (phase is _Phase.GUIDED_POS and t.guided_shaping):
             self._step_shaper(kin)
             if phase is _Phase.BRAKE and not self.shaper.stopping:
                 self._phase = _Phase.HOLD
