@@ -149,9 +149,9 @@ def _kin(t=0.0, pos=(0.0, 0.0, -7.0), vel=(0.0, 0.0, 0.0)):
     return Kinematics(time_s=t, pos_ned_m=pos, vel_ned_mps=vel, yaw_rad=0.0, on_ground=False)
 
 
-def _guided(timings: ModeTimings | None = None) -> FlightModeMachine:
+def _guided(timings: ModeTimings | None = None, *, shaping: bool = True) -> FlightModeMachine:
     return FlightModeMachine(
-        replace(timings or ModeTimings(), guided_shaping=True),  # SIM_GUID_SHAPE 1
+        replace(timings or ModeTimings(), guided_shaping=shaping),  # SIM_GUID_SHAPE
         home_ned_m=(0.0, 0.0, 0.0),
         ground_down_m=0.0,
         mode=FlightMode.GUIDED,
@@ -237,14 +237,7 @@ def test_position_target_local_ned_reports_the_target_not_the_path():
 
 
 def test_without_sim_guid_shape_a_target_goes_straight_to_the_lq_loop_and_speed_is_refused():
-    m = FlightModeMachine(
-        timings_from_params(ModeTimings(), ParamTable({})),  # SIM_GUID_SHAPE 0
-        home_ned_m=(0.0, 0.0, 0.0),
-        ground_down_m=0.0,
-        mode=FlightMode.GUIDED,
-        armed=True,
-        kin=_kin(),
-    )
+    m = _guided(timings_from_params(ModeTimings(), ParamTable({})), shaping=False)
     m.guided_target(GuidedTarget(pos_ned_m=(30.0, 4.0, -9.0)), _kin())
     assert m.setpoint.pos_ned_m == (30.0, 4.0, -9.0)
     out = _change_speed(m, 1.0, 2.0)
