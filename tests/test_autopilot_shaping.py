@@ -305,3 +305,14 @@ def test_the_fast_airframe_flies_the_paper_leg_at_sitls_top_speed(scene, params,
     assert north <= 20.0 + 0.1, (scene, north)  # reaches the target without passing it
     if not params:
         assert top >= 5.0  # issue 31: at least 5 m/s, as SITL flew it
+
+
+def test_a_huge_or_hostile_time_step_is_cut_not_walked_in_huge_pieces():
+    s = TargetShaper(WPNAV)
+    s.reset((0.0, 0.0, -7.0), (0.0, 0.0, 0.0))
+    s.go_to((30.0, 0.0, -7.0))
+    for dt in (math.nan, -1.0, 0.0):
+        s.step(dt)
+        assert s.pos_ned_m == [0.0, 0.0, -7.0]
+    s.step(1e12)  # a clock jump: at most 100 s walked in 20 ms pieces, limits kept
+    assert s.pos_ned_m == [30.0, 0.0, -7.0] and all(math.isfinite(v) for v in s.vel_ned_mps)

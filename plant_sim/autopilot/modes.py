@@ -7,13 +7,15 @@ simulation seconds passed in by the caller: no sockets, no clocks.
 
 Physical meaning of each mode in the SIL (there is no RC transmitter):
 
-* GUIDED — tracks SET_POSITION_TARGET_LOCAL_NED targets; position targets persist and are
-  approached along a path shaped like ArduCopter's position controller (WPNAV_SPEED,
-  WPNAV_ACCEL, WPNAV_SPEED_UP/DN, WPNAV_ACCEL_Z, PSC_JERK_XY/Z:
-  :mod:`plant_sim.autopilot.shaping`); MAV_CMD_DO_CHANGE_SPEED replaces the speed limit
-  until the position sub-mode restarts (mode entry, end of a takeoff), as ArduCopter's
-  ``pva_control_start``. Velocity targets expire after ``guided_velocity_timeout_s``
-  (GUID_TIMEOUT) into a brake-and-hold; NAV_TAKEOFF climbs at ``takeoff_climb_mps``.
+* GUIDED — tracks SET_POSITION_TARGET_LOCAL_NED targets; position targets persist. With
+  ``guided_shaping`` (SIM_GUID_SHAPE 1) they are approached along a path shaped like
+  ArduCopter's position controller (WPNAV_SPEED, WPNAV_ACCEL, WPNAV_SPEED_UP/DN,
+  WPNAV_ACCEL_Z, PSC_JERK_XY/Z: :mod:`plant_sim.autopilot.shaping`) and
+  MAV_CMD_DO_CHANGE_SPEED replaces the speed limit until the position sub-mode restarts
+  (mode entry, end of a takeoff), as ArduCopter's ``pva_control_start``; without it (the
+  default) the target goes straight to the LQ loop and DO_CHANGE_SPEED is refused.
+  Velocity targets expire after ``guided_velocity_timeout_s`` (GUID_TIMEOUT) into a
+  brake-and-hold; NAV_TAKEOFF climbs at ``takeoff_climb_mps``.
   Entering GUIDED decelerates at WPNAV_ACCEL and holds.
 * BRAKE — decelerates at 7.5 m/s² (ArduCopter's BRAKE_MODE_DECEL_RATE), then holds the
   point where it stopped.
@@ -104,7 +106,6 @@ class ModeTimings:
     takeoff_climb_mps: float = 1.5  # [m/s]
     rtl_alt_m: float = 15.0  # RTL_ALT [m above home]
     land_detect_s: float = 1.0  # ground contact this long → landed [s]
-    brake_done_speed_mps: float = 0.2  # BRAKE/LOITER switch to position hold below this
     face_target_min_dist_m: float = 2.0  # turn to face a target farther than this
     face_velocity_min_mps: float = 0.5  # turn to face a velocity faster than this
     # GUIDED position-target shaping (ArduCopter defaults; parameters in comments)
@@ -131,11 +132,11 @@ class ModeTimings:
     # Calibrated on ArduCopter SITL's WPNAV_SPEED 100 leg (top speed 1.01–1.10 m/s;
     # plant-sim 1.07): the reference's jerk is min(PSC_JERK_XY, this).
     airframe_jerk_mps3: float = 2.0
-    saturated_lead_m: float = 0.5
+    saturated_lead_m: float = 0.5  # a tilt-saturated vehicle this far behind holds the path
     # GUIDED position targets through the shaping above (SIM_GUID_SHAPE 1) or straight to
     # the LQ loop (0, the default until the lockstep harness flies the same autopilot and
     # the paper airframe's 0.2 m overshoot of a shaped target is mended: issue 31 note)
-    guided_shaping: bool = False  # a tilt-saturated vehicle this far behind holds the path
+    guided_shaping: bool = False
 
 
 @dataclass(frozen=True)
@@ -304,11 +305,12 @@ class FlightModeMachine:
             return "Guided target ignored: not flying (arm and take off first)"
         yaw = target.yaw_rad
         if target.pos_ned_m is not None:
-            if self._phase is not _Phase.GUIDED_POS:
-                # ArduCopter's pos_control_start: limits back to the parameters
-                self.speed_override = {}
-                self._start_shaping(kin, self._guided_limits())
-            self.shaper.go_to(target.pos_ned_m)
+            if self.timings.guided_shaping:
+                if self._phase is not _Phase.GUIDED_POS:
+                    # ArduCopter's pos_control_start: limits back to the parameters
+                    self.speed_override = {}
+                    self._start_shaping(kin, self._guided_limits())
+                self.shaper.go_to(target.pos_ned_m)
             self._phase = _Phase.GUIDED_POS
             if yaw is None and target.yaw_rate_radps is None:
                 dn = target.pos_ned_m[0] - kin.pos_ned_m[0]
@@ -338,7 +340,7 @@ class FlightModeMachine:
         if target.pos_ned_m is not None:
             self._target_yaw = (yaw, target.yaw_rate_radps)
             if self.timings.guided_shaping:
-                self._follow_shaper(kin)
+                self._follow_shaper()
             else:  # the target straight to the LQ loop: the airframe's own limits
                 self._set(pos=target.pos_ned_m, yaw=yaw, yaw_rate=target.yaw_rate_radps)
             return None
@@ -489,9 +491,9 @@ class FlightModeMachine:
             if lead > self.timings.saturated_lead_m:
                 behind = kin.pos_ned_m
         self.shaper.step(dt, hold_ahead_ned_m=behind, vehicle_vel_ned_mps=kin.vel_ned_mps)
-        self._follow_shaper(kin)
+        self._follow_shaper()
 
-    def _follow_shaper(self, kin: Kinematics) -> None:
+    def _follow_shaper(self) -> None:
         """Track the shaped reference: its position, its velocity and acceleration as
         feed-forward (the LQ tracker's ``x_d``, ``u_d``)."""
         yaw, yaw_rate = self._target_yaw
@@ -502,7 +504,6 @@ class FlightModeMachine:
             yaw=yaw,
             yaw_rate=yaw_rate,
         )
-        del kin
 
     def _brake(self, kin: Kinematics, profile: BrakeProfile | None = None) -> None:
         """Decelerate by ``profile`` (default: GUIDED's WPNAV_ACCEL and jerk), then hold."""
@@ -519,7 +520,7 @@ class FlightModeMachine:
         self._start_shaping(kin, self._guided_limits())
         self._target_yaw = (kin.yaw_rad, None)
         self.shaper.stop(profile)
-        self._follow_shaper(kin)
+        self._follow_shaper()
 
     def _descend(self, kin: Kinematics) -> None:
         self._phase = _Phase.DESCEND

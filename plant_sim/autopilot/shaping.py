@@ -146,7 +146,8 @@ class TargetShaper:
     #: limit, so the jerk-limited response (whose lag is ``accel/jerk``) does not overshoot.
     PLAN_DECEL_FRACTION = 0.8
     #: A step longer than this is taken in pieces of at most this [s] (the autopilot's
-    #: 50 Hz tick is one piece); at most MAX_SUBSTEPS of them (100 s).
+    #: 50 Hz tick is one piece); at most MAX_SUBSTEPS of them (100 s): a longer step is
+    #: cut to that.
     SUBSTEP_S = 0.02
     MAX_SUBSTEPS = 5000
 
@@ -203,6 +204,8 @@ class TargetShaper:
         """
         if not dt_s > 0.0:
             return
+        # a clock jump longer than MAX_SUBSTEPS pieces is not walked (no huge pieces)
+        dt_s = min(dt_s, self.MAX_SUBSTEPS * self.SUBSTEP_S)
         n = min(self.MAX_SUBSTEPS, math.ceil(dt_s / self.SUBSTEP_S - 1e-9))
         for _ in range(n):
             if self._goal is _Goal.STOP:
