@@ -51,6 +51,10 @@ def _reposition(m, lat_e7: int, lon_e7: int, alt_m: float, flags: int = 0):
 def _fly_normally(plant: PlantProcess) -> None:
     """GUIDED, arm, take off if landed, fly 4 m north of where it is, and get there."""
     m = connect(plant, sysid=250)
+    # a client sets the streams it needs: the fuzz may have slowed them (SET_MESSAGE_INTERVAL)
+    for msg_id in (mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE):
+        ack = command(m, mav.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 100_000)
+        assert ack is not None and ack.result == mav.MAV_RESULT_ACCEPTED, plant.logs()
     ack = command(m, mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, GUIDED)
     assert ack is not None and ack.result == mav.MAV_RESULT_ACCEPTED, plant.logs()
     ack = command(m, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1, 21196)
@@ -61,6 +65,7 @@ def _fly_normally(plant: PlantProcess) -> None:
         assert ack is not None and ack.result == mav.MAV_RESULT_ACCEPTED, plant.logs()
         assert recv(m, "LOCAL_POSITION_NED", 20, cond=lambda p: p.z < -4.5) is not None
     lp = recv(m, "LOCAL_POSITION_NED", 3)
+    assert lp is not None, plant.logs()
     target = (lp.x + 4.0, lp.y, min(lp.z, -3.0))
     m.mav.set_position_target_local_ned_send(
         0, 1, 1, mav.MAV_FRAME_LOCAL_NED, 3576, *target, 0, 0, 0, 0, 0, 0, 0, 0
