@@ -24,9 +24,9 @@ import pytest
 import zenoh
 from pymavlink import mavutil
 
-from plant_sim.lockstep.harness import run_scene
-from plant_sim.lockstep.scenes import paper_scene
-from plant_sim.lockstep.sil import (
+from evaluation.harness import run_scene
+from evaluation.scenes import paper_scene
+from evaluation.sil import (
     ChildProcess,
     SilOptions,
     _avoid_intervals,

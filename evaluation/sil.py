@@ -5,7 +5,7 @@ Starts ``python -m companion`` (Zenoh listening, MAVLink ``udpout`` to the plant
 ports of 127.0.0.1 with multicast scouting off, waits for both readiness lines, shows
 progress, stops both with SIGTERM when the companion reports the goal (or a timeout), and
 judges the run from plant-sim's ground-truth log (``truth.csv``) with the same
-:class:`~plant_sim.lockstep.harness.Verdict` and figures as the lockstep run.
+:class:`~evaluation.harness.Verdict` and figures as the lockstep run.
 
 The run is judged from the moment the companion sent its first setpoint (the plant hovers
 while the companion connects), so ``sim_time_s`` is comparable with the lockstep run's.
@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from plant_sim.lockstep.harness import HOLD_REST_S, HOLD_REST_SPEED_MPS, RunConfig, Verdict
-from plant_sim.lockstep.history import History
+from evaluation.harness import HOLD_REST_S, HOLD_REST_SPEED_MPS, RunConfig, Verdict
+from evaluation.history import History
 from plant_sim.scenario import Scenario, load_scenario, paper_scenario
 
 __all__ = [

@@ -13,10 +13,10 @@ Subcommands
     flew it (``--resume`` flies only the seeds not in it, and refuses seeds flown by other
     code unless ``--allow-code-change``), with a progress bar (rate, ETA); at the end a
     summary table (with the code that flew it) and figures in DIR, with the seed of every
-    failure to replay. Families (``plant_sim.lockstep.scenes``):
+    failure to replay. Families (``evaluation.scenes``):
     path, climb, goal_near, facing_away, or mixed (the default: the family of seed s is
     the (s mod 4)-th). ``--perception truth``: the renderer's exact depth instead of the
-    stereo matcher (``plant_sim.lockstep.truth_perception``).
+    stereo matcher (``evaluation.truth_perception``).
 ``stereo-avoid replay SEED [--family F] [--perception P] [--out DIR] [--json]``
     One random scene, with figures, exactly as Monte Carlo flew it (same verdict).
 ``stereo-avoid replay FILE.mcap [--rerun FILE.rrd|serve] [--json]``
@@ -27,16 +27,16 @@ Subcommands
     plant-sim and the companion as two processes over MAVLink and Zenoh on loopback;
     the same verdict and figures, from plant-sim's ground-truth log.
 ``stereo-avoid compile [--jobs J]``
-    Compile every numba kernel into numba's cache (:mod:`plant_sim.lockstep.kernels`), so
+    Compile every numba kernel into numba's cache (:mod:`evaluation.kernels`), so
     no process pays ~70 s of JIT at its first frame; ``scripts/setup.sh`` runs it.
 
 ``paper``, ``replay`` and ``sil`` take ``--rerun FILE.rrd|serve[:PORT]``: the run in Rerun
-(:mod:`plant_sim.lockstep.view`; needs the optional ``view`` extra).
+(:mod:`evaluation.view`; needs the optional ``view`` extra).
 ``stereo-avoid sil --autopilot arducopter-sitl [--scenario FILE] [--autopilot-params FILE]``
     the paper's scene (north from home at 7 m), or a plant-sim scenario moved so that its
-    start is SITL's home (:mod:`plant_sim.lockstep.sitl_scene`), on ArduPilot's ArduCopter
+    start is SITL's home (:mod:`evaluation.sitl_scene`), on ArduPilot's ArduCopter
     SITL, taken off by the companion, plant-sim as the camera only
-    (:mod:`plant_sim.lockstep.sitl`).
+    (:mod:`evaluation.sitl`).
 
 Exit status: 0 when every run reached its goal without collision (montecarlo: every
 scene ended safely, at the goal or in a reported stop, and none collided); for one run
@@ -55,16 +55,16 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from plant_sim.lockstep.harness import RunConfig, RunResult, run_scene
-from plant_sim.lockstep.montecarlo import (
+from evaluation.harness import RunConfig, RunResult, run_scene
+from evaluation.montecarlo import (
     is_safe,
     run_config,
     scene_of,
     single_threaded,
     summarize,
 )
-from plant_sim.lockstep.report import write_run_report
-from plant_sim.lockstep.scenes import FAMILIES, Scene, paper_scene
+from evaluation.report import write_run_report
+from evaluation.scenes import FAMILIES, Scene, paper_scene
 
 __all__ = ["main"]
 
@@ -89,7 +89,7 @@ def _fly_and_report(
     print(f"flying scene '{scene.name}' in lockstep (simulation time)", file=log)
     view = None
     if rerun is not None:
-        from plant_sim.lockstep.view import LockstepView, ViewOptionError
+        from evaluation.view import LockstepView, ViewOptionError
 
         try:
             view = LockstepView(rerun, scene, cfg)
@@ -121,7 +121,7 @@ def _fly_and_report(
 def _record_sink(results, bar, code: str) -> Callable[[dict], None]:
     """``on_record`` for a batch: append the record to ``results``, advance ``bar``, and warn
     (once per fingerprint) when a worker flew it with other code than this client's."""
-    from plant_sim.lockstep.mc_results import verdict_from_record
+    from evaluation.mc_results import verdict_from_record
 
     foreign: set[str] = set()
 
@@ -143,11 +143,11 @@ def _record_sink(results, bar, code: str) -> Callable[[dict], None]:
 
 
 def _montecarlo(args: argparse.Namespace) -> int:
-    from plant_sim.lockstep.mc_cluster import dask_client, fly_on_cluster
-    from plant_sim.lockstep.mc_progress import ProgressBar
-    from plant_sim.lockstep.mc_provenance import code_counts, code_fingerprint
-    from plant_sim.lockstep.mc_report import write_report
-    from plant_sim.lockstep.mc_results import BatchSpec, ResultsFile, ResultsFileError
+    from evaluation.mc_cluster import dask_client, fly_on_cluster
+    from evaluation.mc_progress import ProgressBar
+    from evaluation.mc_provenance import code_counts, code_fingerprint
+    from evaluation.mc_report import write_report
+    from evaluation.mc_results import BatchSpec, ResultsFile, ResultsFileError
 
     if args.allow_code_change and not args.resume:
         print(
@@ -226,7 +226,7 @@ def _replay(args: argparse.Namespace) -> int:
     """``replay TARGET``: an integer is a Monte Carlo seed (flown again in lockstep), a
     ``.mcap`` file a companion recording (replayed through a fresh core)."""
     if args.target.endswith(".mcap"):
-        from plant_sim.lockstep.view import replay_recording
+        from evaluation.view import replay_recording
 
         return replay_recording(Path(args.target), args.rerun, args.json)
     try:
@@ -373,7 +373,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command == "paper":
         return _fly_and_report(paper_scene(), args.out, args.json, rerun=args.rerun)
     if args.command == "sil":
-        from plant_sim.lockstep.sil_report import fly_sil_and_report, fly_sitl_and_report
+        from evaluation.sil_report import fly_sil_and_report, fly_sitl_and_report
 
         if args.autopilot == "arducopter-sitl":
             out = args.out if args.out != Path("runs/sil") else Path("runs/sitl")
@@ -391,7 +391,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command == "replay":
         return _replay(args)
     if args.command == "compile":
-        from plant_sim.lockstep.kernels import compile_kernels
+        from evaluation.kernels import compile_kernels
 
         if args.jobs < 1:
             print("stereo-avoid compile: --jobs must be >= 1", file=sys.stderr)
