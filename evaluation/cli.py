@@ -65,6 +65,7 @@ from evaluation.montecarlo import (
 )
 from evaluation.report import write_run_report
 from evaluation.scenes import FAMILIES, Scene, paper_scene
+from protocols.threads import configure_threads
 
 __all__ = ["main"]
 
@@ -369,6 +370,11 @@ def _add_sil(sil: argparse.ArgumentParser) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``stereo-avoid`` console script."""
+    try:
+        configure_threads()
+    except ValueError as exc:
+        print(f"stereo-avoid: configuration error: {exc}", file=sys.stderr)
+        return 2
     args = _parser().parse_args(argv)
     if args.command == "paper":
         return _fly_and_report(paper_scene(), args.out, args.json, rerun=args.rerun)
