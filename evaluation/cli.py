@@ -5,6 +5,10 @@ Subcommands
 ``stereo-avoid paper [--out DIR] [--json]``
     Fly §6 (start (20, 0, −7), goal (0, 0, −7), obstacle (10, 0, −7) r 1.5 m), print
     progress and a verdict, write Fig. 6–11 as PNG and the time history as CSV.
+``stereo-avoid fly --scenario FILE [--out DIR] [--json]``
+    A plant-sim scenario file (``.toml``/``.json``: start, heading, goal, obstacles,
+    airframe, camera) flown in lockstep like ``paper``
+    (:mod:`evaluation.scene_files`); ``docker/config/scenario.toml`` is the paper's.
 ``stereo-avoid montecarlo --n N [--seed S] [--family F] [--perception stereo|truth]
 [--cluster ADDRESS | --jobs J] [--out DIR] [--resume [--allow-code-change]] [--json]``
     N random scenes (seeds S … S+N−1) as tasks on a Dask cluster: the scheduler at
@@ -40,7 +44,7 @@ Subcommands
 
 Exit status: 0 when every run reached its goal without collision (montecarlo: every
 scene ended safely, at the goal or in a reported stop, and none collided); for one run
-(``paper``, ``replay SEED``, ``sil``) 3 when it ended in a safe stop (guidance reported a
+(``paper``, ``fly``, ``replay SEED``, ``sil``) 3 when it ended in a safe stop (guidance reported a
 hold and the vehicle came to rest, no collision: the goal is unreachable); 1 otherwise; 2
 on a usage error.
 """
@@ -76,6 +80,20 @@ def _progress(stream):
         stream.flush()
 
     return report
+
+
+def _fly_scenario(args: argparse.Namespace) -> int:
+    """``stereo-avoid fly --scenario FILE``: the file's scene and airframe in lockstep."""
+    from evaluation.scene_files import scene_and_config
+    from plant_sim.scenario import ScenarioError, load_scenario
+
+    try:
+        scenario = load_scenario(args.scenario)
+        scene, cfg = scene_and_config(scenario, args.scenario.stem)
+    except (ScenarioError, ValueError, OSError) as exc:
+        print(f"stereo-avoid fly: {exc}", file=sys.stderr)
+        return 2
+    return _fly_and_report(scene, args.out, args.json, cfg, rerun=args.rerun)
 
 
 def _fly_and_report(
@@ -257,6 +275,12 @@ def _parser() -> argparse.ArgumentParser:
     paper = sub.add_parser("paper", help="fly the paper's §6 scenario in lockstep")
     paper.add_argument("--out", type=Path, default=Path("runs/paper"), help="output folder")
     paper.add_argument("--json", action="store_true", help="print the verdict as JSON")
+    fly = sub.add_parser("fly", help="fly a plant-sim scenario file in lockstep")
+    fly.add_argument(
+        "--scenario", type=Path, required=True, help="plant-sim scenario (.toml or .json)"
+    )
+    fly.add_argument("--out", type=Path, default=Path("runs/fly"), help="output folder")
+    fly.add_argument("--json", action="store_true", help="print the verdict as JSON")
     _add_montecarlo(sub.add_parser("montecarlo", help="random scenes on a Dask cluster"))
     replay = sub.add_parser(
         "replay", help="fly one Monte Carlo scene again by its seed, or replay FILE.mcap"
@@ -283,7 +307,7 @@ def _parser() -> argparse.ArgumentParser:
     compile_.add_argument(
         "--jobs", type=int, default=2, help="processes compiling at once (default 2)"
     )
-    for p in (paper, replay, sil):
+    for p in (paper, fly, replay, sil):
         p.add_argument(
             "--rerun",
             metavar="FILE.rrd|serve[:PORT]",
@@ -378,6 +402,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.command == "paper":
         return _fly_and_report(paper_scene(), args.out, args.json, rerun=args.rerun)
+    if args.command == "fly":
+        return _fly_scenario(args)
     if args.command == "sil":
         from evaluation.sil_report import fly_sil_and_report, fly_sitl_and_report
 
