@@ -1,0 +1,14 @@
+"""A companion on a quarter of one core against plant-sim at 3× (issue 32 item 5;
+the verdicts are in ``tests/_starved.py``)."""
+
+from __future__ import annotations
+
+import pytest
+from _starved import SCENES, check, fly_starved, skip_unless_starvable
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", sorted(SCENES))
+def test_starved_companion_at_3x(scene, tmp_path):
+    skip_unless_starvable()
+    check(fly_starved(scene, 3.0, tmp_path))
