@@ -55,10 +55,15 @@ class PhysicsConstants(NamedTuple):
     g: float
     f_min: float
     f_max: float
+    # the air's velocity in the paper's frame [m/s] (plant_sim.disturbance): drag acts on
+    # the velocity relative to it; not a vehicle parameter, the controller never reads it
+    wind_x: float = 0.0
+    wind_y: float = 0.0
+    wind_z: float = 0.0
 
 
 def physics_constants(p: QuadrotorParams) -> PhysicsConstants:
-    """Flatten ``p`` into the tuple the compiled kernels take."""
+    """Flatten ``p`` into the tuple the compiled kernels take (in still air)."""
     return PhysicsConstants(
         float(p.mass_kg),
         *map(float, p.inertia_kgm2),
@@ -101,10 +106,12 @@ def derivative(state: np.ndarray, rotors_n: np.ndarray, k: PhysicsConstants) -> 
 
     total, tau_x, tau_y, tau_z = rotor_wrench(rotors_n[0], rotors_n[1], rotors_n[2], rotors_n[3], k)
 
-    # Eq. (12): ξ̈ = −(1/m) R K_t Rᵀ ξ̇ − G + (1/m) R F
-    ub = r00 * vx + r10 * vy + r20 * vz  # body velocity V = Rᵀ ξ̇
-    vb = r01 * vx + r11 * vy + r21 * vz
-    wb = r02 * vx + r12 * vy + r22 * vz
+    # Eq. (12): ξ̈ = −(1/m) R K_t Rᵀ ξ̇ − G + (1/m) R F, the drag on the air-relative
+    # velocity ξ̇ − w (w = 0 in still air, the paper's case)
+    ax_, ay_, az_ = vx - k.wind_x, vy - k.wind_y, vz - k.wind_z
+    ub = r00 * ax_ + r10 * ay_ + r20 * az_  # body air velocity V = Rᵀ (ξ̇ − w)
+    vb = r01 * ax_ + r11 * ay_ + r21 * az_
+    wb = r02 * ax_ + r12 * ay_ + r22 * az_
     fbx, fby, fbz = k.ktx * ub, k.kty * vb, k.ktz * wb
     inv_m = 1.0 / k.m
     ax = (-(r00 * fbx + r01 * fby + r02 * fbz) + r02 * total) * inv_m

@@ -245,6 +245,14 @@ class Quadrotor:
         """Start or stop the rotors (disarmed: all rotor thrusts zero)."""
         self._armed = bool(armed)
 
+    def set_wind_ned_mps(self, wind_ned_mps) -> None:
+        """The air's velocity from now on, LOCAL_NED [m/s] (:mod:`plant_sim.disturbance`);
+        the drag of Eq. (12) acts on the velocity relative to it."""
+        n, e, d = (float(v) for v in wind_ned_mps)
+        if not all(math.isfinite(v) for v in (n, e, d)):
+            raise ValueError(f"wind must be finite, got {wind_ned_mps!r}")
+        self._k = self._k._replace(wind_x=n, wind_y=-e, wind_z=-d)  # NED → paper frame
+
     def set_setpoint(self, sp: Setpoint) -> None:
         """Track ``sp`` from the next controller update on."""
         self._pos_sp = (

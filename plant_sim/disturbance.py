@@ -1,0 +1,157 @@
+"""What the real world adds to a flight: wind with gusts, and a wandering position estimate.
+
+Issue 31 item 4. Two processes, advanced in simulation time by :class:`Disturbances`:
+
+**Wind** (LOCAL_NED [m/s]): a steady mean plus gusts, each horizontal and the vertical
+component a first-order Gauss-Markov process (the Dryden model's low-order form: a gust
+of standard deviation ``gust_std_mps`` correlated over ``gust_tau_s``). The vehicle's
+translational drag, Eq. (12)'s ``K_t`` term, acts on the velocity relative to the air,
+``ξ̇ − w`` (:meth:`plant_sim.vehicle.Quadrotor.set_wind_ned_mps`); the controller does not
+know the wind (its feedback linearization cancels the drag of the ground velocity), so a
+steady wind leaves the steady position offset a real LQ loop without an integrator has,
+``K_t w / (m k_p)``. The paper's airframe is drag-limited to ~0.85 m/s at its 15° tilt
+limit, so it cannot hold position in winds near that: give it light airs.
+
+**Position estimate** (LOCAL_NED [m]): the error ``e`` between what the autopilot believes
+and the truth, as GPS gives it: a Gauss-Markov wander of standard deviation ``wander_std_m``
+correlated over ``wander_tau_s``, a steady ``drift_ned_mps`` (a slow bias), and jumps of
+``jump_m`` in a random horizontal direction at random times (mean interval
+``jump_every_s``; a jump joins the wander and decays with it, like a glitch the estimator
+recovers from). The autopilot reports and controls ``truth + e`` — so holding a target
+moves the true vehicle by ``−e`` — while the camera sees the true world.
+
+Pure: a seeded generator, time passed in; nothing here reads a clock.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["DisturbanceConfig", "Disturbances", "EstimateConfig", "WindConfig"]
+
+_STEP_S = 0.02  # the processes' internal step [s]: the autopilot's 50 Hz
+
+
+@dataclass(frozen=True)
+class WindConfig:
+    """Steady wind and gusts (LOCAL_NED)."""
+
+    mean_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)  # steady wind [m/s]
+    gust_std_mps: float = 0.0  # horizontal gust standard deviation [m/s]
+    gust_vertical_std_mps: float = 0.0  # vertical gust standard deviation [m/s]
+    gust_tau_s: float = 2.0  # gust correlation time [s]
+
+
+@dataclass(frozen=True)
+class EstimateConfig:
+    """How the reported position wanders from the truth (LOCAL_NED)."""
+
+    wander_std_m: float = 0.0  # horizontal wander standard deviation [m]
+    wander_vertical_std_m: float = 0.0  # vertical wander standard deviation [m]
+    wander_tau_s: float = 30.0  # wander correlation time [s]
+    drift_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)  # steady error drift [m/s]
+    jump_m: float = 0.0  # size of a jump [m], horizontal
+    jump_every_s: float = math.inf  # mean time between jumps [s]; inf: none
+
+
+@dataclass(frozen=True)
+class DisturbanceConfig:
+    """Wind and estimate error of a flight; ``seed`` makes them repeatable."""
+
+    wind: WindConfig = field(default_factory=WindConfig)
+    estimate: EstimateConfig = field(default_factory=EstimateConfig)
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        w, e = self.wind, self.estimate
+        checks = {
+            "wind.gust_std_mps": w.gust_std_mps,
+            "wind.gust_vertical_std_mps": w.gust_vertical_std_mps,
+            "estimate.wander_std_m": e.wander_std_m,
+            "estimate.wander_vertical_std_m": e.wander_vertical_std_m,
+            "estimate.jump_m": e.jump_m,
+        }
+        for name, value in checks.items():
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"disturbance.{name} must be finite and >= 0, got {value!r}")
+        for name, value in (
+            ("wind.gust_tau_s", w.gust_tau_s),
+            ("estimate.wander_tau_s", e.wander_tau_s),
+        ):
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"disturbance.{name} must be finite and > 0, got {value!r}")
+        if not e.jump_every_s > 0.0:
+            raise ValueError(
+                f"disturbance.estimate.jump_every_s must be > 0, got {e.jump_every_s!r}"
+            )
+        for name, vec in (
+            ("wind.mean_ned_mps", w.mean_ned_mps),
+            ("estimate.drift_ned_mps", e.drift_ned_mps),
+        ):
+            if len(vec) != 3 or not all(math.isfinite(v) for v in vec):
+                raise ValueError(f"disturbance.{name} must be 3 finite numbers, got {vec!r}")
+
+    @property
+    def active(self) -> bool:
+        """Whether anything is disturbed at all."""
+        return self != DisturbanceConfig(seed=self.seed)
+
+
+def _gauss_markov(x: np.ndarray, std: np.ndarray, tau_s: float, dt: float, rng) -> np.ndarray:
+    """One exact step of ``dx = −x/τ dt + σ √(2/τ) dW``: stationary standard deviation σ."""
+    a = math.exp(-dt / tau_s)
+    return a * x + std * math.sqrt(1.0 - a * a) * rng.standard_normal(3)
+
+
+class Disturbances:
+    """The wind and estimate error of :class:`DisturbanceConfig`, in simulation time.
+
+    Starts at ``start_time_s`` with the gusts and wander drawn from their stationary
+    distribution (the flight does not begin in a lull) and no drift or jump yet.
+    """
+
+    def __init__(self, config: DisturbanceConfig, start_time_s: float = 0.0) -> None:
+        self.config = config
+        self._rng = np.random.default_rng(config.seed)
+        w, e = config.wind, config.estimate
+        self._gust_std = np.array([w.gust_std_mps, w.gust_std_mps, w.gust_vertical_std_mps])
+        self._wander_std = np.array([e.wander_std_m, e.wander_std_m, e.wander_vertical_std_m])
+        self._gust = self._gust_std * self._rng.standard_normal(3)
+        self._wander = self._wander_std * self._rng.standard_normal(3)
+        self._drift = np.zeros(3)
+        self._time_s = float(start_time_s)
+        self.jumps = 0  # jumps so far
+
+    @property
+    def time_s(self) -> float:
+        return self._time_s
+
+    @property
+    def wind_ned_mps(self) -> tuple[float, float, float]:
+        mean = self.config.wind.mean_ned_mps
+        return tuple(float(m + g) for m, g in zip(mean, self._gust, strict=True))
+
+    @property
+    def estimate_error_ned_m(self) -> tuple[float, float, float]:
+        return tuple(float(v) for v in self._wander + self._drift)
+
+    def advance(self, time_s: float) -> None:
+        """Step both processes to ``time_s`` (no-op for a time not after the current)."""
+        w, e = self.config.wind, self.config.estimate
+        drift = np.asarray(e.drift_ned_mps, dtype=float)
+        jump_rate = 0.0 if math.isinf(e.jump_every_s) or e.jump_m == 0.0 else 1.0 / e.jump_every_s
+        while self._time_s < time_s - 1e-12:
+            dt = min(_STEP_S, time_s - self._time_s)
+            self._gust = _gauss_markov(self._gust, self._gust_std, w.gust_tau_s, dt, self._rng)
+            self._wander = _gauss_markov(
+                self._wander, self._wander_std, e.wander_tau_s, dt, self._rng
+            )
+            self._drift += drift * dt
+            if jump_rate > 0.0 and self._rng.random() < jump_rate * dt:
+                heading = self._rng.uniform(0.0, 2.0 * math.pi)
+                self._wander += e.jump_m * np.array([math.cos(heading), math.sin(heading), 0.0])
+                self.jumps += 1
+            self._time_s += dt
