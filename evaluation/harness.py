@@ -29,6 +29,7 @@ from companion.pipeline import PoseAtCapture
 from evaluation.history import History
 from evaluation.scenes import Scene
 from evaluation.truth_perception import TruthPerception
+from plant_sim.disturbance import Disturbances
 from plant_sim.params import ControlParams, QuadrotorParams
 from plant_sim.stereo_camera import RenderParams, StereoCameraRenderer
 from plant_sim.vehicle import Quadrotor, Setpoint, VehicleState
@@ -197,15 +198,20 @@ def run_scene(
     next_progress_s = 0.0
     pending_kills = sorted(float(t) for t in kill_times_s)
     kills: list[KillOutcome] = []
+    disturbed = _disturbances(scene)
     while True:
         state = quad.snapshot()
-        pose = PoseAtCapture(state.pos_ned_m, state.vel_ned_mps, state.R_ned_from_frd)
+        error_ned_m = _disturb(disturbed, quad, state.time_s)
+        pose = PoseAtCapture(state.pos_ned_m + error_ned_m, state.vel_ned_mps, state.R_ned_from_frd)
         frame = shoot(state, seq)
         step = mission.step(frame, pose)
         if on_step is not None:
             on_step(frame, pose, step, mission)
         out = step.output
-        quad.set_setpoint(Setpoint(pos_ned_m=tuple(out.setpoint_ned_m), yaw_rad=out.yaw_rad))
+        # the autopilot closes its loop on its estimate: the target, less the error
+        quad.set_setpoint(
+            Setpoint(pos_ned_m=tuple(out.setpoint_ned_m - error_ned_m), yaw_rad=out.yaw_rad)
+        )
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
         if record_history:
             _record(history, state, surface, out, len(out.perception.obstacles))
@@ -231,6 +237,25 @@ def run_scene(
         tally.min_surface = min(tally.min_surface, surface_min)
     verdict = tally.verdict(scene, quad, goal, frames=seq + 1, wall_start_s=wall_start)
     return RunResult(verdict=verdict, history=history, kills=tuple(kills))
+
+
+def _disturbances(scene: Scene) -> Disturbances | None:
+    d = scene.disturbance
+    return Disturbances(d) if d is not None and d.active else None
+
+
+def _disturb(disturbed: Disturbances | None, quad: Quadrotor, time_s: float) -> np.ndarray:
+    """Advance the wind and the estimate error to ``time_s``; the wind goes on the
+    physics (until the next frame), the estimate error [m, NED] is returned."""
+    if disturbed is None:
+        return _NO_ERROR
+    disturbed.advance(time_s)
+    quad.set_wind_ned_mps(disturbed.wind_ned_mps)
+    return np.asarray(disturbed.estimate_error_ned_m)
+
+
+_NO_ERROR = np.zeros(3)
+_NO_ERROR.flags.writeable = False
 
 
 def _start(scene: Scene, cfg: RunConfig) -> tuple[Quadrotor, Mission]:

@@ -20,6 +20,7 @@ from typing import Any
 
 from evaluation.harness import RunConfig
 from evaluation.scenes import Scene
+from plant_sim.disturbance import DisturbanceConfig, EstimateConfig, WindConfig
 from plant_sim.scenario import Scenario
 from plant_sim.world import World
 
@@ -52,6 +53,23 @@ def _obstacle_rows(world: World) -> list[dict[str, Any]]:
     return rows
 
 
+def _disturbance_data(d: DisturbanceConfig) -> dict[str, Any]:
+    """The ``[disturbance]`` table: the fields that differ from the defaults."""
+    data: dict[str, Any] = {"seed": d.seed}
+    for name, part, default in (
+        ("wind", d.wind, WindConfig()),
+        ("estimate", d.estimate, EstimateConfig()),
+    ):
+        table = {
+            f.name: list(v) if isinstance(v, tuple) else v
+            for f in dataclasses.fields(part)
+            if (v := getattr(part, f.name)) != getattr(default, f.name)
+        }
+        if table:
+            data[name] = table
+    return data
+
+
 def scenario_data(scene: Scene, *, profile: str = "paper") -> dict[str, Any]:
     """``scene`` as plant-sim scenario data: airborne at its start, facing its start
     heading, its world and goal, the ``profile`` airframe.
@@ -65,7 +83,11 @@ def scenario_data(scene: Scene, *, profile: str = "paper") -> dict[str, Any]:
     if scene.via_ned_m:
         raise ValueError(f"scene {scene.name!r} has waypoints: a scenario file has one goal")
     ground = scene.world.ground
+    extra = {}
+    if scene.disturbance is not None and scene.disturbance.active:
+        extra["disturbance"] = _disturbance_data(scene.disturbance)
     return {
+        **extra,
         "profile": profile,
         "goal_ned_m": [float(v) for v in scene.goal_ned_m],
         "start": {
@@ -102,6 +124,7 @@ def scene_and_config(
         goal_ned_m=tuple(float(v) for v in scenario.goal_ned_m),
         world=scenario.world,
         yaw_rad=math.radians(scenario.start.yaw_deg),
+        disturbance=scenario.disturbance if scenario.disturbance.active else None,
     )
     cfg = base or RunConfig()
     cfg = dataclasses.replace(

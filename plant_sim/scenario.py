@@ -56,6 +56,19 @@ error that names the key (``camera.fps`` → "unknown key 'camera.fps'"). Exampl
     [failsafe]
     guided_velocity_timeout_s = 3.0
 
+    [disturbance]            # plant_sim.disturbance: all optional, default none
+    seed = 0
+    [disturbance.wind]       # steady wind + Gauss-Markov gusts, LOCAL_NED
+    mean_ned_mps = [0.3, 0.0, 0.0]
+    gust_std_mps = 0.1
+    gust_tau_s = 2.0
+    [disturbance.estimate]   # the reported position wanders from the truth (GPS-like)
+    wander_std_m = 0.2
+    wander_tau_s = 30.0
+    drift_ned_mps = [0.0, 0.0, 0.0]
+    jump_m = 0.5
+    jump_every_s = 60.0
+
     profile = "paper"        # plant_sim.profiles: "paper" (default) or "fast"
     [vehicle]                # plant_sim.params.QuadrotorParams overrides (of the profile)
     [control]                # plant_sim.params.ControlParams overrides (of the profile)
@@ -75,6 +88,7 @@ from pathlib import Path
 from typing import Any
 
 from plant_sim.autopilot.modes import FlightMode
+from plant_sim.disturbance import DisturbanceConfig, EstimateConfig, WindConfig
 from plant_sim.params import ControlParams, QuadrotorParams, from_dict
 from plant_sim.profiles import profile
 from plant_sim.stereo_camera import RenderParams
@@ -169,6 +183,7 @@ class Scenario:
     camera: CameraConfig = field(default_factory=CameraConfig)
     stream_rates_hz: tuple[tuple[str, float], ...] = tuple(DEFAULT_STREAM_RATES_HZ.items())
     failsafe: FailsafeConfig = field(default_factory=FailsafeConfig)
+    disturbance: DisturbanceConfig = field(default_factory=DisturbanceConfig)
     vehicle: QuadrotorParams = field(default_factory=QuadrotorParams)
     control: ControlParams = field(default_factory=ControlParams)
 
@@ -328,6 +343,32 @@ def _failsafe(d: Any) -> FailsafeConfig:
     return FailsafeConfig(**{k: _number(v, f"failsafe.{k}", positive=True) for k, v in d.items()})
 
 
+def _disturbance(d: Any) -> DisturbanceConfig:
+    """``[disturbance]``: ``seed``, ``[disturbance.wind]``, ``[disturbance.estimate]``
+    (:mod:`plant_sim.disturbance`; every field optional, unknown keys named)."""
+    d = check_keys(d, {"seed", "wind", "estimate"}, "disturbance")
+    parts: dict[str, Any] = {}
+    for name, cls in (("wind", WindConfig), ("estimate", EstimateConfig)):
+        if name not in d:
+            continue
+        where = f"disturbance.{name}"
+        section = check_keys(d[name], _dataclass_fields(cls), where)
+        kw = {}
+        for key, value in section.items():
+            if key.endswith("_ned_mps"):
+                kw[key] = vec3(value, f"{where}.{key}")
+            else:
+                kw[key] = _number(value, f"{where}.{key}") if value != "inf" else math.inf
+        parts[name] = cls(**kw)
+    seed = d.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise ScenarioError(f"disturbance.seed must be an integer, got {seed!r}")
+    try:
+        return DisturbanceConfig(**parts, seed=seed)
+    except ValueError as exc:
+        raise ScenarioError(str(exc)) from None
+
+
 _TOP_KEYS = {
     "vehicle_id",
     "start",
@@ -338,6 +379,7 @@ _TOP_KEYS = {
     "camera",
     "streams",
     "failsafe",
+    "disturbance",
     "vehicle",
     "control",
     "profile",
@@ -379,6 +421,8 @@ def scenario_from_dict(d: Mapping[str, Any]) -> Scenario:
         kw["stream_rates_hz"] = _streams(d["streams"])
     if "failsafe" in d:
         kw["failsafe"] = _failsafe(d["failsafe"])
+    if "disturbance" in d:
+        kw["disturbance"] = _disturbance(d["disturbance"])
     try:
         base = profile(str(d.get("profile", "paper")))
     except ValueError as exc:

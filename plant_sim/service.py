@@ -16,6 +16,7 @@ type, logged once per kind and, for a command, answered with MAV_RESULT_FAILED.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -24,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from plant_sim.autopilot import commands as cmds
@@ -58,10 +60,11 @@ from plant_sim.autopilot.telemetry import (
 )
 from plant_sim.camera_publisher import StereoPublisher, readiness_fields
 from plant_sim.clock import Pacer
+from plant_sim.disturbance import Disturbances
 from plant_sim.scenario import Scenario
 from plant_sim.tlog import TlogWriter
 from plant_sim.truth_log import TruthLogWriter
-from plant_sim.vehicle import Quadrotor, VehicleState
+from plant_sim.vehicle import Quadrotor, Setpoint, VehicleState
 from protocols.keys import stereo_key
 from protocols.signing import SigningKey
 from protocols.statustext import statustext_chunks
@@ -151,6 +154,14 @@ def _param_table(config: PlantConfig) -> ParamTable:
     )
 
 
+def _shifted(sp: Setpoint, error_ned_m) -> Setpoint:
+    """``sp`` in the true frame when the estimate is off by ``error_ned_m``."""
+    if sp.pos_ned_m is None:
+        return sp
+    pos = tuple(float(p - e) for p, e in zip(sp.pos_ned_m, error_ned_m, strict=True))
+    return dataclasses.replace(sp, pos_ned_m=pos)
+
+
 class PlantService:
     """Owns the plant's parts; :meth:`open`, :meth:`run`, :meth:`close`."""
 
@@ -164,7 +175,8 @@ class PlantService:
         self.params = _param_table(config)
         self._base_timings = ModeTimings(land_detect_s=fs.land_detect_s)
         home = (float(pos[0]), float(pos[1]), ground if ground is not None else 0.0)
-        kin = self._kinematics(self.quad.snapshot())
+        self.disturbances = Disturbances(sc.disturbance) if sc.disturbance.active else None
+        kin = self._kinematics(self._estimated(self.quad.snapshot()))
         self.machine = FlightModeMachine(
             timings_from_params(self._base_timings, self.params),
             home_ned_m=home,
@@ -338,7 +350,10 @@ class PlantService:
             self.publisher.publish(snap.time_s, snap.pos_ned_m, snap.R_ned_from_frd)
             self._frame += 1
 
-    def _on_tick(self, snap: VehicleState) -> None:
+    def _on_tick(self, truth: VehicleState) -> None:
+        # the autopilot's view: its estimate of the position (the truth without
+        # disturbances); the camera and the truth log see the true vehicle
+        snap = self._estimated(truth)
         self._last_snapshot = snap
         kin = self._kinematics(snap)
         inbox, self._inbox = self._inbox, []
@@ -358,7 +373,7 @@ class PlantService:
         for name in self.scheduler.due(snap.time_s):
             self.link.send(self._build(name, snap, wall_unix))
         if self._truth is not None and self._tick % self._truth_every == 0:
-            self._truth.write(snap, self._mode_name())
+            self._truth.write(truth, self._mode_name())
 
     def _heartbeat(self):
         if self.px4 is None:
@@ -414,11 +429,26 @@ class PlantService:
             tilt_saturated=snap.tilt_saturated,
         )
 
+    def _estimated(self, truth: VehicleState) -> VehicleState:
+        """The vehicle as the autopilot's estimator has it: the truth moved by the
+        estimate error, and the wind of this moment put on the physics."""
+        d = self.disturbances
+        if d is None:
+            return truth
+        d.advance(truth.time_s)
+        self.quad.set_wind_ned_mps(d.wind_ned_mps)
+        error = np.asarray(d.estimate_error_ned_m)
+        return dataclasses.replace(truth, pos_ned_m=truth.pos_ned_m + error)
+
     def _apply_machine(self) -> None:
         m = self.machine
         if m.armed != self.quad.armed:
             self.quad.set_armed(m.armed)
-        if m.setpoint is not self._applied_setpoint:
+        if self.disturbances is not None:
+            # the controller closes its loop on the estimate: tracking a target with the
+            # estimate is tracking target − error with the truth
+            self.quad.set_setpoint(_shifted(m.setpoint, self.disturbances.estimate_error_ned_m))
+        elif m.setpoint is not self._applied_setpoint:
             self.quad.set_setpoint(m.setpoint)
             self._applied_setpoint = m.setpoint
 

@@ -35,6 +35,7 @@ def test_a_monte_carlo_scene_survives_the_round_trip_through_a_scenario(family):
         data = json.loads(json.dumps(scenario_data(scene)))  # what a .json file holds
         back, cfg = scene_and_config(scenario_from_dict(data), scene.name)
         _same_scene(back, scene)
+        assert back.disturbance == scene.disturbance
         assert cfg == RunConfig()  # the paper airframe and camera
 
 
