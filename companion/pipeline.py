@@ -12,14 +12,16 @@ both run exactly this.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput
+from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput, Mode
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
+from companion.guidance.hold import hold_point, inside_any
 from companion.guidance.map_boundaries import (
     MapBoundary,
     MapBoundaryConfig,
@@ -62,6 +64,9 @@ class PipelineOutput:
     guidance: GuidanceOutput
     envelope: EnvelopeOutput
     boundaries: tuple[MapBoundary, ...] = ()
+    # guidance held, and its hold target was moved out of a boundary the vehicle (or the
+    # target) was found inside of this frame (drift, wind, a jump of the estimate)
+    hold_escape: bool = False
 
     @property
     def setpoint_ned_m(self) -> np.ndarray:
@@ -150,6 +155,38 @@ class AvoidancePipeline:
             config=self.envelope_config,
             latency_s=latency_s,
         )
+        escape = None
+        if decision.mode is Mode.HOLD:
+            escape = self._hold_outside(pose, bounded, boundaries)
+        if escape is not None:
+            bounded = dataclasses.replace(bounded, setpoint_ned_m=escape)
         return PipelineOutput(
-            perception=seen, guidance=decision, envelope=bounded, boundaries=boundaries
+            perception=seen,
+            guidance=decision,
+            envelope=bounded,
+            boundaries=boundaries,
+            hold_escape=escape is not None,
         )
+
+    def _hold_outside(
+        self, pose: PoseAtCapture, bounded: EnvelopeOutput, boundaries
+    ) -> np.ndarray | None:
+        """Invariant 3 of the envelope for guidance's holds: when the vehicle or its hold
+        target is inside a boundary, the target that leads out through the escape
+        direction (:func:`~companion.guidance.hold.hold_point`); None when both are
+        outside (the hold target stands)."""
+        if not (
+            inside_any(pose.pos_ned_m, boundaries) or inside_any(bounded.setpoint_ned_m, boundaries)
+        ):
+            return None
+        point = hold_point(
+            pose.pos_ned_m,
+            pose.vel_ned_mps,
+            boundaries,
+            latency_s=bounded.latency_s,
+            accel_mps2=self.envelope_config.accel_mps2,
+            clearance_m=self.guidance.config.escape_clearance_m,
+        )
+        target = np.array(point.pos_ned_m)
+        target.setflags(write=False)
+        return target

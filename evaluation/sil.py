@@ -387,6 +387,9 @@ class SilOptions:
     startup_timeout_s: float = 60.0
     # the companion held to this fraction of one core (evaluation.starve); None: unlimited
     companion_core_fraction: float | None = None
+    # end the run once the vehicle rests in a reported hold (False: fly on to max_time_s,
+    # e.g. to watch a hold under a drifting estimate)
+    end_at_rest: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -500,7 +503,7 @@ def _fly(
             last = _last_progress(companion.stderr_text())
             if last:
                 say(last)
-            if settled_in_hold(truth_path, companion.events()):
+            if options.end_at_rest and settled_in_hold(truth_path, companion.events()):
                 say("stopped in a reported hold")
                 break
         time.sleep(0.05)

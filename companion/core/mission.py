@@ -59,6 +59,7 @@ class Mission:
         self.goal_reached = False
         self._guidance_state: tuple[Mode, Reason] | None = None
         self._avoiding = False
+        self._hold_escaped = False  # this hold already said its target was moved out
 
     @property
     def target_ned_m(self) -> np.ndarray:
@@ -141,6 +142,21 @@ class Mission:
                 events.append(
                     Event("hold_end", {"reason": g.reason.value, "capture_s": capture_ns * 1e-9})
                 )
+        if out.hold_escape and not self._hold_escaped:
+            # said once per hold (not every frame it is re-checked)
+            notices.append(Notice("Hold target kept out of a boundary (escape)", warning=True))
+            sp = out.setpoint_ned_m
+            events.append(
+                Event(
+                    "hold_target_moved",
+                    {
+                        "placement": "escape",
+                        "setpoint_ned_m": [float(x) for x in sp],
+                        "capture_s": capture_ns * 1e-9,
+                    },
+                )
+            )
+        self._hold_escaped = (self._hold_escaped or out.hold_escape) and g.mode is Mode.HOLD
         if g.avoidance_flag != self._avoiding:
             self._avoiding = bool(g.avoidance_flag)
             events.append(
