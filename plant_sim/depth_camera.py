@@ -22,15 +22,16 @@ Pure: a function of the truth, the intrinsics and a seed (the frame's sequence).
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
 
 import numpy as np
 
 from protocols.camera import StereoIntrinsics
 from protocols.config import check_numbers
-from protocols.stereo_frame import DEPTH16_SCALE_RANGE_M
+from protocols.stereo_frame import DEPTH16_SCALE_RANGE_M, DepthFrame, PixelEncoding
 
-__all__ = ["DepthNoiseParams", "depth16_from_truth"]
+__all__ = ["CameraEncoding", "DepthNoiseParams", "depth16_from_truth", "depth_frame"]
 
 
 @dataclass(frozen=True)
@@ -152,3 +153,43 @@ def depth16_from_truth(
     valid &= (measured_m >= params.min_range_m) & (measured_m <= params.max_range_m)
     units = np.rint(np.where(valid, measured_m, 0.0) / params.depth_scale_m)
     return np.clip(units, 0, 65535).astype(np.uint16)
+
+
+class CameraEncoding(enum.Enum):
+    """What plant-sim's camera publishes (``[camera] encoding``)."""
+
+    MONO8 = "mono8"  # a rectified stereo pair; the companion matches it
+    DEPTH16 = "depth16"  # a RealSense-like depth camera: millimetres, 0 = no data
+    DEPTH32F = "depth32f"  # the same depth as float32 metres, NaN = no data
+
+
+def depth_frame(
+    sequence: int,
+    capture_ns: int,
+    intrinsics: StereoIntrinsics,
+    depth_true_m: np.ndarray,
+    left: np.ndarray | None,
+    params: DepthNoiseParams,
+    encoding: CameraEncoding = CameraEncoding.DEPTH16,
+) -> DepthFrame:
+    """The depth frame the simulated depth camera publishes for one view: the plane of
+    :func:`depth16_from_truth` (seeded with ``sequence``), as DEPTH16 or DEPTH32F, with the
+    left image for the viewer."""
+    plane = depth16_from_truth(depth_true_m, intrinsics, params, sequence)
+    if encoding is CameraEncoding.DEPTH16:
+        return DepthFrame(
+            sequence,
+            capture_ns,
+            intrinsics,
+            plane,
+            PixelEncoding.DEPTH16,
+            params.depth_scale_m,
+            left,
+        )
+    if encoding is CameraEncoding.DEPTH32F:
+        metres = plane.astype(np.float32) * np.float32(params.depth_scale_m)
+        metres[plane == 0] = np.nan
+        return DepthFrame(
+            sequence, capture_ns, intrinsics, metres, PixelEncoding.DEPTH32F, 1.0, left
+        )
+    raise ValueError(f"not a depth encoding: {encoding!r}")

@@ -5,7 +5,7 @@ Subcommands
 ``stereo-avoid paper [--out DIR] [--json]``
     Fly §6 (start (20, 0, −7), goal (0, 0, −7), obstacle (10, 0, −7) r 1.5 m), print
     progress and a verdict, write Fig. 6–11 as PNG and the time history as CSV.
-``stereo-avoid montecarlo --n N [--seed S] [--family F] [--perception stereo|truth]
+``stereo-avoid montecarlo --n N [--seed S] [--family F] [--perception stereo|truth|depth]
 [--cluster ADDRESS | --jobs J] [--out DIR] [--resume [--allow-code-change]] [--json]``
     N random scenes (seeds S … S+N−1) as tasks on a Dask cluster: the scheduler at
     ADDRESS (``tcp://host:8786``), or a local cluster of J worker processes. Verdicts
@@ -245,7 +245,7 @@ def _replay(args: argparse.Namespace) -> int:
 
 
 _FAMILIES = ["mixed", *FAMILIES]
-_PERCEPTIONS = ["stereo", "truth"]
+_PERCEPTIONS = ["stereo", "truth", "depth"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -331,7 +331,8 @@ def _add_montecarlo(mc: argparse.ArgumentParser) -> None:
         "--perception",
         choices=_PERCEPTIONS,
         default="stereo",
-        help="stereo matcher (default) or ground truth (the renderer's exact depth)",
+        help="stereo matcher (default), ground truth (the renderer's exact depth) or a "
+        "RealSense-like depth camera (depth16 frames with its noise; no matcher)",
     )
     mc.add_argument(
         "--max-time-s",
