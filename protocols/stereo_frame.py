@@ -245,6 +245,89 @@ def _check_depth32f(depth: np.ndarray) -> None:
         )
 
 
+@dataclass(frozen=True)
+class _Header:
+    """The header fields of a payload, checked."""
+
+    size: int
+    sequence: int
+    capture_ns: int
+    encoding: PixelEncoding
+    flags: int
+    depth_scale_m: float
+    intrinsics: StereoIntrinsics
+
+
+def _unpack_header(buf: memoryview) -> tuple:
+    """The raw header fields of version 1 or 2, in version 2's order (version 1: no flags,
+    a zero depth scale); raises on a short payload, a bad magic or an unknown version."""
+    if len(buf) < _HEADER_V1.size:
+        raise _fail(f"{len(buf)} bytes is shorter than the {_HEADER_V1.size}-byte v1 header")
+    magic, version = struct.unpack_from("<4sH", buf, 0)
+    if magic != MAGIC:
+        raise _fail(f"magic {magic!r} != {MAGIC!r}")
+    if version == 1:
+        fields = _HEADER_V1.unpack_from(buf, 0)
+        reserved_ok = fields[8] == b"\x00\x00\x00"
+        return (*fields[1:8], 0, fields[8], reserved_ok, *fields[9:], 0.0)
+    if version == FORMAT_VERSION:
+        if len(buf) < HEADER_SIZE:
+            raise _fail(f"{len(buf)} bytes is shorter than the {HEADER_SIZE}-byte header")
+        fields = _HEADER.unpack_from(buf, 0)
+        return (*fields[1:10], fields[9] == b"\x00\x00", *fields[10:])
+    raise _fail(f"unsupported version {version} (this decoder reads 1 and {FORMAT_VERSION})")
+
+
+def _parse_header(buf: memoryview) -> _Header:
+    """Every header field of ``buf`` checked (module docstring)."""
+    (
+        version,
+        header_size,
+        sequence,
+        capture_ns,
+        width,
+        height,
+        encoding,
+        flags,
+        reserved,
+        reserved_ok,
+        fx,
+        fy,
+        cx,
+        cy,
+        baseline,
+        depth_scale_m,
+    ) = _unpack_header(buf)
+    expected_header = _HEADER_V1.size if version == 1 else HEADER_SIZE
+    if header_size != expected_header:
+        raise _fail(f"header_size {header_size} != {expected_header} for version {version}")
+    pixel_encoding = _check_encoding(encoding)
+    if version == 1 and pixel_encoding is not PixelEncoding.MONO8:
+        raise _fail(f"version 1 carries MONO8 pairs only, not {pixel_encoding.name}")
+    if not reserved_ok:
+        raise _fail(f"reserved bytes not zero: {reserved!r}")
+    _check_geometry(capture_ns, width, height, fx, fy, cx, cy, baseline)
+    _check_depth_fields(pixel_encoding, flags, depth_scale_m)
+    intrinsics = StereoIntrinsics(
+        width_px=int(width),
+        height_px=int(height),
+        fx_px=float(fx),
+        fy_px=float(fy),
+        cx_px=float(cx),
+        cy_px=float(cy),
+        baseline_m=float(baseline),
+    )
+    return _Header(
+        int(header_size),
+        int(sequence),
+        int(capture_ns),
+        pixel_encoding,
+        int(flags),
+        float(depth_scale_m),
+        intrinsics,
+    )
+
+
 def decode(payload: bytes | bytearray | memoryview) -> Frame:
     """Parse and validate a payload; the planes are read-only zero-copy views.
 
@@ -261,77 +344,32 @@ def decode(payload: bytes | bytearray | memoryview) -> Frame:
         buf = memoryview(payload).cast("B")
     except TypeError as exc:
         raise _fail(f"payload buffer is not contiguous bytes ({exc})") from None
-    if len(buf) < _HEADER_V1.size:
-        raise _fail(f"{len(buf)} bytes is shorter than the {_HEADER_V1.size}-byte v1 header")
-    magic, version = struct.unpack_from("<4sH", buf, 0)
-    if magic != MAGIC:
-        raise _fail(f"magic {magic!r} != {MAGIC!r}")
-    if version == 1:
-        fields = _HEADER_V1.unpack_from(buf, 0)
-        header_size, sequence, capture_ns, width, height, encoding, reserved = fields[2:9]
-        fx, fy, cx, cy, baseline = fields[9:]
-        flags, depth_scale_m, reserved_ok = 0, 0.0, reserved == b"\x00\x00\x00"
-    elif version == FORMAT_VERSION:
-        if len(buf) < HEADER_SIZE:
-            raise _fail(f"{len(buf)} bytes is shorter than the {HEADER_SIZE}-byte header")
-        fields = _HEADER.unpack_from(buf, 0)
-        header_size, sequence, capture_ns, width, height, encoding, flags, reserved = fields[2:10]
-        fx, fy, cx, cy, baseline, depth_scale_m = fields[10:]
-        reserved_ok = reserved == b"\x00\x00"
-    else:
-        raise _fail(f"unsupported version {version} (this decoder reads 1 and {FORMAT_VERSION})")
-    expected_header = _HEADER_V1.size if version == 1 else HEADER_SIZE
-    if header_size != expected_header:
-        raise _fail(f"header_size {header_size} != {expected_header} for version {version}")
-    pixel_encoding = _check_encoding(encoding)
-    if version == 1 and pixel_encoding is not PixelEncoding.MONO8:
-        raise _fail(f"version 1 carries MONO8 pairs only, not {pixel_encoding.name}")
-    if not reserved_ok:
-        raise _fail(f"reserved bytes not zero: {reserved!r}")
-    _check_geometry(capture_ns, width, height, fx, fy, cx, cy, baseline)
-    _check_depth_fields(pixel_encoding, flags, depth_scale_m)
-    sizes = _plane_sizes(pixel_encoding, flags, width, height)
-    expected = header_size + sum(sizes)
+    h = _parse_header(buf)
+    k = h.intrinsics
+    width, height = k.width_px, k.height_px
+    sizes = _plane_sizes(h.encoding, h.flags, width, height)
+    expected = h.size + sum(sizes)
     if len(buf) != expected:
         raise _fail(
             f"{len(buf)} bytes, expected {expected} for {width}x{height} "
-            f"{pixel_encoding.name} (planes of {sizes} bytes)"
+            f"{h.encoding.name} (planes of {sizes} bytes)"
         )
-    intrinsics = StereoIntrinsics(
-        width_px=int(width),
-        height_px=int(height),
-        fx_px=float(fx),
-        fy_px=float(fy),
-        cx_px=float(cx),
-        cy_px=float(cy),
-        baseline_m=float(baseline),
-    )
-    if pixel_encoding is PixelEncoding.MONO8:
-        planes = np.frombuffer(buf, dtype=np.uint8, offset=header_size).reshape(2, height, width)
+    if h.encoding is PixelEncoding.MONO8:
+        planes = np.frombuffer(buf, dtype=np.uint8, offset=h.size).reshape(2, height, width)
         planes.flags.writeable = False
-        return StereoFrame(
-            int(sequence), int(capture_ns), intrinsics, planes[0], planes[1], pixel_encoding
-        )
+        return StereoFrame(h.sequence, h.capture_ns, k, planes[0], planes[1], h.encoding)
     depth = np.frombuffer(
-        buf, dtype=pixel_encoding.dtype.newbyteorder("<"), count=width * height, offset=header_size
+        buf, dtype=h.encoding.dtype.newbyteorder("<"), count=width * height, offset=h.size
     ).reshape(height, width)
-    if pixel_encoding is PixelEncoding.DEPTH32F:
+    if h.encoding is PixelEncoding.DEPTH32F:
         _check_depth32f(depth)
     depth.flags.writeable = False
     left = None
-    if flags & FrameFlags.LEFT_IMAGE:
-        left = np.frombuffer(buf, dtype=np.uint8, offset=header_size + sizes[0])
+    if h.flags & FrameFlags.LEFT_IMAGE:
+        left = np.frombuffer(buf, dtype=np.uint8, offset=h.size + sizes[0])
         left = left.reshape(height, width)
         left.flags.writeable = False
-    return DepthFrame(
-        int(sequence),
-        int(capture_ns),
-        intrinsics,
-        depth,
-        pixel_encoding,
-        float(depth_scale_m),
-        left,
-    )
+    return DepthFrame(h.sequence, h.capture_ns, k, depth, h.encoding, h.depth_scale_m, left)
 
 
 def validate(payload: bytes | bytearray | memoryview) -> None:
@@ -346,7 +384,10 @@ def _planes(frame: Frame, encoding: PixelEncoding) -> tuple[int, float, list[np.
     if isinstance(frame, StereoFrame):
         if encoding is not PixelEncoding.MONO8:
             raise ValueError(f"a StereoFrame is MONO8, not {encoding.name}")
-        named = [("left", frame.left, np.dtype(np.uint8)), ("right", frame.right, np.dtype(np.uint8))]
+        named = [
+            ("left", frame.left, np.dtype(np.uint8)),
+            ("right", frame.right, np.dtype(np.uint8)),
+        ]
         flags, scale = 0, 0.0
     elif isinstance(frame, DepthFrame):
         if not encoding.is_depth:
