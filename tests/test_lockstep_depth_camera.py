@@ -5,13 +5,13 @@ matcher); guidance, envelope and known space unchanged."""
 
 import numpy as np
 import pytest
+from test_lockstep_montecarlo import SEEDS
 
 from plant_sim.depth_camera import CameraEncoding, DepthNoiseParams
 from plant_sim.lockstep.harness import run_scene
 from plant_sim.lockstep.montecarlo import run_batch, run_config, summarize
 from plant_sim.lockstep.scenes import paper_scene
 from plant_sim.params import QuadrotorParams
-from tests.test_lockstep_montecarlo import SEEDS
 
 
 @pytest.fixture(scope="module")

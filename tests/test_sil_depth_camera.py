@@ -11,12 +11,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from test_companion_sil import SPEEDUP, _assert_close_to_lockstep
 
 from plant_sim.lockstep.harness import run_scene
 from plant_sim.lockstep.montecarlo import run_config
 from plant_sim.lockstep.scenes import paper_scene
 from plant_sim.lockstep.sil import SilOptions, run_sil
-from tests.test_companion_sil import SPEEDUP, _assert_close_to_lockstep
 
 _SCENARIO = """\
 [camera]

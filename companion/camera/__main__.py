@@ -75,7 +75,8 @@ class SourceKind(enum.Enum):
 
     V4L2_PAIR = "v4l2"  # two cameras
     SIDE_BY_SIDE = "sbs"  # one camera, [left | right] in one frame
-    REPLAY = "replay"  # folder of recorded pairs
+    REPLAY = "replay"  # folder of recorded pairs, or a ROS bag (pairs or a depth topic)
+    REALSENSE = "realsense"  # Intel RealSense depth camera or its recording (depth frames)
 
 
 @dataclass(frozen=True)
@@ -103,6 +104,13 @@ class SourceConfig:
         (:mod:`companion.camera.rosbag_source`).
     left_info_topic, right_info_topic : str or None
         CameraInfo topics of the bag (default: ``camera_info`` beside the images).
+    depth_topic, depth_info_topic, image_topic : str or None
+        With REPLAY: ``folder`` is a ROS bag with a depth image topic, its CameraInfo and
+        optionally the left imager's picture (:mod:`companion.camera.depth_sources`).
+    baseline_m : float or None
+        A depth camera's stereo baseline [m] (ROS depth bags; RealSense override).
+    with_image : bool
+        REALSENSE: publish infrared 1 beside the depth.
     """
 
     kind: SourceKind
@@ -116,6 +124,11 @@ class SourceConfig:
     right_topic: str | None = None
     left_info_topic: str | None = None
     right_info_topic: str | None = None
+    depth_topic: str | None = None
+    depth_info_topic: str | None = None
+    image_topic: str | None = None
+    baseline_m: float | None = None
+    with_image: bool = True
 
 
 @dataclass(frozen=True)
@@ -253,7 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Publish rectified stereo frames (MONO8) over Zenoh from cameras or a "
         "recording.",
     )
-    sub = p.add_subparsers(dest="kind", required=True, metavar="{v4l2,sbs,replay}")
+    sub = p.add_subparsers(dest="kind", required=True, metavar="{v4l2,sbs,replay,realsense}")
     cam = argparse.ArgumentParser(add_help=False)
     cam.add_argument("--size", type=_size, metavar="WxH", help="requested size of each eye")
     cam.add_argument("--fps", type=_positive, help="requested camera rate [Hz]")
@@ -281,6 +294,25 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--right-info", metavar="TOPIC", help="ROS 2 bag: right CameraInfo (default: beside)"
     )
+    r.add_argument("--depth", metavar="TOPIC", help="ROS bag: depth image (16UC1 mm / 32FC1 m)")
+    r.add_argument(
+        "--depth-info", metavar="TOPIC", help="ROS bag: depth CameraInfo (default: beside)"
+    )
+    r.add_argument("--image", metavar="TOPIC", help="ROS bag: the depth camera's left picture")
+    r.add_argument(
+        "--baseline", type=_positive, metavar="M", help="depth camera's stereo baseline [m]"
+    )
+    rs = sub.add_parser(
+        "realsense", parents=[common], help="Intel RealSense depth camera or recording"
+    )
+    rs.add_argument("--bag", type=Path, metavar="FILE", help="play back a RealSense recording")
+    rs.add_argument("--size", type=_size, metavar="WxH", help="depth size (default 640x480)")
+    rs.add_argument("--fps", type=_positive, help="camera rate [Hz] (default 30)")
+    rs.add_argument("--rate", type=_positive, metavar="HZ", help="recording: replay rate")
+    rs.add_argument(
+        "--baseline", type=_positive, metavar="M", help="override the device's baseline [m]"
+    )
+    rs.add_argument("--no-image", action="store_true", help="depth only, no infrared picture")
     return p
 
 
@@ -300,6 +332,14 @@ def config_from_args(args: argparse.Namespace) -> CameraConfig:
     from protocols.keys import validate_vehicle_id
 
     kind = SourceKind(args.kind)
+    if kind is SourceKind.REALSENSE or getattr(args, "depth", None) is not None:
+        return _depth_config(kind, args)
+    if (
+        getattr(args, "image", None)
+        or getattr(args, "depth_info", None)
+        or getattr(args, "baseline", None)
+    ):
+        raise ValueError("--image/--depth-info/--baseline need --depth TOPIC (a depth bag)")
     if kind is SourceKind.REPLAY:
         if (args.left is None) != (args.right is None):
             raise ValueError("a ROS 2 bag needs both --left TOPIC and --right TOPIC")
@@ -358,6 +398,66 @@ def config_from_args(args: argparse.Namespace) -> CameraConfig:
     )
 
 
+def _depth_config(kind: SourceKind, args: argparse.Namespace) -> CameraConfig:
+    """A depth camera's :class:`CameraConfig`: no calibration or rectification (the camera
+    computed the depth in its own rectified frame), intrinsics from the device or CameraInfo."""
+    if args.calibration or args.intrinsics or args.output_size is not None:
+        raise ValueError(
+            "a depth camera takes no --calibration/--intrinsics/--output-size: its depth is "
+            "rectified and its intrinsics come from the device or the CameraInfo"
+        )
+    if kind is SourceKind.REPLAY:
+        if args.left is not None or args.right is not None:
+            raise ValueError("give --depth TOPIC or --left/--right TOPIC, not both")
+        if args.baseline is None:
+            raise ValueError(
+                "a depth bag needs --baseline M: a depth CameraInfo carries no stereo "
+                "baseline (D435 0.050, D455 0.095)"
+            )
+        from companion.viz.options import require_extra
+
+        require_extra("a ROS bag (--depth)", "rosbags", "rosbags")
+        source = SourceConfig(
+            kind,
+            folder=args.folder,
+            rate_hz=args.rate,
+            depth_topic=args.depth,
+            depth_info_topic=args.depth_info,
+            image_topic=args.image,
+            baseline_m=args.baseline,
+        )
+    else:
+        source = SourceConfig(
+            kind,
+            folder=args.bag,
+            size_px=args.size,
+            fps=args.fps,
+            rate_hz=args.rate,
+            baseline_m=args.baseline,
+            with_image=not args.no_image,
+        )
+    replay = kind is SourceKind.REPLAY or args.bag is not None
+    wait = args.wait_subscriber
+    if wait is None:
+        wait = math.inf if replay else 0.0
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
+    from protocols.keys import validate_vehicle_id
+
+    listen = default_listen(args.zenoh_listen, args.zenoh_connect, args.zenoh_config)
+    if args.zenoh_config is not None and not args.zenoh_config.is_file():
+        raise ValueError(f"--zenoh-config {args.zenoh_config} does not exist")
+    return CameraConfig(
+        source=source,
+        vehicle_id=validate_vehicle_id(args.vehicle_id),
+        zenoh=ZenohSettings(
+            listen=listen, connect=tuple(args.zenoh_connect), config_file=args.zenoh_config
+        ),
+        wait_subscriber_s=wait,
+        max_frames=args.max_frames,
+    )
+
+
 # --------------------------------------------------------------------------- running
 
 
@@ -371,6 +471,28 @@ def make_source(config: SourceConfig):
     if config.kind is SourceKind.SIDE_BY_SIDE:
         return sources.SideBySideCamera(
             config.devices[0], config.size_px, config.fps, config.fourcc
+        )
+    if config.kind is SourceKind.REALSENSE:
+        from companion.camera.realsense_source import RealSenseSource
+
+        return RealSenseSource(
+            config.folder,
+            size_px=config.size_px,
+            fps=config.fps,
+            baseline_m=config.baseline_m,
+            with_image=config.with_image,
+            rate_hz=config.rate_hz,
+        )
+    if config.depth_topic is not None:
+        from companion.camera.depth_sources import Ros2DepthBagReplay
+
+        return Ros2DepthBagReplay(
+            config.folder,
+            config.depth_topic,
+            config.baseline_m,
+            info_topic=config.depth_info_topic,
+            image_topic=config.image_topic,
+            rate_hz=config.rate_hz,
         )
     if config.left_topic is not None and config.right_topic is not None:
         from companion.camera.rosbag_source import Ros2BagReplay
@@ -405,7 +527,8 @@ def _geometry(config: CameraConfig, source, calibration):
     origin = "intrinsics"
     if intrinsics is None:
         intrinsics = getattr(source, "intrinsics", None)
-        origin = "manifest"
+        origin = "depth-camera" if config.source.kind is SourceKind.REALSENSE else "manifest"
+        origin = "depth-camera" if config.source.depth_topic is not None else origin
         if intrinsics is None:
             raise ValueError(
                 f"{source.description}: no intrinsics: give --calibration FILE (raw pairs) or "
@@ -445,6 +568,26 @@ class _Stats:
             "max_lag_ms": round(self.max_lag_ms, 3),
             "stopped_by": self.stopped_by,
         }
+
+
+def _frame(sequence: int, item, intrinsics, rectify):
+    """The wire frame of one source item: a (rectified) stereo pair, or a depth camera's
+    :class:`~companion.camera.depth_sources.RawDepth` as a depth frame."""
+    from companion.camera.depth_sources import RawDepth
+    from protocols.stereo_frame import DepthFrame, StereoFrame
+
+    if isinstance(item, RawDepth):
+        return DepthFrame(
+            sequence,
+            item.capture_ns,
+            intrinsics,
+            item.depth,
+            item.encoding,
+            item.depth_scale_m,
+            item.left,
+        )
+    left, right = (item.left, item.right) if rectify is None else rectify(item.left, item.right)
+    return StereoFrame(sequence, item.capture_ns, intrinsics, left, right)
 
 
 def _sleep(seconds: float, should_stop: Callable[[], bool]) -> bool:
@@ -504,7 +647,7 @@ class CameraService:
         self._geometry = _geometry(config, self._source, calibration)
         self._session = zenoh.open(zenoh_conf)
         # live: the newest frame matters; replay: deliver every recorded pair
-        live = config.source.kind is not SourceKind.REPLAY
+        live = config.source.kind is not SourceKind.REPLAY and config.source.folder is None
         self._publisher = FramePublisher(self._session, self.key, drop=live)
 
     def readiness_line(self) -> str:
@@ -530,10 +673,7 @@ class CameraService:
             delay_ns = pair.capture_ns - clock()
             if delay_ns > 0 and _sleep(delay_ns / 1e9, should_stop):
                 return
-            left, right = (
-                (pair.left, pair.right) if rectify is None else rectify(pair.left, pair.right)
-            )
-            if not self._publisher.publish(stats.frames, pair.capture_ns, intrinsics, left, right):
+            if not self._publisher.publish_frame(_frame(stats.frames, pair, intrinsics, rectify)):
                 stats.publish_errors += 1
             now = clock()
             lag_ms = (now - pair.capture_ns) / 1e6
