@@ -6,6 +6,7 @@ The contract conformance of the source runs in tests/test_depth_source.py with t
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -15,6 +16,7 @@ from companion.config import CompanionConfig, ConfigError, config_from_dict
 from companion.depth_camera import DepthCameraConfig, DepthCameraSource, depth_plane_m
 from companion.depth_source import DISP_SCALE
 from companion.perception import PerceptionConfig, StereoPerception
+from companion.record.format import config_to_dict
 from plant_sim.depth_camera import DepthNoiseParams, depth16_from_truth
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import Box, Sphere, World
@@ -175,6 +177,8 @@ def test_config_section_and_its_errors():
         config_from_dict({"perception": {"depth_camera": {"min_range": 0.5}}})
     with pytest.raises(ConfigError, match="min_range_m"):
         config_from_dict({"perception": {"depth_camera": {"min_range_m": -1.0}}})
+    recorded = json.loads(json.dumps(config_to_dict(cfg)))  # as a recording keeps it
+    assert config_from_dict(recorded).perception == cfg.perception
     with pytest.raises(ConfigError, match="free space it does not vouch for"):
         CompanionConfig(
             perception=PerceptionConfig(depth_camera=DepthCameraConfig(max_range_m=5.0))

@@ -225,6 +225,15 @@ class Ros2DepthBagReplay:
         except Exception as exc:  # rosbags raises its own error types on unreadable bags
             raise SourceError(f"cannot read ROS bag {self.bag}: {exc}") from None
         self._reader = reader
+        try:
+            self._check_and_start()
+        except SourceError:
+            self.close()  # the reader holds the bag's files open
+            raise
+
+    def _check_and_start(self) -> None:
+        """Check the topics, read the intrinsics and the first frame (after open)."""
+        reader = self._reader
         by_topic = {c.topic: c for c in reader.connections}
         wanted = {self.depth_topic: "sensor_msgs/msg/Image", self.info_topic: None}
         if self.image_topic is not None:
