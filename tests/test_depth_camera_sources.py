@@ -166,6 +166,7 @@ def _drives_the_companion(rig, camera, n_frames, rate_hz):
     assert first["obstacles"][0]["range_m"] == pytest.approx(3.0, abs=0.3)
     log = rig.companion.stderr_text()
     assert "bad camera frame" not in log and "unsupported pixel encoding" not in log
+    assert "DEPTH16 320x240 (depth camera, no matcher)" in log, log[-3000:]
 
 
 @pytest.mark.slow

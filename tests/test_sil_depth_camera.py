@@ -55,3 +55,4 @@ def test_sil_paper_scenario_with_depth_frames(tmp_path):
     assert stats["frames_processed"] > 300, stats
     log = Path(tmp_path / "run" / "companion.log").read_text()
     assert "bad camera frame" not in log and "unsupported pixel encoding" not in log
+    assert "DEPTH16 320x240 (depth camera, no matcher)" in log
