@@ -23,8 +23,10 @@ Pure: a function of the truth, the intrinsics and a seed (the frame's sequence).
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from protocols.camera import StereoIntrinsics
@@ -84,36 +86,77 @@ class DepthNoiseParams:
             )
 
 
-def _edges(depth_m: np.ndarray, rel_step: float) -> np.ndarray:
-    """Pixels with a 4-neighbour whose depth differs by more than ``rel_step`` of the nearer,
-    or where one of the two has a surface and the other none (inf/NaN)."""
-    z = np.where(np.isfinite(depth_m) & (depth_m > 0.0), depth_m, np.inf)
-    edge = np.zeros(z.shape, bool)
-    for axis in (0, 1):
-        a = z[:-1, :] if axis == 0 else z[:, :-1]
-        b = z[1:, :] if axis == 0 else z[:, 1:]
-        near = np.minimum(a, b)
-        far = np.maximum(a, b)
-        with np.errstate(invalid="ignore"):
-            step = np.isfinite(near) & ~(far - near <= rel_step * near)
-        if axis == 0:
-            edge[:-1, :] |= step
-            edge[1:, :] |= step
-        else:
-            edge[:, :-1] |= step
-            edge[:, 1:] |= step
-    return edge
+_SEED_MASK = 0x7FFFFFFFFFFFFFFF  # a seed numba takes as int64
 
 
-def _dilate(mask: np.ndarray, radius_px: int) -> np.ndarray:
-    """``mask`` grown by ``radius_px`` in the 8-neighbourhood (a square window)."""
-    out = mask.copy()
-    height, width = mask.shape
-    for dy in range(-radius_px, radius_px + 1):
-        for dx in range(-radius_px, radius_px + 1):
-            src = mask[max(0, -dy) : height - max(0, dy), max(0, -dx) : width - max(0, dx)]
-            out[max(0, dy) : height - max(0, -dy), max(0, dx) : width - max(0, -dx)] |= src
-    return out
+@numba.njit(cache=True)
+def _splitmix64(x):
+    """One step of SplitMix64 (Steele, Lea & Flood 2014): a well-mixed 64-bit hash."""
+    x = x + np.uint64(0x9E3779B97F4A7C15)  # uint64 arithmetic wraps modulo 2**64
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+@numba.njit(cache=True)
+def _normal(seed, index):
+    """A standard normal draw for pixel ``index`` of frame ``seed`` (Box-Muller on two
+    53-bit uniforms of the hash): deterministic, no generator state."""
+    h1 = _splitmix64(np.uint64(seed) * np.uint64(0x100000001B3) + np.uint64(2 * index))
+    h2 = _splitmix64(h1 ^ np.uint64(2 * index + 1))
+    u1 = (np.float64(h1 >> np.uint64(11)) + 1.0) / 9007199254740993.0  # (0, 1]
+    u2 = np.float64(h2 >> np.uint64(11)) / 9007199254740992.0  # [0, 1)
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+
+@numba.njit(cache=True)
+def _is_edge(a, b, rel_step):
+    """A depth edge between neighbours of depths ``a`` and ``b`` (inf: no surface)."""
+    near = min(a, b)
+    far = max(a, b)
+    return near < np.inf and not far - near <= rel_step * near
+
+
+@numba.njit(cache=True)
+def _depth16_kernel(z, fb, min_r, max_r, rel_step, hole_px, sigma_px, scale, seed, out):
+    """:func:`depth16_from_truth` in two passes: mark the depth edges, then measure every
+    pixel away from them (module docstring)."""
+    height, width = z.shape
+    surface = np.empty((height, width))
+    for y in range(height):
+        for x in range(width):
+            v = z[y, x]
+            surface[y, x] = v if v > 0.0 else np.inf  # NaN, <= 0: no surface
+    edge = np.zeros((height, width), np.uint8)
+    for y in range(height):
+        for x in range(width):
+            a = surface[y, x]
+            if x + 1 < width and _is_edge(a, surface[y, x + 1], rel_step):
+                edge[y, x] = 1
+                edge[y, x + 1] = 1
+            if y + 1 < height and _is_edge(a, surface[y + 1, x], rel_step):
+                edge[y, x] = 1
+                edge[y + 1, x] = 1
+    for y in range(height):
+        for x in range(width):
+            out[y, x] = 0
+            depth = surface[y, x]
+            if not (min_r <= depth <= max_r) or fb / depth > x:  # range; right imager's view
+                continue
+            hole = False
+            for yy in range(max(0, y - hole_px), min(height, y + hole_px + 1)):
+                for xx in range(max(0, x - hole_px), min(width, x + hole_px + 1)):
+                    hole = hole or edge[yy, xx] != 0
+            if hole:
+                continue
+            disparity = fb / depth
+            if sigma_px > 0.0:
+                disparity += sigma_px * _normal(seed, y * width + x)
+            if disparity <= 0.0:
+                continue
+            measured = fb / disparity
+            if min_r <= measured <= max_r:
+                out[y, x] = np.uint16(min(65535.0, np.rint(measured / scale)))
 
 
 def depth16_from_truth(
@@ -135,24 +178,21 @@ def depth16_from_truth(
     seed : int
         Noise seed (the frame's sequence): the same inputs give the same plane.
     """
-    z = np.asarray(depth_true_m, dtype=np.float64)
-    fb = intrinsics.focal_baseline_m_px
-    valid = np.isfinite(z) & (z >= params.min_range_m) & (z <= params.max_range_m)
-    disparity_px = np.where(valid, fb / np.where(valid, z, 1.0), 0.0)
-    columns = np.arange(z.shape[1])[None, :]
-    valid &= disparity_px <= columns  # the right imager sees the surface
-    if params.subpixel_rms_px > 0.0:
-        rng = np.random.default_rng(seed)
-        disparity_px = disparity_px + params.subpixel_rms_px * rng.standard_normal(z.shape)
-        valid &= disparity_px > 0.0
-    holes = _edges(z, params.edge_rel_step)
-    if params.edge_hole_px > 0:
-        holes = _dilate(holes, params.edge_hole_px)
-    valid &= ~holes
-    measured_m = np.where(valid, fb / np.where(valid, disparity_px, 1.0), 0.0)
-    valid &= (measured_m >= params.min_range_m) & (measured_m <= params.max_range_m)
-    units = np.rint(np.where(valid, measured_m, 0.0) / params.depth_scale_m)
-    return np.clip(units, 0, 65535).astype(np.uint16)
+    z = np.ascontiguousarray(depth_true_m, dtype=np.float64)
+    out = np.empty(z.shape, np.uint16)
+    _depth16_kernel(
+        z,
+        float(intrinsics.focal_baseline_m_px),
+        float(params.min_range_m),
+        float(params.max_range_m),
+        float(params.edge_rel_step),
+        int(params.edge_hole_px),
+        float(params.subpixel_rms_px),
+        float(params.depth_scale_m),
+        int(seed) & _SEED_MASK,
+        out,
+    )
+    return out
 
 
 class CameraEncoding(enum.Enum):
