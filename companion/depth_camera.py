@@ -34,6 +34,7 @@ Pure: no clock, no I/O; one numba pass over the pixels.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -151,6 +152,7 @@ class DepthCameraSource:
 
     def __init__(self, config: DepthCameraConfig | None = None) -> None:
         self.config = config if config is not None else DepthCameraConfig()
+        _warm_up()
 
     def compute(self, frame: DepthFrame) -> DepthMap:
         """The contract's depth map of one depth frame."""
@@ -190,6 +192,25 @@ class DepthCameraSource:
             n_beyond_range=int(depth.size - n_valid - n_unmatched),
         )
         return DepthMap(disp, depth, counts, int(band))
+
+
+@functools.cache
+def _warm_up() -> None:
+    """Run :meth:`DepthCameraSource.compute` once per process on tiny frames of both
+    encodings, with writeable planes (lockstep) and read-only ones (decoded from the wire):
+    compiles the kernel, or loads it from numba's cache, before the first real frame."""
+    k = StereoIntrinsics(2, 2, 1.0, 1.0, 1.0, 1.0, 1.0)
+    source = DepthCameraSource.__new__(DepthCameraSource)
+    source.config = DepthCameraConfig()
+    for plane, encoding in (
+        (np.full((2, 2), 1000, np.uint16), PixelEncoding.DEPTH16),
+        (np.ones((2, 2), np.float32), PixelEncoding.DEPTH32F),
+    ):
+        scale = 0.001 if encoding is PixelEncoding.DEPTH16 else 1.0
+        for writeable in (True, False):
+            plane = plane.copy()
+            plane.flags.writeable = writeable
+            source.compute(DepthFrame(0, 0, k, plane, encoding, scale))
 
 
 @numba.njit(cache=True)

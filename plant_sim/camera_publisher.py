@@ -58,8 +58,19 @@ class StereoPublisher:
         self._publisher = FramePublisher(self._session, self.key, drop=True)
 
     def warm_up(self) -> None:
-        """Render one frame so the JIT compiles before the first deadline."""
-        self._renderer.render(self.world, np.zeros(3), np.eye(3), noise_seed=0)
+        """Render one frame (and make its depth frame, for a depth camera) so the JIT
+        compiles before the first deadline."""
+        render = self._renderer.render(self.world, np.zeros(3), np.eye(3), noise_seed=0)
+        if self.camera.encoding is not CameraEncoding.MONO8:
+            depth_frame(
+                0,
+                0,
+                self._intrinsics,
+                render.depth_left_m,
+                render.left,
+                self.camera.depth,
+                self.camera.encoding,
+            )
 
     def publish(self, capture_time_s: float, pos_ned_m, R_ned_from_frd) -> None:
         """Render the view from the pose at ``capture_time_s`` and publish it (a pair, or a
