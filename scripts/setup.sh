@@ -36,7 +36,7 @@ if ! command -v chromium >/dev/null 2>&1 && ! command -v chromium-browser >/dev/
 fi
 # pyrealsense2 (the [realsense] extra) loads libusb-1.0: Debian's libusb-1.0-0, when missing
 # and apt is usable as root (tests/test_depth_camera_sources.py plays back a recording).
-if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+if ! ldconfig -p 2>/dev/null | grep 'libusb-1.0.so.0' >/dev/null; then
     if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" -eq 0 ]; then
         echo "setup: installing libusb-1.0-0 (apt) for pyrealsense2" >&2
         apt-get update -qq
