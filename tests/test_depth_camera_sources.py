@@ -267,3 +267,28 @@ def test_realsense_recording_drives_the_companion(tmp_path):
              "--vehicle-id", VEHICLE_ID],
         )  # fmt: skip
         _drives_the_companion(rig, camera, n, rate_hz)
+
+
+def test_live_device_time_is_mapped_by_the_smallest_offset():
+    """Live: capture = device time + min(arrival - device time) over the window: never
+    later than the arrival, exact once a frame came with the minimum transport delay, and
+    following a drifting device clock (no device needed: the mapping alone)."""
+    from companion.camera.realsense_source import _OFFSET_WINDOW, RealSenseSource
+
+    source = RealSenseSource()
+    rng = np.random.default_rng(5)
+    clock_offset_ns = 5_000_000_000  # host monotonic = device time + 5 s
+    min_delay_ns = 2_000_000
+    errors = []
+    for i in range(3 * _OFFSET_WINDOW):
+        device_ns = i * 33_333_333
+        drift_ns = i * 1_000  # the device clock runs 30 ppm slow
+        truth_ns = device_ns + clock_offset_ns + drift_ns
+        arrival_ns = truth_ns + min_delay_ns + int(rng.exponential(3_000_000))
+        capture_ns = source._capture_ns(device_ns, arrival_ns)
+        assert capture_ns <= arrival_ns
+        errors.append(capture_ns - truth_ns)
+    late = np.array(errors[_OFFSET_WINDOW:])
+    # after one window: within the minimum delay plus the drift over one window
+    assert np.all(late >= min_delay_ns - _OFFSET_WINDOW * 1_000), late.min()
+    assert np.all(late <= min_delay_ns + 200_000), late.max()
