@@ -256,6 +256,12 @@ def _parser() -> argparse.ArgumentParser:
     paper = sub.add_parser("paper", help="fly the paper's §6 scenario in lockstep")
     paper.add_argument("--out", type=Path, default=Path("runs/paper"), help="output folder")
     paper.add_argument("--json", action="store_true", help="print the verdict as JSON")
+    paper.add_argument(
+        "--perception",
+        choices=_PERCEPTIONS,
+        default="stereo",
+        help="stereo matcher (default), ground truth, or a RealSense-like depth camera",
+    )
     _add_montecarlo(sub.add_parser("montecarlo", help="random scenes on a Dask cluster"))
     replay = sub.add_parser(
         "replay", help="fly one Monte Carlo scene again by its seed, or replay FILE.mcap"
@@ -372,7 +378,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``stereo-avoid`` console script."""
     args = _parser().parse_args(argv)
     if args.command == "paper":
-        return _fly_and_report(paper_scene(), args.out, args.json, rerun=args.rerun)
+        cfg = run_config(args.perception)
+        return _fly_and_report(paper_scene(), args.out, args.json, cfg, rerun=args.rerun)
     if args.command == "sil":
         from plant_sim.lockstep.sil_report import fly_sil_and_report, fly_sitl_and_report
 
