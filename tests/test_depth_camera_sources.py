@@ -234,7 +234,7 @@ def write_realsense_recording(path, n=60, rate_hz=10.0):
 def test_realsense_recording_is_read_back_by_pyrealsense2(tmp_path):
     from companion.camera.realsense_source import RealSenseSource
 
-    path = tmp_path / "rec.db3"  # librealsense >= 2.56 records ROS 2 (sqlite3) bags
+    path = tmp_path / "rec.db3"  # pyrealsense2 2.59 records ROS 2 (sqlite3) bags
     write_realsense_recording(path, n=5)
     now = iter(range(10**9, 10**10, 10**6))
     source = RealSenseSource(path, clock=lambda: next(now))

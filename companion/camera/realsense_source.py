@@ -7,8 +7,8 @@ the depth stream's intrinsics and the depth sensor's depth scale from the device
 baseline from the infrared 1 → infrared 2 extrinsics, else the depth sensor's
 ``stereo_baseline`` option [mm], else ``--baseline``.
 
-Time: a recording (``--bag FILE``: whatever pyrealsense2's playback opens — ROS 1 ``.bag``
-from older SDKs, ROS 2 ``.db3`` from librealsense 2.56 on) is read as fast as it is
+Time: a recording (``--bag FILE``: whatever pyrealsense2's playback opens; version 2.59
+records ROS 2 ``.db3``, older SDKs wrote ROS 1 ``.bag``) is read as fast as it is
 consumed and its frame timestamps are mapped like a replay's (the first lands on the
 host's monotonic clock at the first read). A live device's timestamps (hardware clock or
 global time, in ms) are mapped onto the host's monotonic clock by the smallest
