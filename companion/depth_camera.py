@@ -156,42 +156,46 @@ class DepthCameraSource:
 
     def compute(self, frame: DepthFrame) -> DepthMap:
         """The contract's depth map of one depth frame."""
-        encoding = PixelEncoding(frame.encoding)
-        if not encoding.is_depth or not isinstance(frame, DepthFrame):
-            raise ValueError(f"unsupported pixel encoding {encoding!r}: not a depth frame")
-        cfg = self.config
-        k = frame.intrinsics
-        fb = k.focal_baseline_m_px
-        range_m = cfg.range_m(k)
-        d_far = max(1, math.ceil(DISP_SCALE * fb / range_m))
-        band = cfg.blind_band_px(k)
-        depth = np.empty(frame.depth.shape, np.float32)
-        disp = np.empty(frame.depth.shape, np.int16)
-        height, width = depth.shape
-        blocks = np.zeros(((height + 1) // 2, (width + 1) // 2), np.uint8)
-        scale = frame.depth_scale_m if encoding is PixelEncoding.DEPTH16 else 1.0
-        n_valid, n_unmatched, n_far = _depth_kernel(
-            frame.depth,
-            float(scale),
-            float(DISP_SCALE * fb),
-            float(cfg.min_range_m),
-            float(range_m),
-            int(d_far),
-            float(_TRUST_SIGMAS * cfg.subpixel_rms_px / fb),
-            int(band),
-            depth,
-            disp,
-            blocks,
-        )
-        min_area = math.ceil(cfg.min_far_fraction * depth.size)
-        n_unmatched += drop_small_far_blocks(depth, blocks, n_far, min_area)
-        depth.flags.writeable = False
-        counts = ValidityCounts(
-            n_valid=int(n_valid),
-            n_unmatched=int(n_unmatched),
-            n_beyond_range=int(depth.size - n_valid - n_unmatched),
-        )
-        return DepthMap(disp, depth, counts, int(band))
+        return _depth_map(frame, self.config)
+
+
+def _depth_map(frame: DepthFrame, cfg: DepthCameraConfig) -> DepthMap:
+    """:meth:`DepthCameraSource.compute` (module docstring)."""
+    encoding = PixelEncoding(frame.encoding)
+    if not encoding.is_depth or not isinstance(frame, DepthFrame):
+        raise ValueError(f"unsupported pixel encoding {encoding!r}: not a depth frame")
+    k = frame.intrinsics
+    fb = k.focal_baseline_m_px
+    range_m = cfg.range_m(k)
+    d_far = max(1, math.ceil(DISP_SCALE * fb / range_m))
+    band = cfg.blind_band_px(k)
+    depth = np.empty(frame.depth.shape, np.float32)
+    disp = np.empty(frame.depth.shape, np.int16)
+    height, width = depth.shape
+    blocks = np.zeros(((height + 1) // 2, (width + 1) // 2), np.uint8)
+    scale = frame.depth_scale_m if encoding is PixelEncoding.DEPTH16 else 1.0
+    n_valid, n_unmatched, n_far = _depth_kernel(
+        frame.depth,
+        float(scale),
+        float(DISP_SCALE * fb),
+        float(cfg.min_range_m),
+        float(range_m),
+        int(d_far),
+        float(_TRUST_SIGMAS * cfg.subpixel_rms_px / fb),
+        int(band),
+        depth,
+        disp,
+        blocks,
+    )
+    min_area = math.ceil(cfg.min_far_fraction * depth.size)
+    n_unmatched += drop_small_far_blocks(depth, blocks, n_far, min_area)
+    depth.flags.writeable = False
+    counts = ValidityCounts(
+        n_valid=int(n_valid),
+        n_unmatched=int(n_unmatched),
+        n_beyond_range=int(depth.size - n_valid - n_unmatched),
+    )
+    return DepthMap(disp, depth, counts, int(band))
 
 
 @functools.cache
@@ -200,8 +204,6 @@ def _warm_up() -> None:
     encodings, with writeable planes (lockstep) and read-only ones (decoded from the wire):
     compiles the kernel, or loads it from numba's cache, before the first real frame."""
     k = StereoIntrinsics(2, 2, 1.0, 1.0, 1.0, 1.0, 1.0)
-    source = DepthCameraSource.__new__(DepthCameraSource)
-    source.config = DepthCameraConfig()
     for plane, encoding in (
         (np.full((2, 2), 1000, np.uint16), PixelEncoding.DEPTH16),
         (np.ones((2, 2), np.float32), PixelEncoding.DEPTH32F),
@@ -210,7 +212,7 @@ def _warm_up() -> None:
         for writeable in (True, False):
             plane = plane.copy()
             plane.flags.writeable = writeable
-            source.compute(DepthFrame(0, 0, k, plane, encoding, scale))
+            _depth_map(DepthFrame(0, 0, k, plane, encoding, scale), DepthCameraConfig())
 
 
 @numba.njit(cache=True)
