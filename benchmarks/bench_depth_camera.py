@@ -9,7 +9,8 @@ the stereo pair as plant-sim's camera renders it, the depth frame as plant-sim's
 RealSense-like depth camera makes it from the same view (DEPTH16 with its noise, the left
 picture beside it). CPU is the thread's CPU time (``time.thread_time_ns``), so other load
 on the machine inflates it less than wall time; the median and 90th percentile per frame
-are printed, and the ratio depth / stereo of the medians.
+are printed, and the ratio depth / stereo of the medians; and what plant-sim's depth
+camera model (noise, holes, DEPTH16) costs per frame on top of the render.
 
 Usage: ``.venv/bin/python benchmarks/bench_depth_camera.py [--frames 60] [--json]``
 """
@@ -61,6 +62,21 @@ def _payloads(width: int, height: int, n: int) -> tuple[list, list, list]:
     return stereo, depth, poses
 
 
+def _noise_model_ms(width: int, height: int, n: int = 20) -> float:
+    """Median thread CPU [ms] of plant-sim's depth camera model (noise, holes, DEPTH16)
+    on one rendered view: what a depth frame adds to plant-sim's camera per frame."""
+    model = CameraModel(width_px=width, height_px=height)
+    out = StereoCameraRenderer(model).render(
+        paper_world(), np.array([14.0, 0.0, -7.0]), rotation_321(0.0, 0.0, YAW)
+    )
+    times = []
+    for i in range(n + 1):
+        t0 = time.thread_time_ns()
+        depth_frame(i, 0, model.intrinsics, out.depth_left_m, out.left, DepthNoiseParams())
+        times.append((time.thread_time_ns() - t0) / 1e6)
+    return float(np.median(times[1:]))
+
+
 def _cpu_per_frame_ms(payloads: list, poses: list, warmup: int = 3) -> np.ndarray:
     """Thread CPU time [ms] of decode + pipeline per frame (after ``warmup`` frames)."""
     pipeline = AvoidancePipeline(
@@ -93,13 +109,15 @@ def main() -> int:
             row[f"{name}_p50_ms"] = round(float(np.median(ms)), 2)
             row[f"{name}_p90_ms"] = round(float(np.percentile(ms, 90)), 2)
         row["depth_over_stereo"] = round(row["depth16_p50_ms"] / row["stereo_p50_ms"], 3)
+        row["plant_noise_model_ms"] = round(_noise_model_ms(width, height), 2)
         rows.append(row)
         if not args.json:
             print(
                 f"{row['size']}: stereo pair {row['stereo_p50_ms']} ms (p90 "
                 f"{row['stereo_p90_ms']}), depth frame {row['depth16_p50_ms']} ms (p90 "
                 f"{row['depth16_p90_ms']}) per frame of companion CPU; depth / stereo = "
-                f"{row['depth_over_stereo']}"
+                f"{row['depth_over_stereo']}; plant-sim's depth camera model "
+                f"{row['plant_noise_model_ms']} ms per frame"
             )
     if args.json:
         print(json.dumps(rows))
