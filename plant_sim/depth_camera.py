@@ -6,8 +6,10 @@ eye's exact ray-cast depth (:meth:`StereoCameraRenderer.render_depth
 
 * **z²-proportional error.** An active stereo camera's error is a disparity error of about
   ``subpixel_rms_px`` (Intel quotes 0.08 px for D4xx), so the measured depth is
-  ``f·b / (f·b / z + subpixel_rms_px · n)`` with ``n`` standard normal per pixel, an RMS
-  depth error of ``z² · subpixel_rms_px / (f·b)`` to first order (Intel, "Tuning depth
+  ``f·b / (f·b / z + subpixel_rms_px · n)`` with ``n`` a unit-variance, near-normal draw
+  per pixel (independent between pixels and frames; Irwin-Hall of four uniforms, so no
+  error beyond 3.46 sigma), an RMS depth error of ``z² · subpixel_rms_px / (f·b)`` to
+  first order (Intel, "Tuning depth
   cameras for best performance"; the formula ``companion.depth_camera`` assumes).
 * **Holes at depth edges.** Where neighbouring depths differ by more than ``edge_rel_step``
   (or one of them has no surface) the matcher's window straddles two surfaces; the camera
