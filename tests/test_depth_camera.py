@@ -183,3 +183,29 @@ def test_config_section_and_its_errors():
         CompanionConfig(
             perception=PerceptionConfig(depth_camera=DepthCameraConfig(max_range_m=5.0))
         )
+
+
+def test_any_camera_and_any_depth_keep_the_contract():
+    """Random intrinsics (f from 5 to 5000 px, baselines from 1 cm to 1 m), sizes, depth
+    scales and depths, DEPTH16 and DEPTH32F: the contract's invariants hold, nothing
+    raises (a hostile or odd camera is a bad map at worst, never a crash)."""
+    from test_depth_source import check_contract
+
+    rng = np.random.default_rng(35)
+    source = DepthCameraSource()
+    for i in range(60):
+        w, h = int(rng.integers(1, 90)), int(rng.integers(1, 70))
+        f = float(10 ** rng.uniform(0.7, 3.7))
+        k = CameraModel(width_px=w, height_px=h).intrinsics
+        k = type(k)(w, h, f, f, w / 2, h / 2, float(10 ** rng.uniform(-2, 0)))
+        if i % 2:
+            scale = float(10 ** rng.uniform(-6, -1))
+            plane = rng.integers(0, 65536, (h, w), dtype=np.uint16)
+            frame = DepthFrame(i, i, k, plane, PixelEncoding.DEPTH16, scale)
+        else:
+            plane = (10 ** rng.uniform(-3, 3, (h, w))).astype(np.float32)
+            plane[rng.random((h, w)) < 0.2] = np.nan
+            frame = DepthFrame(i, i, k, plane, PixelEncoding.DEPTH32F, 1.0)
+        dm = source.compute(decode(encode(frame)))
+        check_contract(frame, dm, source.config.range_m(k))
+        assert dm.blind_band_px == min(w, math.ceil(k.focal_baseline_m_px / 0.3))
