@@ -37,6 +37,7 @@ optional, and an unknown key anywhere is an error that names it (``link.rate`` â
     frame_time_window_s = 2.0            # capture time this far from the clock: refused
 
     [perception]                         # companion.perception.PerceptionConfig fields
+    [perception.depth_camera]            # companion.depth_camera.DepthCameraConfig fields
     [guidance]                           # companion.guidance.GuidanceConfig fields
     [known_space]                        # companion.known_space.KnownSpaceConfig fields
     [envelope]                           # companion.guidance.envelope.EnvelopeConfig fields
@@ -207,6 +208,13 @@ class CompanionConfig:
             raise ConfigError("at least one waypoint (goal_ned_m) is needed")
         if not self.goal_tolerance_m > 0:
             raise ConfigError("goal_tolerance_m must be > 0")
+        depth_range_m = self.perception.depth_camera.max_range_m
+        if depth_range_m < self.known_space.max_range_m:
+            raise ConfigError(
+                f"perception.depth_camera.max_range_m {depth_range_m} is below "
+                f"known_space.max_range_m {self.known_space.max_range_m}: a depth camera's far "
+                "return would free space it does not vouch for"
+            )
 
 
 # ---- dict â†’ config -------------------------------------------------------------------

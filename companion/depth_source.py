@@ -23,7 +23,10 @@ Out, a :class:`DepthMap` whose arrays have the frame's shape:
     float32, read-only, depth along the left optical axis [m]:
 
     * ``16·f·b / disparity_fixed`` (Eq. 27) exactly where ``disparity_fixed >= d_far``
-      (``d_far = ceil(16·f·b / max_range_m)``), and finite nowhere else;
+      (``d_far = ceil(16·f·b / max_range_m)``), and finite nowhere else — for a depth
+      camera (a :class:`~protocols.stereo_frame.DepthFrame`: the camera measured the depth)
+      the other way round: ``depth_m`` is the camera's depth and ``disparity_fixed`` its
+      equivalent at the frame's baseline, ``round(16·f·b / depth_m)``;
     * ``+inf`` only where ``0 <= disparity_fixed < d_far`` and the source trusts the match
       as "nothing nearer than ``max_range_m`` along this ray" (known free space), never in
       the first ``blind_band_px`` columns;
@@ -43,8 +46,10 @@ A source is a pure function of the frame (no clock, no I/O; the same frame gives
 map) and may hold reusable state such as OpenCV matcher objects.
 
 Implementations: :class:`companion.stereo_bm.PaddedStereoBM` (the default: padded
-StereoBM, gates, a quarter-resolution near pass) and :class:`companion.bare_bm.BareStereoBM`
-(OpenCV StereoBM as it comes; the benchmarks' baseline).
+StereoBM, gates, a quarter-resolution near pass), :class:`companion.bare_bm.BareStereoBM`
+(OpenCV StereoBM as it comes; the benchmarks' baseline) and, for depth frames (no
+matcher), :class:`companion.depth_camera.DepthCameraSource`; the frame's pixel encoding
+picks between the matcher and the depth camera (:class:`companion.perception.StereoPerception`).
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Stereo frames from Zenoh into a latest-value slot (never a growing queue).
+"""Camera frames (stereo pairs or depth frames) from Zenoh into a latest-value slot (never a
+growing queue).
 
 The Zenoh callback decodes each payload (:func:`protocols.stereo_frame.decode` validates
 every header field and the byte count) and puts the frame in a :class:`LatestFrameSlot`,
@@ -23,7 +24,7 @@ from dataclasses import dataclass
 import zenoh
 
 from protocols.keys import ALL_STEREO_KEYS, vehicle_of_stereo_key
-from protocols.stereo_frame import FrameDecodeError, StereoFrame, decode
+from protocols.stereo_frame import Frame, FrameDecodeError, decode
 
 __all__ = ["FrameCounters", "FrameSubscriber", "LatestFrameSlot", "PublisherProbe"]
 
@@ -48,7 +49,7 @@ class LatestFrameSlot:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._frame: StereoFrame | None = None
+        self._frame: Frame | None = None
         self._rfd, self._wfd = os.pipe()
         os.set_blocking(self._rfd, False)
         os.set_blocking(self._wfd, False)
@@ -58,7 +59,7 @@ class LatestFrameSlot:
     def fileno(self) -> int:
         return self._rfd
 
-    def put(self, frame: StereoFrame) -> None:
+    def put(self, frame: Frame) -> None:
         with self._lock:
             if self._frame is not None:
                 self.counters.superseded += 1
@@ -68,7 +69,7 @@ class LatestFrameSlot:
                 with contextlib.suppress(BlockingIOError):
                     os.write(self._wfd, b"\x01")
 
-    def take(self) -> StereoFrame | None:
+    def take(self) -> Frame | None:
         with self._lock:
             frame, self._frame = self._frame, None
             if self._signalled:
@@ -111,6 +112,7 @@ class FrameSubscriber:
         self._last_log_s = -float("inf")
         self._unlogged = 0
         self._count_lock = threading.Lock()
+        self._kind: tuple | None = None  # (encoding, width, height) of the last frame
 
     def open(self) -> None:
         self._sub = self._session.declare_subscriber(self.key, self._on_sample)
@@ -136,6 +138,7 @@ class FrameSubscriber:
             return
         with self._count_lock:
             c.decoded += 1
+        self._note_kind(frame)
         verdict = True if self._accept is None else self._accept(frame.capture_ns)
         if verdict is None:
             with self._count_lock:
@@ -149,6 +152,17 @@ class FrameSubscriber:
             )
             return
         self.slot.put(frame)
+
+    def _note_kind(self, frame) -> None:
+        """Log what the camera sends when it starts or changes: the encoding picks the
+        depth source (a depth camera's frames run no matcher)."""
+        k = frame.intrinsics
+        kind = (frame.encoding, k.width_px, k.height_px)
+        if kind == self._kind:
+            return
+        self._kind = kind
+        what = "depth camera, no matcher" if frame.encoding.is_depth else "stereo pair, matcher"
+        _log.info("frames on %s: %s %dx%d (%s)", self.key, frame.encoding.name, *kind[1:], what)
 
     def _malformed(self, reason: str, *, count: bool = True) -> None:
         with self._count_lock:

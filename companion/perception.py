@@ -57,12 +57,13 @@ import cv2
 import numba
 import numpy as np
 
+from companion.depth_camera import DepthCameraConfig, DepthCameraSource
 from companion.depth_source import DISP_SCALE as _DISP_SCALE
 from companion.depth_source import DepthMap, DepthSource, ValidityCounts
 from companion.stereo_bm import PaddedStereoBM
 from protocols.camera import StereoIntrinsics, points_ned_from_cam
 from protocols.config import check_numbers
-from protocols.stereo_frame import StereoFrame
+from protocols.stereo_frame import Frame, PixelEncoding
 
 __all__ = [
     "DepthMap",
@@ -202,6 +203,10 @@ class PerceptionConfig:
     max_points : int
         Interior samples per obstacle for the boundary fit (its outer contour is always used
         whole), which bounds the per-obstacle cost.
+    depth_camera : DepthCameraConfig
+        Range and noise of a depth camera (``[perception.depth_camera]``), used for frames
+        that carry the camera's own depth (:mod:`companion.depth_camera`); the matcher
+        settings above are then unused.
     """
 
     threshold_m: float = 4.0
@@ -228,9 +233,14 @@ class PerceptionConfig:
     max_points: int = 1500
     cap_depth_m: float = 0.1
     min_far_fraction: float = 0.01
+    depth_camera: DepthCameraConfig = dataclasses.field(default_factory=DepthCameraConfig)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "matcher", Matcher(self.matcher))
+        if not isinstance(self.depth_camera, DepthCameraConfig):
+            raise TypeError(
+                f"depth_camera must be a DepthCameraConfig, got {type(self.depth_camera).__name__}"
+            )
         positive = ("threshold_m", "min_range_m", "min_blob_fraction", "continuity_rel")
         check_numbers(self, positive, positive=True)
         check_numbers(
@@ -299,6 +309,12 @@ class PerceptionConfig:
             raise TypeError(
                 f"unknown perception config key(s) {unknown}; valid keys: {sorted(names)}"
             )
+        values = dict(values)
+        depth_camera = values.get("depth_camera")
+        if depth_camera is not None and not isinstance(depth_camera, DepthCameraConfig):
+            if not isinstance(depth_camera, dict):
+                raise TypeError(f"depth_camera must be a table, got {depth_camera!r}")
+            values["depth_camera"] = DepthCameraConfig.from_dict(depth_camera)
         return cls(**values)
 
 
@@ -586,10 +602,12 @@ def _warm_up() -> None:
 
 
 class StereoPerception:
-    """Stereo frames → obstacles with safety boundaries in NED.
+    """Stereo or depth-camera frames → obstacles with safety boundaries in NED.
 
     Stateless apart from its depth source's reusable matchers: :meth:`process` is a
-    function of its arguments (no clock, no I/O).
+    function of its arguments (no clock, no I/O). The frame's pixel encoding picks the depth
+    source: a stereo pair (MONO8) goes to the matcher ``source``, a depth frame (DEPTH16,
+    DEPTH32F) to ``depth_camera`` (:class:`~companion.depth_camera.DepthCameraSource`).
 
     Parameters
     ----------
@@ -607,18 +625,20 @@ class StereoPerception:
             raise TypeError(
                 f"source must have compute(frame) -> DepthMap, got {type(self.source).__name__}"
             )
+        self.depth_camera = DepthCameraSource(self.config.depth_camera)
         self._kernel = cv2.getStructuringElement(
             cv2.MORPH_RECT, (self.config.opening_px, self.config.opening_px)
         )
         _warm_up()
 
-    def process(self, frame: StereoFrame, pos_ned_m, R_ned_from_frd) -> PerceptionResult:
+    def process(self, frame: Frame, pos_ned_m, R_ned_from_frd) -> PerceptionResult:
         """Detect obstacles in ``frame`` and place their safety spheres in NED.
 
         Parameters
         ----------
-        frame : StereoFrame
-            Decoded rectified pair with its intrinsics and capture time.
+        frame : StereoFrame or DepthFrame
+            Decoded rectified pair, or a depth camera's depth, with its intrinsics and
+            capture time.
         pos_ned_m : array_like, shape (3,)
             Vehicle position in LOCAL_NED at ``frame.capture_ns`` [m].
         R_ned_from_frd : array_like, shape (3, 3)
@@ -629,7 +649,8 @@ class StereoPerception:
         PerceptionResult
         """
         k = frame.intrinsics
-        depth_map = self.source.compute(frame)
+        is_depth = PixelEncoding(frame.encoding).is_depth
+        depth_map = (self.depth_camera if is_depth else self.source).compute(frame)
         disp, depth_m = depth_map.disparity_fixed, depth_map.depth_m
         unknown_fraction = float(np.count_nonzero(np.isnan(depth_m))) / disp.size
         obstacles: tuple[Obstacle, ...] = ()

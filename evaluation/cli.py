@@ -9,7 +9,7 @@ Subcommands
     A plant-sim scenario file (``.toml``/``.json``: start, heading, goal, obstacles,
     airframe, camera) flown in lockstep like ``paper``
     (:mod:`evaluation.scene_files`); ``docker/config/scenario.toml`` is the paper's.
-``stereo-avoid montecarlo --n N [--seed S] [--family F] [--perception stereo|truth]
+``stereo-avoid montecarlo --n N [--seed S] [--family F] [--perception stereo|truth|depth]
 [--cluster ADDRESS | --jobs J] [--out DIR] [--resume [--allow-code-change]] [--json]``
     N random scenes (seeds S … S+N−1) as tasks on a Dask cluster: the scheduler at
     ADDRESS (``tcp://host:8786``), or a local cluster of J worker processes. Verdicts
@@ -264,7 +264,7 @@ def _replay(args: argparse.Namespace) -> int:
 
 
 _FAMILIES = ["mixed", *FAMILIES]
-_PERCEPTIONS = ["stereo", "truth"]
+_PERCEPTIONS = ["stereo", "truth", "depth"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -275,6 +275,12 @@ def _parser() -> argparse.ArgumentParser:
     paper = sub.add_parser("paper", help="fly the paper's §6 scenario in lockstep")
     paper.add_argument("--out", type=Path, default=Path("runs/paper"), help="output folder")
     paper.add_argument("--json", action="store_true", help="print the verdict as JSON")
+    paper.add_argument(
+        "--perception",
+        choices=_PERCEPTIONS,
+        default="stereo",
+        help="stereo matcher (default), ground truth, or a RealSense-like depth camera",
+    )
     fly = sub.add_parser("fly", help="fly a plant-sim scenario file in lockstep")
     fly.add_argument(
         "--scenario", type=Path, required=True, help="plant-sim scenario (.toml or .json)"
@@ -356,7 +362,8 @@ def _add_montecarlo(mc: argparse.ArgumentParser) -> None:
         "--perception",
         choices=_PERCEPTIONS,
         default="stereo",
-        help="stereo matcher (default) or ground truth (the renderer's exact depth)",
+        help="stereo matcher (default), ground truth (the renderer's exact depth) or a "
+        "RealSense-like depth camera (depth16 frames with its noise; no matcher)",
     )
     mc.add_argument(
         "--max-time-s",
@@ -401,7 +408,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     args = _parser().parse_args(argv)
     if args.command == "paper":
-        return _fly_and_report(paper_scene(), args.out, args.json, rerun=args.rerun)
+        cfg = run_config(args.perception)
+        return _fly_and_report(paper_scene(), args.out, args.json, cfg, rerun=args.rerun)
     if args.command == "fly":
         return _fly_scenario(args)
     if args.command == "sil":

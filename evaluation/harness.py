@@ -29,6 +29,7 @@ from companion.pipeline import PoseAtCapture
 from evaluation.history import History
 from evaluation.scenes import Scene
 from evaluation.truth_perception import TruthPerception
+from plant_sim.depth_camera import CameraEncoding, DepthNoiseParams, depth_frame
 from plant_sim.disturbance import Disturbances
 from plant_sim.params import ControlParams, QuadrotorParams
 from plant_sim.stereo_camera import RenderParams, StereoCameraRenderer
@@ -36,7 +37,7 @@ from plant_sim.vehicle import Quadrotor, Setpoint, VehicleState
 from plant_sim.world import World
 from protocols.camera import CameraModel
 from protocols.config import check_numbers
-from protocols.stereo_frame import StereoFrame
+from protocols.stereo_frame import DepthFrame, StereoFrame
 
 __all__ = [
     "HOLD_REST_S",
@@ -80,6 +81,10 @@ class RunConfig:
     # Ground-truth perception: the renderer's exact depth instead of the stereo matcher
     # (evaluation.truth_perception); guidance, envelope and known space unchanged.
     truth_perception: bool = False
+    # A RealSense-like depth camera instead of the stereo pair (issue 35): depth frames
+    # (plant_sim.depth_camera) with these errors; the companion runs no matcher.
+    camera_encoding: CameraEncoding = CameraEncoding.MONO8
+    depth_noise: DepthNoiseParams = field(default_factory=DepthNoiseParams)
 
     def __post_init__(self) -> None:
         check_numbers(self, ("camera_rate_hz", "max_time_s", "goal_tolerance_m"), positive=True)
@@ -285,6 +290,24 @@ def _camera(
     perception blank images whose true depth the mission's perception is handed."""
     renderer = StereoCameraRenderer(cfg.camera, cfg.render)
     intrinsics = cfg.camera.intrinsics
+    if cfg.camera_encoding is not CameraEncoding.MONO8 and not cfg.truth_perception:
+
+        def depth_camera(state: VehicleState, seq: int) -> DepthFrame:
+            render = renderer.render(
+                scene.world, state.pos_ned_m, state.R_ned_from_frd, noise_seed=seq
+            )
+            capture_ns = round(state.time_s * 1e9)
+            return depth_frame(
+                seq,
+                capture_ns,
+                intrinsics,
+                render.depth_left_m,
+                render.left,
+                cfg.depth_noise,
+                cfg.camera_encoding,
+            )
+
+        return depth_camera
     if not cfg.truth_perception:
         return lambda state, seq: _render_frame(
             renderer, scene.world, state, state.R_ned_from_frd, seq, intrinsics

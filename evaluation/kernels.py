@@ -21,9 +21,11 @@ __all__ = ["compile_kernels"]
 
 
 def _renderer() -> None:
-    """The stereo renderer, on a frame with every kind of shape and material."""
+    """The stereo renderer, on a frame with every kind of shape and material, and the
+    depth camera's noise model on its depth."""
     import numpy as np
 
+    from plant_sim.depth_camera import DepthNoiseParams, depth16_from_truth
     from plant_sim.stereo_camera import StereoCameraRenderer
     from plant_sim.world import Box, Cylinder, Material, Sphere, World
     from protocols.camera import CameraModel
@@ -34,7 +36,9 @@ def _renderer() -> None:
         boxes=tuple(Box((8.0, 0.0, -1.0), (0.5, 1.0, 2.0), 1, m) for m in materials),
         cylinders=(Cylinder((8.0, 2.0, -1.0), 0.3, 2.0),),
     )
-    StereoCameraRenderer(CameraModel()).render(world, np.zeros(3), np.eye(3), noise_seed=0)
+    camera = CameraModel()
+    out = StereoCameraRenderer(camera).render(world, np.zeros(3), np.eye(3), noise_seed=0)
+    depth16_from_truth(out.depth_left_m, camera.intrinsics, DepthNoiseParams(), 0)
 
 
 def _companion() -> None:

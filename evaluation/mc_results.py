@@ -35,7 +35,7 @@ __all__ = [
 
 RESULTS_NAME = "results.jsonl"
 SPEC_NAME = "run.json"
-PERCEPTIONS: tuple[str, ...] = ("stereo", "truth")
+PERCEPTIONS: tuple[str, ...] = ("stereo", "truth", "depth")
 _VERDICT_FIELDS = tuple(f.name for f in dataclasses.fields(Verdict))
 
 

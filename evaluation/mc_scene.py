@@ -15,10 +15,13 @@ import socket
 import time
 from typing import Any
 
+from companion.depth_camera import DepthCameraConfig
+from companion.perception import PerceptionConfig
 from evaluation.harness import RunConfig, Verdict, run_scene
 from evaluation.mc_provenance import code_fingerprint
 from evaluation.mc_results import PERCEPTIONS, verdict_to_record
 from evaluation.scenes import family_scene, mixed_scene
+from plant_sim.depth_camera import CameraEncoding, DepthNoiseParams
 
 __all__ = ["error_verdict", "fly_record", "fly_seed", "run_config", "scene_of", "single_threaded"]
 
@@ -31,13 +34,23 @@ def scene_of(seed: int, family: str = "mixed"):
 
 def run_config(perception: str = "stereo", max_time_s: float | None = None) -> RunConfig:
     """The configuration Monte Carlo flies with: the defaults, ``perception`` "stereo" (the
-    companion's matcher) or "truth" (the renderer's exact depth), and ``max_time_s`` if
-    given (a shorter horizon for smoke runs; default :class:`RunConfig`'s)."""
+    companion's matcher), "truth" (the renderer's exact depth) or "depth" (a RealSense-like
+    depth camera with its noise, plant_sim.depth_camera; the companion is told its minimum
+    range), and ``max_time_s`` if given (a shorter horizon for smoke runs; default
+    :class:`RunConfig`'s)."""
     if perception not in PERCEPTIONS:
         raise ValueError(f"perception must be one of {PERCEPTIONS}, got {perception!r}")
-    if max_time_s is None:
-        return RunConfig(truth_perception=perception == "truth")
-    return RunConfig(truth_perception=perception == "truth", max_time_s=max_time_s)
+    kw: dict[str, Any] = {"truth_perception": perception == "truth"}
+    if perception == "depth":
+        noise = DepthNoiseParams()
+        kw["camera_encoding"] = CameraEncoding.DEPTH16
+        kw["depth_noise"] = noise
+        kw["perception"] = PerceptionConfig(
+            depth_camera=DepthCameraConfig(min_range_m=noise.min_range_m)
+        )
+    if max_time_s is not None:
+        kw["max_time_s"] = max_time_s
+    return RunConfig(**kw)
 
 
 def single_threaded() -> None:

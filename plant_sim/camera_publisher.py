@@ -1,4 +1,8 @@
-"""Stereo frames over Zenoh: render at the camera rate of simulation time, stamp, publish.
+"""Camera frames over Zenoh: render at the camera rate of simulation time, stamp, publish.
+
+A stereo pair, or with ``[camera] encoding = "depth16"`` (or ``"depth32f"``) the depth frame
+of a RealSense-like depth camera made from the left eye's true depth
+(:mod:`plant_sim.depth_camera`), with the left image beside it for the viewer.
 
 Each frame's ``capture_ns`` is the simulation time of the pose it was rendered at, the same
 clock as MAVLink ``time_boot_ms`` (DESIGN.md "One clock"). The session uses explicit
@@ -12,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 import zenoh
 
+from plant_sim.depth_camera import CameraEncoding, depth_frame
 from plant_sim.scenario import CameraConfig
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import World
@@ -53,23 +58,45 @@ class StereoPublisher:
         self._publisher = FramePublisher(self._session, self.key, drop=True)
 
     def warm_up(self) -> None:
-        """Render one frame so the JIT compiles before the first deadline."""
-        self._renderer.render(self.world, np.zeros(3), np.eye(3), noise_seed=0)
+        """Render one frame (and make its depth frame, for a depth camera) so the JIT
+        compiles before the first deadline."""
+        render = self._renderer.render(self.world, np.zeros(3), np.eye(3), noise_seed=0)
+        if self.camera.encoding is not CameraEncoding.MONO8:
+            depth_frame(
+                0,
+                0,
+                self._intrinsics,
+                render.depth_left_m,
+                render.left,
+                self.camera.depth,
+                self.camera.encoding,
+            )
 
     def publish(self, capture_time_s: float, pos_ned_m, R_ned_from_frd) -> None:
-        """Render the pair seen from the pose at ``capture_time_s`` and publish it."""
+        """Render the view from the pose at ``capture_time_s`` and publish it (a pair, or a
+        depth frame)."""
         render = self._renderer.render(
             self.world, pos_ned_m, R_ned_from_frd, noise_seed=self.sequence
         )
         sequence, self.sequence = self.sequence, self.sequence + 1
-        if self._publisher is not None:
+        if self._publisher is None:
+            return
+        capture_ns = round(capture_time_s * 1e9)
+        if self.camera.encoding is CameraEncoding.MONO8:
             self._publisher.publish(
-                sequence,
-                round(capture_time_s * 1e9),
-                self._intrinsics,
-                render.left,
-                render.right,
+                sequence, capture_ns, self._intrinsics, render.left, render.right
             )
+            return
+        frame = depth_frame(
+            sequence,
+            capture_ns,
+            self._intrinsics,
+            render.depth_left_m,
+            render.left,
+            self.camera.depth,
+            self.camera.encoding,
+        )
+        self._publisher.publish_frame(frame)
 
     def close(self) -> None:
         if self._publisher is not None:

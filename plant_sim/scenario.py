@@ -49,6 +49,11 @@ error that names the key (``camera.fps`` → "unknown key 'camera.fps'"). Exampl
     blur_h_px = 0.0          # horizontal / vertical motion blur length [px]
     blur_v_px = 0.0
     jpeg_quality = 0         # 1..100 compresses both images; 0 = off
+    encoding = "mono8"       # "depth16" / "depth32f": a RealSense-like depth camera
+    [camera.depth]           # its errors: plant_sim.depth_camera.DepthNoiseParams fields
+    subpixel_rms_px = 0.08   # disparity error [px]: depth error grows with z^2
+    min_range_m = 1.0        # nearer, farther, at depth edges: no data (0)
+    max_range_m = 30.0
 
     [streams]                # default rates [Hz of simulation time]; 0 = off
     LOCAL_POSITION_NED = 4.0
@@ -88,6 +93,7 @@ from pathlib import Path
 from typing import Any
 
 from plant_sim.autopilot.modes import FlightMode
+from plant_sim.depth_camera import CameraEncoding, DepthNoiseParams
 from plant_sim.disturbance import DisturbanceConfig, EstimateConfig, WindConfig
 from plant_sim.params import ControlParams, QuadrotorParams, from_dict
 from plant_sim.profiles import profile
@@ -151,12 +157,16 @@ class GeoOrigin:
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """Stereo camera: model (Table 1), frame rate and rendering."""
+    """Camera: model (Table 1), frame rate, rendering, and what it publishes: a stereo pair
+    (``mono8``) or, as a RealSense-like depth camera, depth frames (``depth16``,
+    ``depth32f``) with the errors of ``depth`` (plant_sim.depth_camera)."""
 
     enabled: bool = True
     rate_hz: float = 30.0  # frames per second of simulation time
     model: CameraModel = field(default_factory=CameraModel)
     render: RenderParams = field(default_factory=RenderParams)
+    encoding: CameraEncoding = CameraEncoding.MONO8
+    depth: DepthNoiseParams = field(default_factory=DepthNoiseParams)
 
 
 @dataclass(frozen=True)
@@ -313,13 +323,28 @@ _CAMERA_MODEL_KEYS = _dataclass_fields(CameraModel)
 _RENDER_KEYS = _dataclass_fields(RenderParams)
 
 
+def _camera_encoding(value: Any) -> CameraEncoding:
+    try:
+        return CameraEncoding(value)
+    except ValueError:
+        raise ScenarioError(
+            f"camera.encoding must be one of {[e.value for e in CameraEncoding]}, got {value!r}"
+        ) from None
+
+
 def _camera(d: Any) -> CameraConfig:
-    d = check_keys(d, {"enabled", "rate_hz"} | _CAMERA_MODEL_KEYS | _RENDER_KEYS, "camera")
+    d = check_keys(
+        d,
+        {"enabled", "rate_hz", "encoding", "depth"} | _CAMERA_MODEL_KEYS | _RENDER_KEYS,
+        "camera",
+    )
     model_kw = {k: d[k] for k in _CAMERA_MODEL_KEYS if k in d}
     render_kw = {k: d[k] for k in _RENDER_KEYS if k in d}
+    depth_kw = check_keys(d.get("depth", {}), _dataclass_fields(DepthNoiseParams), "camera.depth")
     try:
         model = CameraModel(**model_kw)
         render = RenderParams(**render_kw)
+        depth = DepthNoiseParams(**depth_kw)
     except (TypeError, ValueError) as exc:
         raise ScenarioError(f"camera: {exc}") from None
     return CameraConfig(
@@ -327,6 +352,8 @@ def _camera(d: Any) -> CameraConfig:
         rate_hz=_number(d.get("rate_hz", 30.0), "camera.rate_hz", positive=True),
         model=model,
         render=render,
+        encoding=_camera_encoding(d.get("encoding", "mono8")),
+        depth=depth,
     )
 
 

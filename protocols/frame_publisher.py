@@ -1,4 +1,4 @@
-"""The one stereo-frame publisher: encode (protocols.stereo_frame) and put on a Zenoh key.
+"""The one camera-frame publisher: encode (protocols.stereo_frame) and put on a Zenoh key.
 
 Used by plant-sim's synthetic camera, ``stereo-camera`` and the tests' frame feeders, so
 every frame on the wire is made the same way. A failed put is counted and logged, never
@@ -13,7 +13,7 @@ import numpy as np
 import zenoh
 
 from protocols.camera import StereoIntrinsics
-from protocols.stereo_frame import StereoFrame, encode
+from protocols.stereo_frame import Frame, StereoFrame, encode
 
 __all__ = ["FramePublisher"]
 
@@ -57,8 +57,14 @@ class FramePublisher:
         left: np.ndarray,
         right: np.ndarray,
     ) -> bool:
-        """Encode and put one frame; False (counted, logged) if Zenoh refused it."""
-        payload = encode(StereoFrame(sequence, capture_ns, intrinsics, left, right))
+        """Encode and put one stereo pair; False (counted, logged) if Zenoh refused it."""
+        return self.publish_frame(StereoFrame(sequence, capture_ns, intrinsics, left, right))
+
+    def publish_frame(self, frame: Frame) -> bool:
+        """Encode and put one frame (a stereo pair or a depth frame); False (counted,
+        logged) if Zenoh refused it."""
+        payload = encode(frame)
+        sequence = frame.sequence
         if self._publisher is None:
             return False
         try:

@@ -34,6 +34,17 @@ if ! command -v chromium >/dev/null 2>&1 && ! command -v chromium-browser >/dev/
         echo "setup: chromium missing (no apt): install Chromium for tests/test_view_sil.py" >&2
     fi
 fi
+# pyrealsense2 (the [realsense] extra) loads libusb-1.0: Debian's libusb-1.0-0, when missing
+# and apt is usable as root (tests/test_depth_camera_sources.py plays back a recording).
+if ! ldconfig -p 2>/dev/null | grep 'libusb-1.0.so.0' >/dev/null; then
+    if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" -eq 0 ]; then
+        echo "setup: installing libusb-1.0-0 (apt) for pyrealsense2" >&2
+        apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends libusb-1.0-0
+    else
+        echo "setup: libusb-1.0 missing: install it for pyrealsense2 (stereo-camera realsense)" >&2
+    fi
+fi
 # Compile the numba kernels into their cache once (~50 s on a fresh install, seconds after):
 # otherwise the first plant-sim, companion, Monte Carlo worker or test pays it at its first
 # frame.

@@ -1,6 +1,9 @@
 """Conformance of every depth source to companion.depth_source's contract (issue 11 item 5).
 
-A new matcher is added to ``SOURCES``; every test here then runs against it.
+A new matcher is added to ``SOURCES``; every test here then runs against it. A depth camera
+(issue 35) is a source too: its frames are depth frames made from the renderer's true depth
+by plant-sim's RealSense-like camera model; the matcher-only physics (textureless surfaces)
+has its depth-camera counterpart below.
 """
 
 from __future__ import annotations
@@ -11,26 +14,36 @@ import numpy as np
 import pytest
 
 from companion.bare_bm import BareStereoBM
+from companion.depth_camera import DepthCameraConfig, DepthCameraSource
 from companion.depth_source import DISP_SCALE, DepthMap, DepthSource
 from companion.perception import PerceptionConfig, StereoPerception
 from companion.stereo_bm import PaddedStereoBM
+from plant_sim.depth_camera import DepthNoiseParams, depth16_from_truth
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import Box, GroundPlane, Material, Sphere, World
 from protocols.camera import CameraModel
-from protocols.stereo_frame import StereoFrame
+from protocols.stereo_frame import DepthFrame, PixelEncoding, StereoFrame
 
 CAMERA = CameraModel()
 LEVEL = np.eye(3)
 POS = np.array([0.0, 0.0, -7.0])
 
+DEPTH_CAMERA = DepthCameraConfig(min_range_m=1.0)  # plant-sim's camera (DepthNoiseParams)
 SOURCES = {
     "padded_bm": lambda: PaddedStereoBM(PerceptionConfig()),
     "bare_bm": lambda: BareStereoBM(PerceptionConfig()),
+    "depth_camera": lambda: DepthCameraSource(DEPTH_CAMERA),
 }
+STEREO_SOURCES = sorted(name for name in SOURCES if name != "depth_camera")
 
 
 @pytest.fixture(scope="module", params=sorted(SOURCES))
 def source(request) -> DepthSource:
+    return SOURCES[request.param]()
+
+
+@pytest.fixture(scope="module", params=STEREO_SOURCES)
+def stereo_source(request) -> DepthSource:
     return SOURCES[request.param]()
 
 
@@ -39,14 +52,33 @@ def renderer() -> StereoCameraRenderer:
     return StereoCameraRenderer(CAMERA)
 
 
-def _frame(renderer, world, pos=POS, R=LEVEL, seed=0):
+def _is_depth_camera(source) -> bool:
+    return isinstance(source, DepthCameraSource)
+
+
+def _frame(renderer, world, pos=POS, R=LEVEL, seed=0, source=None):
+    """The frame ``source`` reads (a pair, or a depth frame from plant-sim's depth camera)
+    of the view from ``pos``, and the true depth."""
     out = renderer.render(world, pos, R, noise_seed=seed)
+    if _is_depth_camera(source):
+        plane = depth16_from_truth(out.depth_left_m, CAMERA.intrinsics, DepthNoiseParams(), seed)
+        frame = DepthFrame(seed, seed, CAMERA.intrinsics, plane, PixelEncoding.DEPTH16, 0.001)
+        return frame, out.depth_left_m
     return StereoFrame(seed, seed, CAMERA.intrinsics, out.left, out.right), out.depth_left_m
 
 
-def check_contract(frame: StereoFrame, dm: DepthMap, max_range_m: float) -> None:
-    """The contract's invariants that hold for any frame (companion.depth_source)."""
-    shape = frame.left.shape
+def _range_m(source, frame) -> float:
+    """The source's farthest range for this frame (the contract's ``max_range_m``)."""
+    if _is_depth_camera(source):
+        return source.config.range_m(frame.intrinsics)
+    return PerceptionConfig().max_range_m
+
+
+def check_contract(frame, dm: DepthMap, max_range_m: float) -> None:
+    """The contract's invariants that hold for any frame (companion.depth_source): Eq. 27
+    exactly for a matcher; for a depth camera the disparity is the depth's equivalent,
+    rounded to 1/16 px."""
+    shape = (frame.intrinsics.height_px, frame.intrinsics.width_px)
     assert isinstance(dm, DepthMap)
     assert dm.disparity_fixed.shape == shape and dm.disparity_fixed.dtype == np.int16
     assert dm.depth_m.shape == shape and dm.depth_m.dtype == np.float32
@@ -56,9 +88,14 @@ def check_contract(frame: StereoFrame, dm: DepthMap, max_range_m: float) -> None
     disp, depth = dm.disparity_fixed, dm.depth_m
     finite = np.isfinite(depth)
     np.testing.assert_array_equal(finite, disp >= d_far, err_msg="finite <=> within range")
-    np.testing.assert_allclose(
-        depth[finite], DISP_SCALE * fb / disp[finite].astype(np.float64), rtol=1e-6
-    )
+    if isinstance(frame, DepthFrame):
+        equivalent = DISP_SCALE * fb / depth[finite].astype(np.float64)
+        # rounding to 1/16 px, plus float32's 2**-24 of the depth at int16 disparities
+        np.testing.assert_allclose(disp[finite], equivalent, atol=0.5 + 32767 * 2.0**-23)
+    else:
+        np.testing.assert_allclose(
+            depth[finite], DISP_SCALE * fb / disp[finite].astype(np.float64), rtol=1e-6
+        )
     far = np.isinf(depth)
     assert np.all(depth[far] > 0)
     assert np.all((disp[far] >= 0) & (disp[far] < d_far)), "+inf only for a far match"
@@ -81,9 +118,9 @@ def test_textured_plane_is_ranged_by_eq27(renderer, source):
     """A textured wall 3 m ahead filling the view: the contract holds, and right of the
     blind band >= 80 % of the pixels are ranged with a median error below 1 %."""
     wall = Box((3.1, 0.0, -7.0), (0.2, 40.0, 40.0))
-    frame, truth = _frame(renderer, World(boxes=(wall,), ground=None))
+    frame, truth = _frame(renderer, World(boxes=(wall,), ground=None), source=source)
     dm = source.compute(frame)
-    check_contract(frame, dm, PerceptionConfig().max_range_m)
+    check_contract(frame, dm, _range_m(source, frame))
     seen = np.zeros(truth.shape, bool)
     seen[8:-8, dm.blind_band_px : -8] = True  # OpenCV leaves half a block at the border
     ranged = seen & np.isfinite(dm.depth_m)
@@ -97,9 +134,9 @@ def test_what_the_right_camera_cannot_see_is_never_finite(renderer, source):
     """A wall-sized sphere 2.5 m ahead: where its surface lies left of the right image
     (true disparity > column), nothing can be measured."""
     world = World(spheres=(Sphere((10.0, 0.0, -7.0), 7.5),), ground=None)
-    frame, truth = _frame(renderer, world)
+    frame, truth = _frame(renderer, world, source=source)
     dm = source.compute(frame)
-    check_contract(frame, dm, PerceptionConfig().max_range_m)
+    check_contract(frame, dm, _range_m(source, frame))
     fb = CAMERA.intrinsics.focal_baseline_m_px
     hidden = fb / truth > np.arange(CAMERA.width_px)[None, :]
     assert hidden.sum() > 1000
@@ -107,7 +144,7 @@ def test_what_the_right_camera_cannot_see_is_never_finite(renderer, source):
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_textureless_wall_certifies_no_free_space(renderer, source, seed):
+def test_textureless_wall_certifies_no_free_space(renderer, stereo_source, seed):
     """A textureless wall filling the view: (almost) nothing is ranged, and no pixel claims
     "nothing nearer than max range" (+inf) through it, whatever the sensor noise does."""
     wall = Box((10.0, 0.0, -7.0), (0.2, 30.0, 14.0), material=Material.TEXTURELESS)
@@ -116,8 +153,8 @@ def test_textureless_wall_certifies_no_free_space(renderer, source, seed):
     R = np.diag([-1.0, -1.0, 1.0])  # facing south, towards the wall
     frame, truth = _frame(renderer, world, pos, R, seed=seed)
     assert np.all(np.isfinite(truth))  # the wall fills the view
-    dm = source.compute(frame)
-    check_contract(frame, dm, PerceptionConfig().max_range_m)
+    dm = stereo_source.compute(frame)
+    check_contract(frame, dm, _range_m(stereo_source, frame))
     assert not np.isinf(dm.depth_m).any()
     known = np.isfinite(dm.depth_m)
     assert known.mean() < 0.05
@@ -127,17 +164,19 @@ def test_textureless_wall_certifies_no_free_space(renderer, source, seed):
 def test_sky_is_far_and_ground_is_ranged(renderer, source):
     """Ground and sky: ranged ground within range, +inf (known free) for matched sky and far
     ground outside the blind band, never a finite depth beyond max range."""
-    frame, truth = _frame(renderer, World(ground=GroundPlane(0.0)), np.array([0.0, 0.0, -2.0]))
+    frame, truth = _frame(
+        renderer, World(ground=GroundPlane(0.0)), np.array([0.0, 0.0, -2.0]), source=source
+    )
     dm = source.compute(frame)
-    check_contract(frame, dm, PerceptionConfig().max_range_m)
-    assert np.isinf(dm.depth_m).mean() > 0.03  # matched sky (its faint clouds)
+    check_contract(frame, dm, _range_m(source, frame))
+    assert np.isinf(dm.depth_m).mean() > 0.03  # matched sky (its clouds) or far ground
     near_ground = np.isfinite(truth) & (truth < 10.0)
     ranged = near_ground & np.isfinite(dm.depth_m)
     assert ranged.sum() > 0.5 * near_ground[:, dm.blind_band_px :].sum()
 
 
 def test_deterministic(renderer, source):
-    frame, _ = _frame(renderer, World(spheres=(Sphere((4.5, 0.0, -7.0), 1.5),)))
+    frame, _ = _frame(renderer, World(spheres=(Sphere((4.5, 0.0, -7.0), 1.5),)), source=source)
     a, b = source.compute(frame), source.compute(frame)
     np.testing.assert_array_equal(a.disparity_fixed, b.disparity_fixed)
     np.testing.assert_array_equal(a.depth_m, b.depth_m)
@@ -151,4 +190,7 @@ def test_any_frame_size_gives_a_depth_map(source, size):
     rng = np.random.default_rng(width * 1000 + height)
     image = rng.integers(0, 256, (height, width), dtype=np.uint8)
     frame = StereoFrame(0, 0, k, image, image)
-    check_contract(frame, source.compute(frame), PerceptionConfig().max_range_m)
+    if _is_depth_camera(source):
+        depth = rng.integers(0, 40_000, (height, width), dtype=np.uint16)
+        frame = DepthFrame(0, 0, k, depth, PixelEncoding.DEPTH16, 0.001, image)
+    check_contract(frame, source.compute(frame), _range_m(source, frame))

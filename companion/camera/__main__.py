@@ -29,7 +29,6 @@ configuration or calibration; errors are one line on stderr.
 from __future__ import annotations
 
 import argparse
-import enum
 import json
 import logging
 import math
@@ -37,10 +36,16 @@ import re
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from companion.camera.config import (
+    CameraConfig,
+    SourceConfig,
+    SourceKind,
+    depth_camera_config,
+)
 from protocols.process import (
     DEFAULT_ENDPOINT,
     add_zenoh_arguments,
@@ -68,93 +73,6 @@ _log = logging.getLogger("companion.camera")
 _PROG = "stereo-camera"
 _FLUSH_S = 0.2  # after the last frame of a finite source, before closing the session
 _RUST_LOCATION = re.compile(r" at /\S+\.rs:\d+\.?")  # zenoh appends its source location
-
-
-class SourceKind(enum.Enum):
-    """Where frames come from."""
-
-    V4L2_PAIR = "v4l2"  # two cameras
-    SIDE_BY_SIDE = "sbs"  # one camera, [left | right] in one frame
-    REPLAY = "replay"  # folder of recorded pairs
-
-
-@dataclass(frozen=True)
-class SourceConfig:
-    """Frame source settings.
-
-    Attributes
-    ----------
-    kind : SourceKind
-    devices : tuple of str
-        ``(left, right)`` for V4L2_PAIR, ``(device,)`` for SIDE_BY_SIDE (index, /dev/videoN,
-        or anything ``cv2.VideoCapture`` opens).
-    folder : Path or None
-        Recording for REPLAY.
-    size_px : (int, int) or None
-        Requested per-eye ``(width, height)`` of live cameras.
-    fps : float or None
-        Requested camera rate [Hz].
-    fourcc : str or None
-        Requested camera pixel format (e.g. MJPG).
-    rate_hz : float or None
-        Replay rate [Hz]; None = recorded timestamps.
-    left_topic, right_topic : str or None
-        With REPLAY: ``folder`` is a ROS 2 bag and these are its image topics
-        (:mod:`companion.camera.rosbag_source`).
-    left_info_topic, right_info_topic : str or None
-        CameraInfo topics of the bag (default: ``camera_info`` beside the images).
-    """
-
-    kind: SourceKind
-    devices: tuple[str, ...] = ()
-    folder: Path | None = None
-    size_px: tuple[int, int] | None = None
-    fps: float | None = None
-    fourcc: str | None = None
-    rate_hz: float | None = None
-    left_topic: str | None = None
-    right_topic: str | None = None
-    left_info_topic: str | None = None
-    right_info_topic: str | None = None
-
-
-@dataclass(frozen=True)
-class CameraConfig:
-    """Everything ``run`` needs (built from the command line by :func:`config_from_args`).
-
-    Attributes
-    ----------
-    source : SourceConfig
-    vehicle_id : str
-        Key chunk of ``stereo_avoid/<vehicle_id>/stereo``.
-    zenoh : ZenohSettings
-    calibration_files : tuple of Path
-        OpenCV stereo calibration file(s); empty if the input is already rectified.
-    calibration_units : str or None
-        Unit of the calibration's ``T`` (m, cm, mm); None = the file's or metres.
-    intrinsics : StereoIntrinsics or None
-        Intrinsics of an already rectified input (no remap).
-    alpha : float
-        ``cv2.stereoRectify`` free scaling (0 = valid pixels only).
-    output_size_px : (int, int) or None
-        Rectified ``(width, height)``; default the input size.
-    wait_subscriber_s : float
-        How long to wait for a matching subscriber before the first frame [s] (inf = until
-        one appears or a signal; 0 = do not wait).
-    max_frames : int or None
-        Stop after publishing this many frames.
-    """
-
-    source: SourceConfig
-    vehicle_id: str = "sim1"
-    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
-    calibration_files: tuple[Path, ...] = ()
-    calibration_units: str | None = None
-    intrinsics: StereoIntrinsics | None = None
-    alpha: float = 0.0
-    output_size_px: tuple[int, int] | None = None
-    wait_subscriber_s: float = 0.0
-    max_frames: int | None = None
 
 
 # --------------------------------------------------------------------------- command line
@@ -253,7 +171,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Publish rectified stereo frames (MONO8) over Zenoh from cameras or a "
         "recording.",
     )
-    sub = p.add_subparsers(dest="kind", required=True, metavar="{v4l2,sbs,replay}")
+    sub = p.add_subparsers(dest="kind", required=True, metavar="{v4l2,sbs,replay,realsense}")
     cam = argparse.ArgumentParser(add_help=False)
     cam.add_argument("--size", type=_size, metavar="WxH", help="requested size of each eye")
     cam.add_argument("--fps", type=_positive, help="requested camera rate [Hz]")
@@ -281,6 +199,25 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--right-info", metavar="TOPIC", help="ROS 2 bag: right CameraInfo (default: beside)"
     )
+    r.add_argument("--depth", metavar="TOPIC", help="ROS bag: depth image (16UC1 mm / 32FC1 m)")
+    r.add_argument(
+        "--depth-info", metavar="TOPIC", help="ROS bag: depth CameraInfo (default: beside)"
+    )
+    r.add_argument("--image", metavar="TOPIC", help="ROS bag: the depth camera's left picture")
+    r.add_argument(
+        "--baseline", type=_positive, metavar="M", help="depth camera's stereo baseline [m]"
+    )
+    rs = sub.add_parser(
+        "realsense", parents=[common], help="Intel RealSense depth camera or recording"
+    )
+    rs.add_argument("--bag", type=Path, metavar="FILE", help="play back a RealSense recording")
+    rs.add_argument("--size", type=_size, metavar="WxH", help="depth size (default 640x480)")
+    rs.add_argument("--fps", type=_positive, help="camera rate [Hz] (default 30)")
+    rs.add_argument("--rate", type=_positive, metavar="HZ", help="recording: replay rate")
+    rs.add_argument(
+        "--baseline", type=_positive, metavar="M", help="override the device's baseline [m]"
+    )
+    rs.add_argument("--no-image", action="store_true", help="depth only, no infrared picture")
     return p
 
 
@@ -300,6 +237,14 @@ def config_from_args(args: argparse.Namespace) -> CameraConfig:
     from protocols.keys import validate_vehicle_id
 
     kind = SourceKind(args.kind)
+    if kind is SourceKind.REALSENSE or getattr(args, "depth", None) is not None:
+        return depth_camera_config(kind, args)
+    if (
+        getattr(args, "image", None)
+        or getattr(args, "depth_info", None)
+        or getattr(args, "baseline", None)
+    ):
+        raise ValueError("--image/--depth-info/--baseline need --depth TOPIC (a depth bag)")
     if kind is SourceKind.REPLAY:
         if (args.left is None) != (args.right is None):
             raise ValueError("a ROS 2 bag needs both --left TOPIC and --right TOPIC")
@@ -372,6 +317,28 @@ def make_source(config: SourceConfig):
         return sources.SideBySideCamera(
             config.devices[0], config.size_px, config.fps, config.fourcc
         )
+    if config.kind is SourceKind.REALSENSE:
+        from companion.camera.realsense_source import RealSenseSource
+
+        return RealSenseSource(
+            config.folder,
+            size_px=config.size_px,
+            fps=config.fps,
+            baseline_m=config.baseline_m,
+            with_image=config.with_image,
+            rate_hz=config.rate_hz,
+        )
+    if config.depth_topic is not None:
+        from companion.camera.depth_sources import Ros2DepthBagReplay
+
+        return Ros2DepthBagReplay(
+            config.folder,
+            config.depth_topic,
+            config.baseline_m,
+            info_topic=config.depth_info_topic,
+            image_topic=config.image_topic,
+            rate_hz=config.rate_hz,
+        )
     if config.left_topic is not None and config.right_topic is not None:
         from companion.camera.rosbag_source import Ros2BagReplay
 
@@ -405,7 +372,8 @@ def _geometry(config: CameraConfig, source, calibration):
     origin = "intrinsics"
     if intrinsics is None:
         intrinsics = getattr(source, "intrinsics", None)
-        origin = "manifest"
+        origin = "depth-camera" if config.source.kind is SourceKind.REALSENSE else "manifest"
+        origin = "depth-camera" if config.source.depth_topic is not None else origin
         if intrinsics is None:
             raise ValueError(
                 f"{source.description}: no intrinsics: give --calibration FILE (raw pairs) or "
@@ -445,6 +413,26 @@ class _Stats:
             "max_lag_ms": round(self.max_lag_ms, 3),
             "stopped_by": self.stopped_by,
         }
+
+
+def _frame(sequence: int, item, intrinsics, rectify):
+    """The wire frame of one source item: a (rectified) stereo pair, or a depth camera's
+    :class:`~companion.camera.depth_sources.RawDepth` as a depth frame."""
+    from companion.camera.depth_sources import RawDepth
+    from protocols.stereo_frame import DepthFrame, StereoFrame
+
+    if isinstance(item, RawDepth):
+        return DepthFrame(
+            sequence,
+            item.capture_ns,
+            intrinsics,
+            item.depth,
+            item.encoding,
+            item.depth_scale_m,
+            item.left,
+        )
+    left, right = (item.left, item.right) if rectify is None else rectify(item.left, item.right)
+    return StereoFrame(sequence, item.capture_ns, intrinsics, left, right)
 
 
 def _sleep(seconds: float, should_stop: Callable[[], bool]) -> bool:
@@ -504,7 +492,7 @@ class CameraService:
         self._geometry = _geometry(config, self._source, calibration)
         self._session = zenoh.open(zenoh_conf)
         # live: the newest frame matters; replay: deliver every recorded pair
-        live = config.source.kind is not SourceKind.REPLAY
+        live = config.source.kind is not SourceKind.REPLAY and config.source.folder is None
         self._publisher = FramePublisher(self._session, self.key, drop=live)
 
     def readiness_line(self) -> str:
@@ -530,10 +518,7 @@ class CameraService:
             delay_ns = pair.capture_ns - clock()
             if delay_ns > 0 and _sleep(delay_ns / 1e9, should_stop):
                 return
-            left, right = (
-                (pair.left, pair.right) if rectify is None else rectify(pair.left, pair.right)
-            )
-            if not self._publisher.publish(stats.frames, pair.capture_ns, intrinsics, left, right):
+            if not self._publisher.publish_frame(_frame(stats.frames, pair, intrinsics, rectify)):
                 stats.publish_errors += 1
             now = clock()
             lag_ms = (now - pair.capture_ns) / 1e6

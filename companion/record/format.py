@@ -99,6 +99,8 @@ _MAVLINK1_STX = 0xFE
 
 
 def _plain(value: Any) -> Any:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return _section(value)  # a nested section, e.g. [perception.depth_camera]
     if isinstance(value, enum.Enum):
         return value.value
     if isinstance(value, Path):

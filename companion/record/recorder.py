@@ -188,7 +188,10 @@ class McapRecorder(CompanionObserver):
             self.stats.mavlink_out += 1
 
     def _preview(self, frame: StereoFrame, t_ns: int) -> None:
-        """The left plane as foxglove.RawImage, at most every 100 ms of capture time."""
+        """The left plane as foxglove.RawImage, at most every 100 ms of capture time (none
+        for a depth camera's frame that came without its left image)."""
+        if frame.left is None:
+            return
         t = frame.capture_ns
         if self._preview_ns is not None and 0 <= t - self._preview_ns < _PREVIEW_PERIOD_NS:
             return

@@ -300,7 +300,8 @@ class RerunLogger:
     def _log_images(self, frame: StereoFrame, depth, pos: np.ndarray, R: np.ndarray) -> None:
         """The left image, the depth map, its near/unknown classes and the near points."""
         rr, rec = self.rr, self.rec
-        rec.log(f"{_CAM}/image", rr.Image(frame.left))
+        if frame.left is not None:  # a depth camera's frame may come without its picture
+            rec.log(f"{_CAM}/image", rr.Image(frame.left))
         if depth is None:
             return
         with np.errstate(invalid="ignore"):

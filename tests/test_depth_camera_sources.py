@@ -1,0 +1,294 @@
+"""Depth-camera sources of ``stereo-camera`` (issue 35): ROS bags with depth image topics and
+RealSense recordings, through the real libraries (rosbags, pyrealsense2) without a camera.
+
+Units: depth image encodings (16UC1, 32FC1 with REP 117's infinities), CameraInfo →
+intrinsics, the CLI's flags. Integration, as tests/test_rosbag_source.py does for pairs:
+plant-sim as the autopilot only (hovering at the paper's start, facing south), the companion
+with ``--frame-clock host``, and ``stereo-camera`` publishing depth frames of an obstacle
+3 m ahead from (a) a ROS 2 bag with a depth topic written by rosbags and (b) a RealSense
+recording made by pyrealsense2's software device under its own recorder and read back by
+pyrealsense2's playback. The companion (which runs no matcher on them) must place the
+obstacle where it is and start avoiding it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from _companion_rig import VEHICLE_ID, companion_rig
+from rosbags.rosbag2 import StoragePlugin, Writer
+from test_rosbag_source import OBSTACLE, START_NED_M, TS, Image, _image, _info
+
+from companion.camera.__main__ import build_parser, config_from_args
+from companion.camera.depth_sources import (
+    Ros2DepthBagReplay,
+    depth_from_image_msg,
+    intrinsics_from_depth_info,
+)
+from companion.camera.sources import SourceError
+from plant_sim.depth_camera import DepthNoiseParams, depth16_from_truth
+from plant_sim.stereo_camera import StereoCameraRenderer
+from plant_sim.world import GroundPlane, World
+from protocols.camera import CameraModel
+from protocols.frames import rotation_321
+from protocols.stereo_frame import PixelEncoding
+
+CAMERA = CameraModel()
+K = CAMERA.intrinsics
+DEPTH, DEPTH_INFO, PICTURE = "/camera/depth/image_rect_raw", "/camera/depth/camera_info", "/ir"
+
+
+def _views(n: int):
+    """``n`` (depth16 plane, left picture) of the obstacle 3 m ahead, RealSense-like noise."""
+    renderer = StereoCameraRenderer(CAMERA)
+    R = rotation_321(0.0, 0.0, math.pi)
+    world = World(spheres=(OBSTACLE,), ground=GroundPlane(0.0))
+    for i in range(n):
+        out = renderer.render(world, START_NED_M, R, noise_seed=i)
+        yield depth16_from_truth(out.depth_left_m, K, DepthNoiseParams(), i), out.left
+
+
+# ---- units ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("bigendian", [False, True])
+def test_16uc1_is_millimetres(bigendian):
+    mm = np.array([[0, 1000], [2500, 65535]], dtype=np.uint16)
+    msg = _image(0, mm.astype(">u2" if bigendian else "<u2"), "16UC1")
+    msg.is_bigendian = int(bigendian)
+    plane, encoding, scale = depth_from_image_msg(msg)
+    np.testing.assert_array_equal(plane, mm)
+    assert (encoding, scale) == (PixelEncoding.DEPTH16, 0.001)
+
+
+def test_32fc1_is_metres_and_infinities_are_no_data():
+    m = np.array([[1.5, np.nan, np.inf], [-np.inf, -1.0, 0.0]], dtype=np.float32)
+    plane, encoding, scale = depth_from_image_msg(_image(0, m, "32FC1"))
+    assert (encoding, scale) == (PixelEncoding.DEPTH32F, 1.0)
+    assert plane[0, 0] == 1.5 and plane[1, 2] == 0.0
+    assert np.isnan(plane[[0, 0, 1, 1], [1, 2, 0, 1]]).all()  # never +inf: never free
+
+
+def test_unsupported_and_short_depth_images_raise():
+    with pytest.raises(ValueError, match="unsupported depth encoding"):
+        depth_from_image_msg(_image(0, np.zeros((2, 2), np.uint8), "mono8"))
+    msg = _image(0, np.zeros((2, 2), np.uint16), "16UC1")
+    msg.data = msg.data[:-1]
+    with pytest.raises(ValueError, match="bytes"):
+        depth_from_image_msg(msg)
+
+
+def test_depth_camera_info_gives_the_papers_intrinsics_with_the_stated_baseline():
+    k = intrinsics_from_depth_info(_info(0, K, 0.0), 0.2)
+    assert k == K
+    with pytest.raises(ValueError, match="baseline"):
+        intrinsics_from_depth_info(_info(0, K, 0.0), 0.0)
+
+
+def test_cli_flags_for_depth_sources():
+    parse = build_parser().parse_args
+    cfg = config_from_args(parse(["replay", "bag", "--depth", DEPTH, "--baseline", "0.05"]))
+    assert (cfg.source.depth_topic, cfg.source.baseline_m) == (DEPTH, 0.05)
+    assert cfg.wait_subscriber_s == math.inf
+    with pytest.raises(ValueError, match="--baseline"):
+        config_from_args(parse(["replay", "bag", "--depth", DEPTH]))
+    with pytest.raises(ValueError, match="no --calibration"):
+        config_from_args(parse(["realsense", "--bag", "x.bag", "--calibration", "stereo.yml"]))
+    with pytest.raises(ValueError, match="need --depth"):
+        config_from_args(parse(["replay", "folder", "--image", PICTURE]))
+    live = config_from_args(parse(["realsense", "--size", "848x480", "--fps", "30"]))
+    assert live.source.size_px == (848, 480) and live.wait_subscriber_s == 0.0
+
+
+# ---- a ROS 2 bag with a depth topic --------------------------------------------------------
+
+
+def write_depth_bag(path, n=30, rate_hz=10.0, with_picture=True):
+    """A ROS 2 bag (MCAP) of depth16 images with their CameraInfo and the left picture."""
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as bag:
+        conns = {
+            DEPTH: bag.add_connection(DEPTH, Image.__msgtype__, typestore=TS),
+            DEPTH_INFO: bag.add_connection(DEPTH_INFO, "sensor_msgs/msg/CameraInfo", typestore=TS),
+        }
+        if with_picture:
+            conns[PICTURE] = bag.add_connection(PICTURE, Image.__msgtype__, typestore=TS)
+        t0 = 1_700_000_000_000_000_000
+        for i, (plane, left) in enumerate(_views(n)):
+            stamp = t0 + round(i * 1e9 / rate_hz)
+            msgs = [(DEPTH_INFO, _info(stamp, K, 0.0)), (DEPTH, _image(stamp, plane, "16UC1"))]
+            if with_picture:
+                msgs.append((PICTURE, _image(stamp, left)))
+            for topic, msg in msgs:
+                bag.write(conns[topic], stamp, TS.serialize_cdr(msg, msg.__msgtype__))
+
+
+def test_depth_bag_source_reads_frames_pictures_and_stamps(tmp_path):
+    write_depth_bag(tmp_path / "bag", n=5)
+    now = iter(range(10**9, 10**10, 10**6))
+    source = Ros2DepthBagReplay(
+        tmp_path / "bag", DEPTH, 0.2, image_topic=PICTURE, clock=lambda: next(now)
+    )
+    source.open()
+    assert source.intrinsics == K and source.size_px == (320, 240)
+    items = [source.read() for _ in range(6)]
+    source.close()
+    assert items[-1] is None
+    frames = items[:-1]
+    assert all(f.encoding is PixelEncoding.DEPTH16 and f.depth_scale_m == 0.001 for f in frames)
+    assert all(f.left is not None and f.left.shape == (240, 320) for f in frames)
+    np.testing.assert_array_equal(np.diff([f.capture_ns for f in frames]), 100_000_000)
+    expected = next(_views(1))[0]
+    np.testing.assert_array_equal(frames[0].depth, expected)
+
+
+def test_depth_bag_errors(tmp_path):
+    write_depth_bag(tmp_path / "bag", n=2, with_picture=False)
+    with pytest.raises(SourceError, match="no topic '/nope'"):
+        Ros2DepthBagReplay(tmp_path / "bag", "/nope", 0.2).open()
+    with pytest.raises(SourceError, match="no topic '/ir'"):
+        Ros2DepthBagReplay(tmp_path / "bag", DEPTH, 0.2, image_topic=PICTURE).open()
+    with pytest.raises(SourceError, match="does not exist"):
+        Ros2DepthBagReplay(tmp_path / "missing", DEPTH, 0.2).open()
+
+
+def _drives_the_companion(rig, camera, n_frames, rate_hz):
+    ready = camera.wait_line(r"^STEREO_CAMERA READY ", 30)
+    assert "size=320x240" in ready.string and "rectify=depth-camera" in ready.string, ready
+    assert rig.avoiding.wait(n_frames / rate_hz + 15.0), (
+        f"no avoiding status in {len(rig.docs)} docs\n{rig.logs()}"
+    )
+    first = next(d for d in rig.docs if d["obstacles"])
+    centre = np.array(first["obstacles"][0]["center_ned_m"])
+    assert np.linalg.norm(centre - OBSTACLE.center_ned_m) < 0.5, centre
+    assert first["obstacles"][0]["range_m"] == pytest.approx(3.0, abs=0.3)
+    log = rig.companion.stderr_text()
+    assert "bad camera frame" not in log and "unsupported pixel encoding" not in log
+    assert "DEPTH16 320x240 (depth camera, no matcher)" in log, log[-3000:]
+
+
+@pytest.mark.slow
+def test_ros2_depth_bag_drives_the_companion(tmp_path):
+    n, rate_hz = 60, 10.0
+    write_depth_bag(tmp_path / "bag", n=n, rate_hz=rate_hz)
+    with companion_rig() as rig:
+        camera = rig.start(
+            "stereo-camera",
+            "companion.camera",
+            ["replay", str(tmp_path / "bag"), "--depth", DEPTH, "--image", PICTURE,
+             "--baseline", "0.2", "--zenoh-connect", rig.companion_zenoh,
+             "--vehicle-id", VEHICLE_ID],
+        )  # fmt: skip
+        _drives_the_companion(rig, camera, n, rate_hz)
+
+
+# ---- a RealSense recording made without a camera --------------------------------------------
+
+
+def write_realsense_recording(path, n=60, rate_hz=10.0):
+    """Record ``n`` depth (Z16, 1 mm) + infrared 1 (Y8) frames of the obstacle scene with
+    pyrealsense2's software device under its recorder; the baseline is in the recording as
+    the infrared 1 → 2 extrinsics and the ``stereo_baseline`` option."""
+    rs = pytest.importorskip("pyrealsense2")
+    device = rs.software_device()
+    sensor = device.add_sensor("Stereo Module")
+    intr = rs.intrinsics()
+    intr.width, intr.height = K.width_px, K.height_px
+    intr.fx, intr.fy, intr.ppx, intr.ppy = K.fx_px, K.fy_px, K.cx_px, K.cy_px
+    intr.model, intr.coeffs = rs.distortion.brown_conrady, [0.0] * 5
+
+    def stream(kind, index, bpp, fmt):
+        vs = rs.video_stream()
+        vs.type, vs.index, vs.uid = kind, index, index
+        vs.width, vs.height, vs.fps, vs.bpp, vs.fmt = K.width_px, K.height_px, 30, bpp, fmt
+        vs.intrinsics = intr
+        return sensor.add_video_stream(vs)
+
+    depth = stream(rs.stream.depth, 0, 2, rs.format.z16)
+    ir1 = stream(rs.stream.infrared, 1, 1, rs.format.y8)
+    ir2 = stream(rs.stream.infrared, 2, 1, rs.format.y8)
+    sensor.add_read_only_option(rs.option.depth_units, 0.001)
+    sensor.add_read_only_option(rs.option.stereo_baseline, 1000.0 * K.baseline_m)
+    to_ir2 = rs.extrinsics()
+    to_ir2.rotation, to_ir2.translation = [1, 0, 0, 0, 1, 0, 0, 0, 1], [-K.baseline_m, 0, 0]
+    ir1.register_extrinsics_to(ir2, to_ir2)
+    recorder = rs.recorder(str(path), device)
+    sensor.open([depth, ir1])
+    sensor.start(rs.frame_queue(100))
+    for i, (plane, left) in enumerate(_views(n)):
+        for profile, pixels, bpp in ((ir1, left, 1), (depth, plane, 2)):
+            frame = rs.software_video_frame()
+            frame.pixels, frame.bpp, frame.stride = np.ascontiguousarray(pixels), bpp, bpp * 320
+            frame.timestamp = 1000.0 + i * 1000.0 / rate_hz
+            frame.domain, frame.frame_number = rs.timestamp_domain.hardware_clock, i
+            frame.profile = profile.as_video_stream_profile()
+            sensor.on_video_frame(frame)
+        time.sleep(0.005)
+    sensor.stop()
+    sensor.close()
+    del recorder  # closes the file
+
+
+def test_realsense_recording_is_read_back_by_pyrealsense2(tmp_path):
+    from companion.camera.realsense_source import RealSenseSource
+
+    path = tmp_path / "rec.db3"  # pyrealsense2 2.59 records ROS 2 (sqlite3) bags
+    write_realsense_recording(path, n=5)
+    now = iter(range(10**9, 10**10, 10**6))
+    source = RealSenseSource(path, clock=lambda: next(now))
+    source.open()
+    assert source.intrinsics.width_px == 320 and source.intrinsics.baseline_m == pytest.approx(0.2)
+    assert source.intrinsics.fx_px == pytest.approx(K.fx_px, rel=1e-6)
+    assert source.depth_scale_m == pytest.approx(0.001, rel=1e-6)
+    frames = []
+    while (item := source.read()) is not None:
+        frames.append(item)
+    source.close()
+    assert len(frames) == 5
+    expected = [plane for plane, _ in _views(5)]
+    for frame, plane in zip(frames, expected, strict=True):
+        np.testing.assert_array_equal(frame.depth, plane)
+    assert frames[0].left is not None
+    np.testing.assert_array_equal(np.diff([f.capture_ns for f in frames]), 100_000_000)
+
+
+@pytest.mark.slow
+def test_realsense_recording_drives_the_companion(tmp_path):
+    n, rate_hz = 60, 10.0
+    path = tmp_path / "rec.db3"
+    write_realsense_recording(path, n=n, rate_hz=rate_hz)
+    with companion_rig() as rig:
+        camera = rig.start(
+            "stereo-camera",
+            "companion.camera",
+            ["realsense", "--bag", str(path), "--zenoh-connect", rig.companion_zenoh,
+             "--vehicle-id", VEHICLE_ID],
+        )  # fmt: skip
+        _drives_the_companion(rig, camera, n, rate_hz)
+
+
+def test_live_device_time_is_mapped_by_the_smallest_offset():
+    """Live: capture = device time + min(arrival - device time) over the window: never
+    later than the arrival, exact once a frame came with the minimum transport delay, and
+    following a drifting device clock (no device needed: the mapping alone)."""
+    from companion.camera.realsense_source import _OFFSET_WINDOW, RealSenseSource
+
+    source = RealSenseSource()
+    rng = np.random.default_rng(5)
+    clock_offset_ns = 5_000_000_000  # host monotonic = device time + 5 s
+    min_delay_ns = 2_000_000
+    errors = []
+    for i in range(3 * _OFFSET_WINDOW):
+        device_ns = i * 33_333_333
+        drift_ns = i * 1_000  # the device clock runs 30 ppm slow
+        truth_ns = device_ns + clock_offset_ns + drift_ns
+        arrival_ns = truth_ns + min_delay_ns + int(rng.exponential(3_000_000))
+        capture_ns = source._capture_ns(device_ns, arrival_ns)
+        assert capture_ns <= arrival_ns
+        errors.append(capture_ns - truth_ns)
+    late = np.array(errors[_OFFSET_WINDOW:])
+    # after one window: within the minimum delay plus the drift over one window
+    assert np.all(late >= min_delay_ns - _OFFSET_WINDOW * 1_000), late.min()
+    assert np.all(late <= min_delay_ns + 200_000), late.max()
