@@ -42,7 +42,7 @@ optional, and an unknown key anywhere is an error that names it (``link.rate`` �
     n_sectors = 72                       # ≤ 72; n_sectors × increment_deg ≤ 360
     increment_deg = 5.0
     angle_offset_deg = 0.0               # body bearing of sector 0's centre
-    band_half_height_m = 0.5             # vehicle half-height + margin
+    band_half_height_m = 0.3             # vehicle half-height + margin
     ignore_within_m = 0.3                # the vehicle's own body
     min_distance_m = 0.2
 

@@ -1073,9 +1073,17 @@ class CompanionCore:
                 self._send_target(target, self._now_s, None)
 
     def _send_proximity_frame(self, capture_ns: int, pose) -> None:
-        """OBSTACLE_DISTANCE of the map this frame updated, at its pose and capture time."""
+        """OBSTACLE_DISTANCE of the map this frame updated, stamped with its capture time,
+        seen from the newest telemetry pose (where the vehicle is now, not where it was
+        when the frame was taken: the frame's processing time is not added to the
+        autopilot's reaction) or, without a newer one, from the frame's pose."""
         if self.proximity is None:
             return
+        newest = self.poses.newest_ns
+        if newest is not None and newest > capture_ns:
+            lookup = self.poses.at(newest)
+            if lookup.pose is not None:
+                pose = lookup.pose
         sectors = self.proximity.on_frame(
             self.mission.pipeline.known_space, pose.pos_ned_m, pose.yaw_rad, self._now_s
         )

@@ -100,7 +100,7 @@ class ProximityConfig:
     n_sectors: int = 72
     increment_deg: float = 5.0
     angle_offset_deg: float = 0.0
-    band_half_height_m: float = 0.5
+    band_half_height_m: float = 0.3
     ignore_within_m: float = 0.3
     min_distance_m: float = 0.2
 

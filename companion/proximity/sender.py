@@ -6,8 +6,10 @@ The autopilot's proximity driver declares "No Data" 0.5 s after the last message
 the message goes out from start-up, before takeoff, in every mode and whether or not the
 companion steers, at no less than :attr:`ProximityConfig.rate_hz`:
 
-* each processed frame sends the sectors of the map it just updated, from the pose at the
-  frame's capture time, stamped with that capture time;
+* each processed frame sends the sectors of the map it just updated, stamped with the
+  frame's capture time, seen from the newest telemetry pose (the vehicle moved while the
+  frame was processed: the distances are from where it is, so the processing latency
+  does not add to the autopilot's reaction);
 * a timer fills every gap longer than the period (before the first frame, during a
   takeoff, when frames stop): the same map (it remembers; it does not age) from the
   newest telemetry pose, stamped with the capture time of the newest depth in the map;

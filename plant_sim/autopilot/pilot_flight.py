@@ -11,9 +11,12 @@ autopilot's avoidance — ArduCopter's simple avoidance (:mod:`.simple_avoid`) o
 Collision Prevention (:mod:`.collision_prevention`) on the proximity data
 (:mod:`.proximity`) — and, as in ArduCopter's ``AC_Loiter`` (the avoided velocity
 becomes the loiter's desired velocity), the result is the new velocity state. The
-setpoint is that velocity with a position reference advanced along it (kept within
-1 m of the vehicle, the position controller's leash). Throttle climbs at up to
-``PILOT_SPEED_UP`` (2.5 m/s), yaw turns at up to 90°/s. When the sticks centre, the mode
+setpoint is that velocity, with the horizontal position reference one tick ahead of the
+vehicle (no position error accumulates to pull it past the avoidance's limit) and the
+altitude reference moved by the throttle (kept within 1 m, the controller's leash); the
+velocity's change is fed forward as acceleration (ArduCopter's position controller is
+fed the shaped velocity and acceleration). Throttle climbs at up to ``PILOT_SPEED_UP``
+(2.5 m/s), yaw turns at up to 90°/s. When the sticks centre, the mode
 is entered again from the current state: ArduCopter's LOITER braking and hold
 (:mod:`plant_sim.autopilot.modes`; no avoidance while braking, named simplification).
 
@@ -137,17 +140,25 @@ class PilotFlight:
             dvn, dve = dvn * accel * dt / step, dve * accel * dt / step
         vel = (self._vel_ne[0] + dvn, self._vel_ne[1] + dve)
         vel = self._avoid(vel, kin, params, now_wall_s, dt)
+        # the velocity's change as acceleration feed-forward (ArduCopter's position
+        # controller is fed the shaped velocity and acceleration), at most ``accel``
+        an, ae = (vel[0] - self._vel_ne[0]) / dt, (vel[1] - self._vel_ne[1]) / dt
+        a = math.hypot(an, ae)
+        if a > accel:
+            an, ae = an * accel / a, ae * accel / a
         self._vel_ne = vel
         vd = -sticks.up * climb
+        # horizontally the velocity is tracked (the reference is where the vehicle will
+        # be at the next tick: no position error builds up to pull it past a limit the
+        # avoidance set); vertically the altitude reference moves with the throttle
+        down = self._ref[2] + vd * dt
+        down = kin.pos_ned_m[2] + max(-_LEASH_M, min(_LEASH_M, down - kin.pos_ned_m[2]))
+        self._ref = [kin.pos_ned_m[0] + vel[0] * dt, kin.pos_ned_m[1] + vel[1] * dt, down]
         ref = self._ref
-        ref[0] += vel[0] * dt
-        ref[1] += vel[1] * dt
-        ref[2] += vd * dt
-        for i in range(3):  # the position controller's leash
-            ref[i] = kin.pos_ned_m[i] + max(-_LEASH_M, min(_LEASH_M, ref[i] - kin.pos_ned_m[i]))
         self.setpoint = Setpoint(
             pos_ned_m=(ref[0], ref[1], ref[2]),
             vel_ned_mps=(vel[0], vel[1], vd),
+            acc_ned_mps2=(an, ae, 0.0),
             yaw_rate_radps=sticks.yaw * _YAW_RATE_RADPS,
         )
 
