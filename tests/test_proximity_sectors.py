@@ -212,3 +212,29 @@ def test_sectoring_is_cheap():
         sectors_from_map(space, POS, 0.1, CFG)
         times.append(time.perf_counter() - t0)
     assert float(np.median(times)) < 2e-3, f"median {np.median(times) * 1e3:.2f} ms"
+
+
+def test_the_run_keeps_the_sectors_of_its_closest_approach_and_draws_them():
+    """History keeps the sectors at the smallest surface distance; the polar figure's
+    obstacle bars are the sector distances and the other sectors reach the map's reach."""
+    from plant_sim.lockstep.history import History
+    from plant_sim.lockstep.plots import proximity_polar
+
+    space = _map(FREE)
+    _wall(space, 3.0, 0.0)
+    history = History()
+    calls = []
+
+    def sectors():
+        calls.append(1)
+        return sectors_from_map(space, POS, 0.0, CFG)
+
+    for surface in (5.0, 3.0, 4.0):
+        history.note_proximity(surface, sectors)
+    assert history.proximity_surface_m == 3.0 and len(calls) == 2
+    sec = history.proximity_at_closest
+    fig = proximity_polar(sec, 3.0)
+    heights = sorted(round(p.get_height(), 6) for p in fig.axes[0].patches)
+    seen = sec.distances_cm[:72][sec.distances_cm[:72] <= sec.max_distance_cm] / 100.0
+    expect = sorted([round(x, 6) for x in seen] + [6.2] * (72 - len(seen)))
+    assert heights == pytest.approx(expect)
