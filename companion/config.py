@@ -36,6 +36,16 @@ optional, and an unknown key anywhere is an error that names it (``link.rate`` �
     link_timeout_s = 1.5                 # wall time without any message → link lost
     frame_time_window_s = 2.0            # capture time this far from the clock: refused
 
+    [proximity]                          # OBSTACLE_DISTANCE from the known-space map
+    enabled = true                       # on by default (ArduPilot PRX1_TYPE=2, PX4 CP_DIST)
+    rate_hz = 20.0                       # least send rate, from start-up, in every mode
+    n_sectors = 72                       # ≤ 72; n_sectors × increment_deg ≤ 360
+    increment_deg = 5.0
+    angle_offset_deg = 0.0               # body bearing of sector 0's centre
+    band_half_height_m = 0.3             # vehicle half-height + margin
+    ignore_within_m = 0.3                # the vehicle's own body
+    min_distance_m = 0.2
+
     [perception]                         # companion.perception.PerceptionConfig fields
     [perception.depth_camera]            # companion.depth_camera.DepthCameraConfig fields
     [guidance]                           # companion.guidance.GuidanceConfig fields
@@ -63,6 +73,7 @@ from companion.guidance import GuidanceConfig
 from companion.guidance.envelope import EnvelopeConfig
 from companion.known_space import KnownSpaceConfig
 from companion.perception import PerceptionConfig
+from companion.proximity.sectors import ProximityConfig
 from protocols.config import ConfigError, check_keys, dataclass_from_mapping, vec3
 from protocols.keys import validate_vehicle_id
 from protocols.process import (
@@ -114,7 +125,6 @@ class LinkConfig:
     ardupilot_setpoint_period_s: float = 0.5  # periodic re-send on ArduPilot [s wall]
     px4_setpoint_rate_hz: float = 20.0  # continuous stream on PX4 [Hz wall], must be > 2
     px4_prestream_s: float = 1.2  # stream this long before requesting OFFBOARD [s wall]
-    obstacle_distance: bool = False  # also send OBSTACLE_DISTANCE
 
     def __post_init__(self) -> None:
         if not self.url:
@@ -197,6 +207,7 @@ class CompanionConfig:
     guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
     known_space: KnownSpaceConfig = field(default_factory=KnownSpaceConfig)
     envelope: EnvelopeConfig = field(default_factory=EnvelopeConfig)
+    proximity: ProximityConfig = field(default_factory=ProximityConfig)
     status_log_period_s: float = 1.0  # progress log line period [s wall]
 
     def __post_init__(self) -> None:
@@ -232,6 +243,7 @@ _TOP_KEYS = {
     "guidance",
     "known_space",
     "envelope",
+    "proximity",
 }
 
 
@@ -275,6 +287,8 @@ def config_from_dict(d: Mapping[str, Any]) -> CompanionConfig:
         )
     if "failsafe" in d:
         kw["failsafe"] = dataclass_from_mapping(FailsafeConfig, d["failsafe"], "failsafe")
+    if "proximity" in d:
+        kw["proximity"] = dataclass_from_mapping(ProximityConfig, d["proximity"], "proximity")
     try:
         if "perception" in d:
             kw["perception"] = PerceptionConfig.from_dict(dict(d["perception"]))
@@ -408,7 +422,13 @@ def _add_behaviour_arguments(p: argparse.ArgumentParser) -> None:
         help="request BRAKE/LOITER (PX4: hold) if no frame came for this long [s]",
     )
     p.add_argument("--telemetry-timeout-s", type=float, help="hold if poses are older [s]")
-    p.add_argument("--obstacle-distance", action="store_true", help="send OBSTACLE_DISTANCE")
+    p.add_argument(
+        "--obstacle-distance",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="send OBSTACLE_DISTANCE from the known-space map (default: on; "
+        "--no-obstacle-distance turns it off)",
+    )
 
 
 def parse_waypoints(text: str) -> list[list[float]]:
@@ -486,7 +506,6 @@ def config_from_args(
             "request_mode": False if args.no_request_mode else None,
             "frame_clock": args.frame_clock,
             "telemetry_rate_hz": args.telemetry_rate_hz,
-            "obstacle_distance": True if args.obstacle_distance else None,
         },
     )
     _merge(
@@ -507,6 +526,7 @@ def config_from_args(
             "telemetry_timeout_s": args.telemetry_timeout_s,
         },
     )
+    _merge(d, "proximity", {"enabled": args.obstacle_distance})
     _merge(
         d, "perception", {"threshold_m": args.threshold_m, "safety_margin_m": args.safety_margin_m}
     )

@@ -13,6 +13,7 @@ process on :class:`~companion.core.CompanionCore`).
 from __future__ import annotations
 
 import copy
+import functools
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -26,6 +27,7 @@ from companion.guidance.envelope import EnvelopeConfig
 from companion.known_space import KnownSpaceConfig
 from companion.perception import PerceptionConfig
 from companion.pipeline import PoseAtCapture
+from companion.proximity.sectors import ProximityConfig, sectors_from_map
 from evaluation.history import History
 from evaluation.scenes import Scene
 from evaluation.truth_perception import TruthPerception
@@ -157,6 +159,9 @@ class KillOutcome:
     max_speed_mps: float
 
 
+_PROXIMITY = ProximityConfig()  # the companion's default OBSTACLE_DISTANCE layout
+
+
 def nearest_surface_m(world: World, pos_ned_m: np.ndarray) -> float:
     """Distance from ``pos_ned_m`` to the nearest obstacle surface of any shape [m] (negative
     inside); inf with none."""
@@ -219,7 +224,7 @@ def run_scene(
         )
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
         if record_history:
-            _record(history, state, surface, out, len(out.perception.obstacles))
+            _record(history, state, surface, out, len(out.perception.obstacles), mission)
         tally.min_surface = min(tally.min_surface, surface)
         if out.guidance.avoidance_flag:
             tally.avoid_time += frame_period_s
@@ -449,7 +454,15 @@ def _render_frame(
     )
 
 
-def _record(history: History, s: VehicleState, surface_m: float, out, n_seen: int) -> None:
+def _record(
+    history: History, s: VehicleState, surface_m: float, out, n_seen: int, mission: Mission
+) -> None:
+    history.note_proximity(  # what OBSTACLE_DISTANCE says at the closest approach
+        surface_m,
+        functools.partial(
+            sectors_from_map, mission.pipeline.known_space, s.pos_ned_m, s.yaw_rad, _PROXIMITY
+        ),
+    )
     decision = out.guidance
     sp = out.setpoint_ned_m
     history.append(

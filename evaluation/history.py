@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +48,17 @@ class History:
 
     def __init__(self) -> None:
         self._rows: list[tuple[float, ...]] = []
+        # OBSTACLE_DISTANCE sectors the companion would send at the closest approach
+        # (companion.proximity.sectors.ProximitySectors) and that approach's surface
+        # distance [m]; None until a frame was recorded
+        self.proximity_at_closest = None
+        self.proximity_surface_m = math.inf
+
+    def note_proximity(self, surface_m: float, sectors_fn) -> None:
+        """Keep ``sectors_fn()`` when ``surface_m`` is the closest approach so far."""
+        if surface_m < self.proximity_surface_m:
+            self.proximity_surface_m = surface_m
+            self.proximity_at_closest = sectors_fn()
 
     def append(self, **values: float) -> None:
         """Add one sample; every column must be given, nothing else."""

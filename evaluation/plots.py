@@ -16,7 +16,7 @@ from matplotlib.patches import Circle, Rectangle
 from evaluation.history import History
 from plant_sim.world import World
 
-__all__ = ["write_figures"]
+__all__ = ["proximity_polar", "write_figures"]
 
 
 def write_figures(
@@ -29,7 +29,8 @@ def write_figures(
     rotor_limits_n: tuple[float, float],
     detect_threshold_m: float,
 ) -> list[Path]:
-    """Write fig6_trajectory.png … fig11_avoid_flag.png into ``out_dir``; return the paths."""
+    """Write fig6_trajectory.png … fig11_avoid_flag.png (and fig12_proximity.png, the
+    OBSTACLE_DISTANCE sectors at the closest approach) into ``out_dir``; return the paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     figures = {
@@ -40,6 +41,10 @@ def write_figures(
         "fig10_distance.png": _distance(history, detect_threshold_m),
         "fig11_avoid_flag.png": _avoid_flag(history),
     }
+    if history.proximity_at_closest is not None:
+        figures["fig12_proximity.png"] = proximity_polar(
+            history.proximity_at_closest, history.proximity_surface_m
+        )
     paths = []
     for name, fig in figures.items():
         fig.tight_layout()
@@ -177,3 +182,39 @@ def _obstacle_patches(world: World, top_view: bool) -> list:
             r, h = c.radius_m, c.height_m
             patches.append(Rectangle((n - r, -d - h / 2), 2 * r, h, **style))
     return patches
+
+
+def proximity_polar(sectors, surface_m: float) -> Figure:
+    """OBSTACLE_DISTANCE at the closest approach, as a ground station's radar shows it:
+    one bar per sector (body frame, nose up, clockwise), obstacle sectors at their
+    distance (red), clear ones to the reach (green, light), unknown ones grey to the
+    reach (never clear)."""
+    fig = Figure(figsize=(5.5, 5.5))
+    ax = fig.add_subplot(projection="polar")
+    ax.set_theta_zero_location("N")
+    ax.set_theta_direction(-1)  # bearings clockwise from the nose (FRD)
+    n = sectors.n_sectors
+    d = sectors.distances_cm[:n].astype(float)
+    reach_m = sectors.max_distance_cm / 100.0
+    theta = np.radians(sectors.bearings_deg())
+    width = math.radians(sectors.increment_deg)
+    unknown = d == 65535
+    clear = d == sectors.no_obstacle_cm
+    seen = ~unknown & ~clear
+    for mask, radius, colour, label in (
+        (unknown, np.full(n, reach_m), "0.75", "unknown (UINT16_MAX)"),
+        (clear, np.full(n, reach_m), "#9be39b", "clear to the reach"),
+        (seen, d / 100.0, "#d62728", "obstacle"),
+    ):
+        if mask.any():
+            ax.bar(theta[mask], radius[mask], width=width, color=colour, edgecolor="white",
+                   linewidth=0.3, label=label)  # fmt: skip
+    ax.set_rlim(0.0, reach_m)
+    nearest = f"{d[seen].min() / 100.0:.2f} m" if seen.any() else "none"
+    ax.set_title(
+        f"OBSTACLE_DISTANCE at the closest approach\n(true surface {surface_m:.2f} m; "
+        f"nearest sector {nearest})",
+        fontsize=9,
+    )
+    ax.legend(loc="lower left", bbox_to_anchor=(-0.1, -0.12), fontsize=7, frameon=False)
+    return fig

@@ -29,8 +29,10 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from plant_sim.autopilot import commands as cmds
+from plant_sim.autopilot.collision_prevention import CP_PARAM_SPECS
 from plant_sim.autopilot.link import EndpointSpec, MavlinkLink
 from plant_sim.autopilot.modes import (
+    FORCE_ARM_MAGIC,
     FlightMode,
     FlightModeMachine,
     GuidedTarget,
@@ -38,6 +40,7 @@ from plant_sim.autopilot.modes import (
     ModeTimings,
 )
 from plant_sim.autopilot.params import ParamTable, timings_from_params
+from plant_sim.autopilot.pilot_flight import PilotFlight
 from plant_sim.autopilot.px4 import (
     PX4_PARAM_SPECS,
     Px4Modes,
@@ -52,6 +55,7 @@ from plant_sim.autopilot.setpoints import (
     decode_global_target,
     decode_position_target,
 )
+from plant_sim.autopilot.simple_avoid import AVOID_PARAM_SPECS
 from plant_sim.autopilot.telemetry import (
     MESSAGE_IDS,
     StreamScheduler,
@@ -78,6 +82,8 @@ _KNOWN_MSG_IDS = frozenset(MESSAGE_IDS.values())
 _NAME_BY_ID = {v: k for k, v in MESSAGE_IDS.items()}
 _SEVERITY_WARNING = mavlink.MAV_SEVERITY_WARNING
 _SEVERITY_INFO = mavlink.MAV_SEVERITY_INFO
+# pilot sticks and proximity data: ArduPilot's / PX4's own avoidance (pilot_flight)
+_PILOT_MESSAGES = frozenset({"OBSTACLE_DISTANCE", "RC_CHANNELS_OVERRIDE", "MANUAL_CONTROL"})
 # messages handled at once (not queued for the next tick)
 _IMMEDIATE = frozenset({"TIMESYNC", "HEARTBEAT"})
 # parameters sent per autopilot tick while a PARAM_REQUEST_LIST is served (50 Hz: 1000/s)
@@ -150,7 +156,9 @@ def _param_table(config: PlantConfig) -> ParamTable:
             "SIM_SPEEDUP": config.speedup if math.isfinite(config.speedup) else 0.0,
             "SIM_CAM_RATE": sc.camera.rate_hz if sc.camera.enabled else 0.0,
         },
-        extra_specs=PX4_PARAM_SPECS if config.autopilot_flavour == "px4" else (),
+        extra_specs=PX4_PARAM_SPECS + CP_PARAM_SPECS
+        if config.autopilot_flavour == "px4"
+        else AVOID_PARAM_SPECS,
     )
 
 
@@ -190,6 +198,7 @@ class PlantService:
         if config.autopilot_flavour == "px4":
             self.machine.set_mode(FlightMode.LOITER, kin)  # PX4 starts in Hold
             self.px4 = Px4Modes(self.machine, self._home_amsl_m(), rules_from_params(self.params))
+        self.pilot = PilotFlight(px4=self.px4 is not None)  # sticks + proximity avoidance
         self._apply_machine()
         self.telemetry = TelemetryBuilder(
             VehicleIdentity(sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.alt_amsl_m)
@@ -297,6 +306,7 @@ class PlantService:
             if self._truth is None or not math.isfinite(self._truth.min_clearance_m)
             else round(self._truth.min_clearance_m, 4),
             **self.counters,
+            **self.pilot.stats(),
         }
 
     # ---- main loop -----------------------------------------------------------------
@@ -367,6 +377,8 @@ class PlantService:
             self.px4.home_amsl_m = self._home_amsl_m()
             for notice in self.px4.update(kin, notices):
                 self._statustext(notice, _SEVERITY_WARNING)
+        px4_main = None if self.px4 is None else self.px4.main
+        self.pilot.step(kin, self.machine, px4_main, self.params, time.monotonic(), self._tick_dt_s)
         self._apply_machine()
         self._tilt_notice(snap)
         wall_unix = time.time()
@@ -444,13 +456,18 @@ class PlantService:
         m = self.machine
         if m.armed != self.quad.armed:
             self.quad.set_armed(m.armed)
+        setpoint = m.setpoint
+        if self.pilot.setpoint is not None and self.pilot.pilot_mode(
+            m, None if self.px4 is None else self.px4.main
+        ):
+            setpoint = self.pilot.setpoint  # the pilot flies (LOITER / Position mode)
         if self.disturbances is not None:
             # the controller closes its loop on the estimate: tracking a target with the
             # estimate is tracking target − error with the truth
-            self.quad.set_setpoint(_shifted(m.setpoint, self.disturbances.estimate_error_ned_m))
-        elif m.setpoint is not self._applied_setpoint:
-            self.quad.set_setpoint(m.setpoint)
-            self._applied_setpoint = m.setpoint
+            self.quad.set_setpoint(_shifted(setpoint, self.disturbances.estimate_error_ned_m))
+        elif setpoint is not self._applied_setpoint:
+            self.quad.set_setpoint(setpoint)
+            self._applied_setpoint = setpoint
 
     def _tlog_write(self, frame: bytes) -> None:
         if self._tlog is not None:
@@ -548,6 +565,10 @@ class PlantService:
             self._ack(mavlink.MAVLINK_MSG_ID_SET_MODE, outcome, src, snap)
         elif mtype in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
             self._position_target(msg, kin)
+        elif mtype in _PILOT_MESSAGES:
+            reason = self.pilot.on_message(msg, time.monotonic())
+            if reason is not None:
+                self._refusal(f"pilot:{mtype}", reason, kin.time_s)
         elif mtype == "PARAM_REQUEST_LIST":
             # one transfer per requester; repeated requests while it runs change nothing
             self._param_sends.setdefault(src, 0)
@@ -619,6 +640,8 @@ class PlantService:
             )
         outcome = self._px4_command(msg.command, params, kin) if self.px4 is not None else None
         if outcome is None:
+            outcome = self._prearm(msg.command, params)
+        if outcome is None:
             outcome = cmds.handle_command(
                 msg.command,
                 params,
@@ -637,6 +660,17 @@ class PlantService:
             name = _NAME_BY_ID[outcome.send_message_id]
             self.link.send(self._build(name, snap, time.time()))
         self._apply_machine()
+
+    def _prearm(self, command: int, params) -> cmds.CommandOutcome | None:
+        """ArduCopter's proximity pre-arm check on an arm request (None: not refused)."""
+        if command != cmds.MavCmd.COMPONENT_ARM_DISARM or params[0] != 1 or self.machine.armed:
+            return None
+        if math.isfinite(params[1]) and round(params[1]) == FORCE_ARM_MAGIC:
+            return None
+        reason = self.pilot.prearm_failure(self.params, time.monotonic())
+        if reason is None:
+            return None
+        return cmds.CommandOutcome(cmds.MavResult.FAILED, f"Arm: {reason}")
 
     def _px4_command(self, command: int, params, kin: Kinematics) -> cmds.CommandOutcome | None:
         """PX4's handling of the mode, takeoff, land and RTL commands (None: the common one)."""

@@ -154,6 +154,6 @@ def test_intrinsics_reject_bad_values():
 
 @pytest.mark.parametrize(("width", "hfov"), [(320, 48.0), (640, 48.0), (640, 90.0), (1280, 72.5)])
 def test_intrinsics_hfov_inverts_the_camera_model(width, hfov):
-    """OBSTACLE_DISTANCE sectors span the camera's real field of view, not a fixed 48°."""
+    """The model's HFOV is the one it was built with, at every resolution."""
     cam = CameraModel(width_px=width, height_px=width * 3 // 4, hfov_deg=hfov)
     assert cam.intrinsics.hfov_deg == pytest.approx(hfov, abs=1e-9)

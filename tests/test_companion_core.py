@@ -352,18 +352,61 @@ def test_core_clock_timesync_maps_and_implausible_frames_are_dropped():
     assert rig.core.counters["frames_implausible_time"] == 1
 
 
-def test_core_obstacle_distance_spans_the_frames_own_field_of_view():
-    """OBSTACLE_DISTANCE sectors follow the camera's HFOV, not the paper's 48°."""
-    wide = CameraModel(width_px=160, height_px=120, hfov_deg=90.0, vfov_deg=73.7)
-    cfg = CompanionConfig()
-    cfg = dataclasses.replace(cfg, link=dataclasses.replace(cfg.link, obstacle_distance=True))
-    rig = Rig(cfg)
-    rig.camera = wide
-    rig.run(1.0)
+def test_core_obstacle_distance_is_on_the_wire_from_start_up_all_unknown_before_frames():
+    """Default config, no autopilot heard and no frame: honest all-unknown at >= 10 Hz."""
+    rig = Rig()
+    rig.run(2.0, frames=False, telemetry=False)
     msgs = rig.sent("OBSTACLE_DISTANCE")
-    assert msgs
-    assert msgs[-1].increment_f == pytest.approx(90.0 / 72, rel=1e-6)
-    assert msgs[-1].angle_offset == pytest.approx(-45.0, rel=1e-6)
+    assert len(msgs) >= 2.0 * 10, f"{len(msgs)} messages in 2 s"
+    assert len(msgs) == pytest.approx(2.0 * CompanionConfig().proximity.rate_hz, abs=2)
+    for m in msgs:
+        assert list(m.distances) == [65535] * 72
+        assert m.frame == mavlink.MAV_FRAME_BODY_FRD
+        assert m.increment_f == 5.0 and m.angle_offset == 0.0
+        assert m.max_distance == 620  # the map's reach (known_space 8 m, grid quarter 6.2 m)
+
+
+def test_core_obstacle_distance_follows_frames_with_their_capture_time():
+    """Processed frames send the map's sectors stamped with the frame's capture time; a
+    textureless camera shows nothing matched, so the sectors stay unknown, never clear."""
+    rig = Rig()
+    rig.run(3.0)
+    by_frame = rig.core.proximity.from_frames
+    assert by_frame >= 60  # 30 Hz frames, each sends one
+    msgs = rig.sent("OBSTACLE_DISTANCE")
+    capture_us = {s["capture_ns"] // 1000 for s in rig.statuses()}
+    assert sum(m.time_usec in capture_us for m in msgs) >= by_frame
+    last = msgs[-1]
+    assert 65535 in list(last.distances) and 621 not in list(last.distances)[:72]
+    status = rig.statuses()[-1]["proximity"]
+    assert status["sent"] == len(msgs) and status["rate_hz"] >= 10.0
+    assert status["unknown_sectors"] == 72
+
+
+def test_core_obstacle_distance_sees_what_the_map_holds():
+    """A map with a wall 3 m north and everything else free: sectors at the wall read
+    ≈ 3 m, the others clear (the message is the map guidance uses)."""
+    from companion.known_space import FREE, OCCUPIED
+
+    rig = Rig()
+    rig.run(1.0)
+    space = rig.core.mission.pipeline.known_space
+    space.grid[:] = FREE
+    n = (np.arange(space.grid.shape[0]) + space.origin_vox[0] + 0.5) * 0.2
+    space.grid[n >= 3.0] = OCCUPIED
+    rig.run(0.2, frames=False)
+    last = rig.sent("OBSTACLE_DISTANCE")[-1]
+    d = np.array(last.distances, dtype=float)
+    assert d[0] == pytest.approx(300, abs=30)
+    assert np.all(d[19:54] == 621)  # facing away from the wall: clear to the reach
+
+
+def test_core_obstacle_distance_can_be_turned_off():
+    cfg = CompanionConfig()
+    cfg = dataclasses.replace(cfg, proximity=dataclasses.replace(cfg.proximity, enabled=False))
+    rig = Rig(cfg)
+    rig.run(1.0)
+    assert rig.sent("OBSTACLE_DISTANCE") == []
 
 
 def test_core_replay_of_the_same_inputs_gives_the_same_outputs():

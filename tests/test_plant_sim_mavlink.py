@@ -16,6 +16,7 @@ from _plant_sim_proc import command, connect, recv
 from pymavlink import mavutil
 
 from plant_sim.autopilot.params import PARAM_SPECS
+from plant_sim.autopilot.simple_avoid import AVOID_PARAM_SPECS
 
 mav = mavutil.mavlink
 GUIDED, LOITER, LAND = 4, 5, 9
@@ -336,7 +337,7 @@ def test_mavproxy_connects_fetches_params_and_reports_mode(plant_factory, tmp_pa
                 time.sleep(0.05)  # polling a pipe, bounded by the deadline
                 continue
             lines.append(line.rstrip())
-            if f"Received {len(PARAM_SPECS)} parameters" in line:
+            if f"Received {len(PARAM_SPECS) + len(AVOID_PARAM_SPECS)} parameters" in line:
                 seen.add("params")
             if "GUIDED" in line:
                 seen.add("mode")

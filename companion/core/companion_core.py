@@ -10,11 +10,14 @@ setpoint keep-alive). Per input:
   watch, takeoff), LOCAL_POSITION_NED and ATTITUDE into the pose history on the frame
   clock, TIMESYNC, COMMAND_ACKs, PARAM_VALUE (WPNAV_SPEED); a twin's heartbeat or another
   source's setpoints (:mod:`companion.takeover`).
-* :class:`~companion.core.events.Tick`: the timers, then the failsafe on the frame clock.
+* :class:`~companion.core.events.Tick`: the timers (OBSTACLE_DISTANCE included: from
+  start-up, in every mode, :mod:`companion.proximity.sender`), then the failsafe on the
+  frame clock.
 * :class:`~companion.core.events.FrameReceived`: pose at the frame's capture time → the
   :class:`~companion.core.mission.Mission` (waypoints around the same
   :class:`~companion.pipeline.AvoidancePipeline` the lockstep harness runs) → setpoint
-  (when in control and healthy), speed limit, reports, OBSTACLE_DISTANCE, status.
+  (when in control and healthy), speed limit, reports, OBSTACLE_DISTANCE (the sectors of
+  the known-space map, :mod:`companion.proximity.sectors`), status.
 
 Outputs are MAVLink messages to send, setpoints, events and status documents, returned in
 order by :meth:`CompanionCore.step`. Log lines go to the ``companion`` logger.
@@ -26,7 +29,6 @@ import logging
 import math
 from typing import Any
 
-import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.clock_model import (
@@ -86,6 +88,7 @@ from companion.link.takeoff import (
     TakeoffStep,
 )
 from companion.pose_history import PoseHistory, PoseStatus
+from companion.proximity.sender import ProximitySender
 from companion.status import status_document
 from companion.takeover import SETPOINT_MESSAGES, TakeoverGuard
 from protocols.stereo_frame import StereoFrame
@@ -191,6 +194,8 @@ class CompanionCore:
         self._now_ns = 0
         self._now_s = 0.0
         self._out: list[Output] = []
+        # OBSTACLE_DISTANCE from start-up, whatever the link, mode or phase
+        self.proximity = ProximitySender(config.proximity) if config.proximity.enabled else None
 
     # ---- what the adapters read ----------------------------------------------------
     @property
@@ -224,6 +229,7 @@ class CompanionCore:
             "clock_rate": round(self.clock.autopilot.rate, 3),
             "waypoint": self.mission.waypoint,
             "takeoff": None if self.takeoff is None else self.takeoff.step.value,
+            "obstacle_distance_sent": None if self.proximity is None else self.proximity.sent,
         }
 
     def progress_text(self) -> str:
@@ -262,7 +268,17 @@ class CompanionCore:
             f"{num(f['data_age_p50_ms'], '.0f')} p99 {num(f['data_age_p99_ms'], '.0f')} ms, "
             f"latency budget {f['latency_budget_s']:.2f} s, speed limit "
             f"{num(f['speed_limit_mps'], '.1f')} m/s, mode requests "
-            f"{self.counters['mode_requests']}"
+            f"{self.counters['mode_requests']}{self._proximity_text()}"
+        )
+
+    def _proximity_text(self) -> str:
+        if self.proximity is None:
+            return ", OBSTACLE_DISTANCE off"
+        p = self.proximity.figures(self._now_s)
+        return (
+            f", OBSTACLE_DISTANCE {p['sent']} at {p['rate_hz']:.1f} Hz (sectors: "
+            f"{p['obstacle_sectors']} obstacle, {p['clear_sectors']} clear, "
+            f"{p['unknown_sectors']} unknown)"
         )
 
     # ---- per-connection state ------------------------------------------------------
@@ -686,6 +702,8 @@ class CompanionCore:
             self._send(heartbeat_message(self._state(), self.instance_id))
             self._check_takeover(now_s)
             self._next_heartbeat_s = now_s + cfg.heartbeat_period_s
+        if self.proximity is not None and self.proximity.due(now_s):
+            self._send_proximity_now(now_s)
         if self._link_up and now_s - self._last_rx_s > self.config.failsafe.link_timeout_s:
             self._link_lost(now_s)
         if not self._link_up:
@@ -829,8 +847,7 @@ class CompanionCore:
         for notice in result.notices:
             self._notice(notice.text, _SEV_WARNING if notice.warning else _SEV_INFO)
         self._out.extend(result.events)
-        if self.config.link.obstacle_distance:
-            self._send_obstacle_distance(out, pose, frame.intrinsics.hfov_deg)
+        self._send_proximity_frame(frame.capture_ns, pose)
         host_capture = frame.capture_ns if self.clock.frame_clock is FrameClock.HOST else None
         document = status_document(
             out,
@@ -844,6 +861,7 @@ class CompanionCore:
             setpoint_sent=sent,
             pipeline=self._pipeline_figures(out.envelope.latency_s),
             mode_requests=self.counters["mode_requests"],
+            proximity=None if self.proximity is None else self.proximity.figures(self._now_s),
         )
         self._out.append(Status(document, recv_ns, self._now_ns, host_capture))
         if self.report_pipeline:  # a viewer is attached (companion.viz)
@@ -1054,21 +1072,39 @@ class CompanionCore:
             if self.modes.steering and self.policy is not None and self._may_steer(self._now_s):
                 self._send_target(target, self._now_s, None)
 
-    def _send_obstacle_distance(self, out, pose, hfov_deg: float) -> None:
-        """OBSTACLE_DISTANCE over the camera's own field of view (from the frame's model)."""
-        pairs = []
-        for o in out.perception.obstacles:
-            rel_frd = pose.R_ned_from_frd.T @ (np.asarray(o.center_ned_m) - pose.pos_ned_m)
-            pairs.append((math.atan2(rel_frd[1], rel_frd[0]), float(o.nearest_range_m)))
-        self._send(
-            obstacle_distance_message(
-                out.perception.capture_ns // 1000,
-                pairs,
-                hfov_deg,
-                self.config.perception.min_range_m,
-                self.config.perception.threshold_m,
-            )
+    def _send_proximity_frame(self, capture_ns: int, pose) -> None:
+        """OBSTACLE_DISTANCE of the map this frame updated, stamped with its capture time,
+        seen from the newest telemetry pose (where the vehicle is now, not where it was
+        when the frame was taken: the frame's processing time is not added to the
+        autopilot's reaction) or, without a newer one, from the frame's pose."""
+        if self.proximity is None:
+            return
+        newest = self.poses.newest_ns
+        if newest is not None and newest > capture_ns:
+            lookup = self.poses.at(newest)
+            if lookup.pose is not None:
+                pose = lookup.pose
+        sectors = self.proximity.on_frame(
+            self.mission.pipeline.known_space, pose.pos_ned_m, pose.yaw_rad, self._now_s
         )
+        self._send(obstacle_distance_message(capture_ns // 1000, sectors))
+
+    def _send_proximity_now(self, now_s: float) -> None:
+        """OBSTACLE_DISTANCE between frames: the map at the newest pose (all unknown
+        without one), stamped with the newest depth's capture time (frame clock)."""
+        assert self.proximity is not None
+        pose = None
+        newest = self.poses.newest_ns
+        if newest is not None:
+            pose = self.poses.at(newest).pose
+        sectors = self.proximity.on_timer(
+            self.mission.pipeline.known_space,
+            None if pose is None else pose.pos_ned_m,
+            None if pose is None else pose.yaw_rad,
+            now_s,
+        )
+        stamp_ns = self._last_capture_ns if self._last_capture_ns is not None else newest
+        self._send(obstacle_distance_message(max(stamp_ns or 0, 0) // 1000, sectors))
 
     # ---- failsafe ------------------------------------------------------------------
     def _check_failsafe(self, now_s: float) -> None:

@@ -8,11 +8,11 @@ STATUSTEXT, TIMESYNC and OBSTACLE_DISTANCE.
 from __future__ import annotations
 
 import enum
-import math
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.link.flavour import ModeRequest
+from companion.proximity.sectors import ProximitySectors
 from protocols.statustext import statustext_chunks
 
 __all__ = [
@@ -124,36 +124,19 @@ def timesync_reply(host_ns: int, their_ts1: int) -> mavlink.MAVLink_timesync_mes
 
 
 def obstacle_distance_message(
-    time_usec: int,
-    obstacles_frd: list[tuple[float, float]],
-    hfov_deg: float,
-    min_distance_m: float,
-    max_distance_m: float,
-    n_sectors: int = 72,
+    time_usec: int, sectors: ProximitySectors
 ) -> mavlink.MAVLink_obstacle_distance_message:
-    """OBSTACLE_DISTANCE (MAV_FRAME_BODY_FRD) from (bearing_rad, range_m) pairs.
-
-    Sectors of ``hfov_deg / n_sectors`` centred on the camera axis; sectors with nothing
-    within ``max_distance_m`` report max + 1 cm (no obstacle), the rest ``UINT16_MAX``.
-    """
-    increment = hfov_deg / n_sectors
-    start = -hfov_deg / 2.0
-    no_obstacle_cm = int(max_distance_m * 100) + 1
-    distances = [65535] * 72
-    for i in range(n_sectors):
-        distances[i] = no_obstacle_cm
-    for bearing, rng in obstacles_frd:
-        k = math.floor((math.degrees(bearing) - start) / increment)
-        if 0 <= k < n_sectors and math.isfinite(rng):
-            distances[k] = min(distances[k], max(0, int(rng * 100)))
+    """OBSTACLE_DISTANCE (MAV_FRAME_BODY_FRD) carrying ``sectors``
+    (:mod:`companion.proximity.sectors`: sector ``k`` centred on body bearing
+    ``angle_offset + k · increment_f``; ``UINT16_MAX`` unknown, max + 1 cm clear)."""
     return _M.MAVLink_obstacle_distance_message(
         int(time_usec),
         _M.MAV_DISTANCE_SENSOR_UNKNOWN,
-        distances,
-        0,
-        int(min_distance_m * 100),
-        int(max_distance_m * 100),
-        float(increment),
-        float(start),
+        [int(d) for d in sectors.distances_cm],
+        0,  # increment [deg, integer]: 0, the float increment_f is used
+        int(sectors.min_distance_cm),
+        int(sectors.max_distance_cm),
+        float(sectors.increment_deg),
+        float(sectors.angle_offset_deg),
         _M.MAV_FRAME_BODY_FRD,
     )

@@ -1,0 +1,303 @@
+"""OBSTACLE_DISTANCE sectors from the known-space map: one obstacle model for all.
+
+The autopilot's own avoidance (ArduCopter's simple avoidance with ``PRX1_TYPE = 2``, PX4's
+Collision Prevention) is told about the same world guidance avoids: the
+:class:`~companion.known_space.KnownSpace` map, not perception's per-frame spheres. Pure:
+no clock, no I/O; one numba kernel over the map's columns near the vehicle.
+
+Per sector (body bearing ``θ_k = angle_offset + k · increment``, the sector
+``[θ_k − increment/2, θ_k + increment/2)``, bearings clockwise from the nose, FRD):
+
+* **Obstacle**: the horizontal distance from the vehicle to the nearest OCCUPIED voxel
+  whose vertical extent overlaps the vehicle's height band (``pos_z ± band_half_height_m``:
+  the vehicle's size plus a margin), out to ``max_distance_m``. A voxel counts for every
+  sector its footprint touches (the disc of half the footprint's diagonal about its
+  centre), at the distance of that disc's nearest point: conservative by at most
+  ``voxel · (√2 − 1) / 2`` (4 cm at 0.2 m). Closed form for a long wall at distance ``d``
+  whose normal points to bearing ``α``: sector ``k`` reads ``d / cos(max(0, |θ_k − α| −
+  increment/2))``, the distance to the wall at the sector's edge nearest the normal.
+* **Unknown** (``UINT16_MAX``): no obstacle, but some voxel of the band within
+  ``max_distance_m`` in the sector is not FREE (UNKNOWN, TENTATIVE or outside the grid).
+  Unknown is never clear (DESIGN.md, "The safety envelope").
+* **No obstacle** (``max_distance + 1`` cm, the message's convention): the band was seen
+  FREE over the whole sector out to ``max_distance_m``.
+
+An obstacle seen beyond unknown space is reported at its distance (the autopilot learns of
+it); the unknown space in front of it is not reported as an obstacle, as nowhere else.
+Voxels within ``ignore_within_m`` of the vehicle (its own body) are skipped.
+
+Frame (chosen after reading the message definition, ArduPilot's
+``libraries/AP_Proximity/AP_Proximity_MAV.cpp`` and PX4's
+``src/lib/collision_prevention/CollisionPrevention.cpp``): **MAV_FRAME_BODY_FRD** with
+``angle_offset`` and ``increment_f``. ArduPilot ignores the message's ``frame`` field and
+always reads the sectors as body-relative (sector ``j`` at ``j · increment + angle_offset``),
+so a LOCAL_NED message would be misread there; PX4 reads both. The sectors are computed
+in NED from the map and turned into body bearings with the vehicle's yaw. Both autopilots
+drop ``0``, ``UINT16_MAX`` and anything below ``min_distance`` or above ``max_distance``,
+so a real obstacle nearer than ``min_distance_m`` is reported *at* ``min_distance_m``,
+never below it. PX4 bins ``[5i, 5i + 5)`` while ArduPilot centres sector ``j`` on
+``5j``: with the default ``angle_offset = 0`` PX4's bins lie 2.5° clockwise of ours
+(named limitation).
+
+The reach (``max_distance_m``) is what the map can vouch for: the smaller of the depth's
+trusted range (``KnownSpaceConfig.max_range_m``) and the distance the vehicle always has
+to the grid's edge (a quarter of the grid, the recentring rule, less one voxel).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from companion.known_space import KnownSpace
+from protocols.config import check_numbers
+
+__all__ = [
+    "MAX_SECTORS",
+    "UINT16_MAX",
+    "ProximityConfig",
+    "ProximitySectors",
+    "map_reach_m",
+    "sectors_from_map",
+    "unknown_sectors",
+]
+
+MAX_SECTORS = 72  # OBSTACLE_DISTANCE.distances
+UINT16_MAX = 65535  # "unknown / not used" in OBSTACLE_DISTANCE
+
+
+@dataclass(frozen=True)
+class ProximityConfig:
+    """OBSTACLE_DISTANCE from the known-space map (``[proximity]`` in the config file).
+
+    Attributes
+    ----------
+    enabled : bool
+        Send OBSTACLE_DISTANCE (on by default, for ArduPilot and PX4 alike).
+    rate_hz : float
+        Least send rate [Hz wall]: every processed frame sends one, and a timer fills the
+        gaps (before the first frame, during a takeoff, when frames stop) from the map at
+        the newest telemetry pose. ArduPilot drops the data after 0.5 s, PX4 after 0.5 s.
+    n_sectors : int
+        Sectors in the message, ≤ 72.
+    increment_deg : float
+        Sector width [deg]; ``n_sectors · increment_deg`` ≤ 360.
+    angle_offset_deg : float
+        Body bearing of sector 0's centre [deg, clockwise from the nose].
+    band_half_height_m : float
+        Half-height of the vehicle's band [m]: its half-height plus a margin.
+    ignore_within_m : float
+        Voxels centred this close to the vehicle, horizontally, are its own body [m].
+    min_distance_m : float
+        The message's ``min_distance`` [m]; nearer obstacles are reported at it.
+    """
+
+    enabled: bool = True
+    rate_hz: float = 20.0
+    n_sectors: int = 72
+    increment_deg: float = 5.0
+    angle_offset_deg: float = 0.0
+    band_half_height_m: float = 0.3
+    ignore_within_m: float = 0.3
+    min_distance_m: float = 0.2
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.enabled, bool):
+            raise ValueError(f"enabled must be true or false, got {self.enabled!r}")
+        n = self.n_sectors
+        if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_SECTORS:
+            raise ValueError(f"n_sectors must be an integer in 1..{MAX_SECTORS}, got {n!r}")
+        check_numbers(self, ("rate_hz", "increment_deg", "band_half_height_m"), positive=True)
+        check_numbers(self, ("ignore_within_m", "min_distance_m"))
+        if not math.isfinite(self.angle_offset_deg):
+            raise ValueError(f"angle_offset_deg must be finite, got {self.angle_offset_deg!r}")
+        if n * self.increment_deg > 360.0 + 1e-9:
+            raise ValueError(
+                f"n_sectors × increment_deg must be <= 360, got {n} × {self.increment_deg}"
+            )
+        if self.min_distance_m < 0.01:
+            raise ValueError("min_distance_m must be >= 0.01 (0 cm is 'invalid' on the wire)")
+
+
+@dataclass(frozen=True, eq=False)
+class ProximitySectors:
+    """One OBSTACLE_DISTANCE's content (MAV_FRAME_BODY_FRD).
+
+    Attributes
+    ----------
+    distances_cm : ndarray, shape (72,), uint16
+        Per sector [cm]; ``UINT16_MAX`` unknown (and the unused tail), ``max_distance_cm
+        + 1`` no obstacle.
+    increment_deg, angle_offset_deg : float
+        Sector width and sector 0's centre [deg, body, clockwise].
+    min_distance_cm, max_distance_cm : int
+    n_sectors : int
+    """
+
+    distances_cm: np.ndarray
+    increment_deg: float
+    angle_offset_deg: float
+    min_distance_cm: int
+    max_distance_cm: int
+    n_sectors: int
+
+    @property
+    def no_obstacle_cm(self) -> int:
+        return self.max_distance_cm + 1
+
+    def counts(self) -> tuple[int, int, int]:
+        """(obstacle, clear, unknown) sectors."""
+        d = self.distances_cm[: self.n_sectors].astype(np.int64)
+        unknown = int(np.count_nonzero(d == UINT16_MAX))
+        clear = int(np.count_nonzero(d == self.no_obstacle_cm))
+        return self.n_sectors - unknown - clear, clear, unknown
+
+    def bearings_deg(self) -> np.ndarray:
+        """Body bearing of each sector's centre [deg, clockwise from the nose]."""
+        return self.angle_offset_deg + self.increment_deg * np.arange(self.n_sectors)
+
+
+def map_reach_m(space: KnownSpace) -> float:
+    """How far [m] the map vouches for, horizontally, around the vehicle (module doc)."""
+    c = space.config
+    in_grid_m = (c.size_xy_vox // 4 - 1) * c.voxel_m
+    return float(min(c.max_range_m, in_grid_m))
+
+
+def unknown_sectors(config: ProximityConfig, max_distance_m: float) -> ProximitySectors:
+    """Every sector unknown: what is honest before the map has anything."""
+    return ProximitySectors(
+        np.full(MAX_SECTORS, UINT16_MAX, np.uint16),
+        float(config.increment_deg),
+        float(config.angle_offset_deg),
+        _cm(config.min_distance_m),
+        _cm(max_distance_m),
+        config.n_sectors,
+    )
+
+
+def sectors_from_map(
+    space: KnownSpace, pos_ned_m, yaw_rad: float, config: ProximityConfig
+) -> ProximitySectors:
+    """The sectors around ``pos_ned_m`` with the vehicle's nose at ``yaw_rad`` (NED).
+
+    Parameters
+    ----------
+    space : KnownSpace
+    pos_ned_m : array_like, shape (3,)
+        Vehicle position [m, LOCAL_NED].
+    yaw_rad : float
+        Vehicle heading [rad, NED, clockwise from north].
+    config : ProximityConfig
+    """
+    reach_m = map_reach_m(space)
+    p = np.asarray(pos_ned_m, dtype=float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)) or not math.isfinite(yaw_rad):
+        raise ValueError(f"position and yaw must be finite, got {pos_ned_m!r}, {yaw_rad!r}")
+    occupied = np.full(config.n_sectors, np.inf)
+    unknown = np.full(config.n_sectors, np.inf)
+    _scan(
+        space.grid,
+        space.origin_vox,
+        float(space.config.voxel_m),
+        float(p[0]),
+        float(p[1]),
+        float(p[2]),
+        float(yaw_rad),
+        float(config.band_half_height_m),
+        float(config.ignore_within_m),
+        reach_m,
+        math.radians(config.increment_deg),
+        math.radians(config.angle_offset_deg),
+        occupied,
+        unknown,
+    )
+    min_cm, max_cm = _cm(config.min_distance_m), _cm(reach_m)
+    out = np.full(MAX_SECTORS, UINT16_MAX, np.uint16)
+    for k in range(config.n_sectors):
+        if occupied[k] <= reach_m:
+            out[k] = min(max(math.floor(occupied[k] * 100.0), min_cm), max_cm)
+        elif unknown[k] > reach_m:
+            out[k] = max_cm + 1
+    return ProximitySectors(
+        out,
+        float(config.increment_deg),
+        float(config.angle_offset_deg),
+        min_cm,
+        max_cm,
+        config.n_sectors,
+    )
+
+
+def _cm(value_m: float) -> int:
+    return round(value_m * 100.0)
+
+
+@numba.njit(cache=True)
+def _scan(
+    grid, origin, voxel, px, py, pz, yaw, half_band, ignore_within, reach, inc, offset, occ, unk
+):
+    """Nearest OCCUPIED (``occ``) and not-FREE (``unk``) voxel column of the band per
+    sector [m, horizontal, the footprint's nearest point]; see the module docstring."""
+    n = occ.shape[0]
+    n_full = math.floor(2.0 * math.pi / inc + 1e-6)
+    inv = 1.0 / voxel
+    half = 0.5 * voxel
+    r_vox = math.ceil((reach + voxel) * inv) + 1
+    ci = math.floor(px * inv) - origin[0]
+    cj = math.floor(py * inv) - origin[1]
+    k_lo = math.floor((pz - half_band) * inv) - origin[2]
+    k_hi = math.floor((pz + half_band) * inv) - origin[2]
+    ni, nj, nk = grid.shape
+    for i in range(ci - r_vox, ci + r_vox + 1):
+        dn = (i + origin[0] + 0.5) * voxel - px
+        gap_n = max(abs(dn) - half, 0.0)
+        for j in range(cj - r_vox, cj + r_vox + 1):
+            de = (j + origin[1] + 0.5) * voxel - py
+            gap_e = max(abs(de) - half, 0.0)
+            near = math.sqrt(gap_n * gap_n + gap_e * gap_e)  # the footprint's nearest point
+            if near > reach or dn * dn + de * de < ignore_within * ignore_within:
+                continue
+            is_occ = False
+            is_unk = i < 0 or j < 0 or i >= ni or j >= nj
+            if not is_unk:
+                for k in range(k_lo, k_hi + 1):
+                    if k < 0 or k >= nk:
+                        is_unk = True
+                        continue
+                    s = grid[i, j, k]
+                    if s == 2:
+                        is_occ = True
+                    elif s != 1:
+                        is_unk = True
+            if not (is_occ or is_unk):
+                continue
+            if near > 0.0:
+                # the footprint's angular span: its corners' bearings about its centre's,
+                # relative to sector 0's centre
+                centre = math.atan2(de, dn)
+                lo = 0.0
+                hi = 0.0
+                for cn in (dn - half, dn + half):
+                    for ce in (de - half, de + half):
+                        a = math.atan2(ce, cn) - centre
+                        a -= 2.0 * math.pi * math.floor((a + math.pi) / (2.0 * math.pi))
+                        lo = min(lo, a)
+                        hi = max(hi, a)
+                rel = centre - yaw - offset
+                s_lo = math.floor((rel + lo) / inc + 0.5)
+                s_hi = math.floor((rel + hi) / inc + 0.5)
+            else:  # the vehicle stands on the footprint: every direction
+                s_lo = 0
+                s_hi = n_full - 1
+            for s in range(s_lo, s_hi + 1):
+                kk = s % n_full
+                if kk >= n:
+                    continue
+                if is_occ and near < occ[kk]:
+                    occ[kk] = near
+                if is_unk and near < unk[kk]:
+                    unk[kk] = near

@@ -1,0 +1,111 @@
+"""When the companion sends OBSTACLE_DISTANCE, and what: always on the wire.
+
+The autopilot's proximity driver declares "No Data" 0.5 s after the last message
+(ArduPilot ``AP_Proximity_MAV``: ``PROXIMITY_MAV_TIMEOUT_MS``; PX4 Collision Prevention:
+``RANGE_STREAM_TIMEOUT_US``), and ArduCopter refuses to arm on it ("PRX1: No Data"). So
+the message goes out from start-up, before takeoff, in every mode and whether or not the
+companion steers, at no less than :attr:`ProximityConfig.rate_hz`:
+
+* each processed frame sends the sectors of the map it just updated, stamped with the
+  frame's capture time, seen from the newest telemetry pose (the vehicle moved while the
+  frame was processed: the distances are from where it is, so the processing latency
+  does not add to the autopilot's reaction);
+* a timer fills every gap longer than the period (before the first frame, during a
+  takeoff, when frames stop): the same map (it remembers; it does not age) from the
+  newest telemetry pose, stamped with the capture time of the newest depth in the map;
+  before any depth, every sector is unknown (``UINT16_MAX``) — honest, and enough for
+  ArduCopter's pre-arm check; PX4 will not move in Position mode on it
+  (``CP_GO_NO_DATA = 0``), which is what it should do.
+
+Pure: the caller passes the wall time (``now_s``) and the map; no clock, no I/O.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any
+
+from companion.known_space import KnownSpace
+from companion.proximity.sectors import (
+    ProximityConfig,
+    ProximitySectors,
+    map_reach_m,
+    sectors_from_map,
+    unknown_sectors,
+)
+
+__all__ = ["ProximitySender"]
+
+_RATE_WINDOW_S = 2.0  # the send rate is measured over this much wall time
+_SLACK_S = 1e-3  # [s wall]
+
+
+class ProximitySender:
+    """Schedules OBSTACLE_DISTANCE and keeps its figures for the status.
+
+    Parameters
+    ----------
+    config : ProximityConfig
+    """
+
+    def __init__(self, config: ProximityConfig) -> None:
+        self.config = config
+        self.period_s = 1.0 / config.rate_hz
+        self.sent = 0
+        self.from_frames = 0
+        self.last: ProximitySectors | None = None
+        self._last_send_s = float("-inf")
+        self._times: deque[float] = deque()
+
+    def due(self, now_s: float) -> bool:
+        """The timer must send now (nothing went out for a period, less a millisecond
+        of slack so that a caller ticking at a divisor of the period keeps the rate)."""
+        return now_s - self._last_send_s >= self.period_s - _SLACK_S
+
+    def on_frame(
+        self, space: KnownSpace, pos_ned_m, yaw_rad: float, now_s: float
+    ) -> ProximitySectors:
+        """Sectors of the map just updated by a frame, at the frame's pose."""
+        self.from_frames += 1
+        return self._sent(sectors_from_map(space, pos_ned_m, yaw_rad, self.config), now_s)
+
+    def on_timer(
+        self, space: KnownSpace | None, pos_ned_m, yaw_rad: float | None, now_s: float
+    ) -> ProximitySectors:
+        """Sectors from the newest pose (None: not known yet → all unknown)."""
+        if space is None or space.frames == 0 or pos_ned_m is None or yaw_rad is None:
+            reach = 0.0 if space is None else map_reach_m(space)
+            return self._sent(unknown_sectors(self.config, reach), now_s)
+        return self._sent(sectors_from_map(space, pos_ned_m, yaw_rad, self.config), now_s)
+
+    def figures(self, now_s: float) -> dict[str, Any]:
+        """Message count, send rate over the last 2 s [Hz wall] and the last sectors."""
+        self._trim(now_s)
+        counts = (None, None, None) if self.last is None else self.last.counts()
+        return {
+            "sent": self.sent,
+            "from_frames": self.from_frames,
+            "rate_hz": round(len(self._times) / _RATE_WINDOW_S, 2),
+            "obstacle_sectors": counts[0],
+            "clear_sectors": counts[1],
+            "unknown_sectors": counts[2],
+            "nearest_m": None if self.last is None else self._nearest_m(self.last),
+        }
+
+    def _sent(self, sectors: ProximitySectors, now_s: float) -> ProximitySectors:
+        self.sent += 1
+        self.last = sectors
+        self._last_send_s = now_s
+        self._times.append(now_s)
+        self._trim(now_s)
+        return sectors
+
+    def _trim(self, now_s: float) -> None:
+        while self._times and self._times[0] <= now_s - _RATE_WINDOW_S:
+            self._times.popleft()
+
+    @staticmethod
+    def _nearest_m(sectors: ProximitySectors) -> float | None:
+        d = sectors.distances_cm[: sectors.n_sectors]
+        seen = d[d <= sectors.max_distance_cm]
+        return None if seen.size == 0 else round(float(seen.min()) / 100.0, 2)

@@ -1,0 +1,240 @@
+"""OBSTACLE_DISTANCE sectors from the known-space map against closed forms."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from companion.known_space import FREE, OCCUPIED, TENTATIVE, UNKNOWN, KnownSpace
+from companion.proximity.sectors import (
+    MAX_SECTORS,
+    UINT16_MAX,
+    ProximityConfig,
+    map_reach_m,
+    sectors_from_map,
+    unknown_sectors,
+)
+
+POS = np.array([3.0, -2.0, -7.0])  # off the voxel grid's lines on purpose
+CFG = ProximityConfig()
+VOXEL = 0.2
+DIAG = VOXEL * math.sqrt(2.0)  # the footprint's diagonal: the sectoring's resolution
+
+
+def _map(fill=FREE) -> KnownSpace:
+    space = KnownSpace()
+    space.mark_vehicle(POS)
+    space.grid[:] = fill
+    return space
+
+
+def _centres(space: KnownSpace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """North, east, down of every voxel centre relative to POS [m] (broadcastable)."""
+    v = space.config.voxel_m
+    n, e, d = (
+        (np.arange(s) + o + 0.5) * v - p
+        for s, o, p in zip(space.grid.shape, space.origin_vox, POS, strict=True)
+    )
+    return n[:, None, None], e[None, :, None], d[None, None, :]
+
+
+def _wall(space: KnownSpace, d_m: float, alpha_rad: float) -> None:
+    """OCCUPIED every voxel that touches the half-space beyond a plane at ``d_m`` whose
+    normal points to bearing ``alpha_rad`` (NED) from POS."""
+    n, e, _ = _centres(space)
+    c, s = math.cos(alpha_rad), math.sin(alpha_rad)
+    along = n * c + e * s
+    touch = along >= d_m - 0.5 * VOXEL * (abs(c) + abs(s))
+    space.grid[np.broadcast_to(touch, space.grid.shape)] = OCCUPIED
+
+
+def _wrap_deg(a):
+    return (np.asarray(a) + 180.0) % 360.0 - 180.0
+
+
+@pytest.mark.parametrize(
+    ("d_m", "alpha_deg", "yaw_deg"),
+    [(3.0, 0.0, 0.0), (2.2, 17.0, 0.0), (4.1, -63.0, 30.0), (1.5, 135.0, -100.0)],
+)
+def test_wall_sector_distances_are_d_over_cos(d_m, alpha_deg, yaw_deg):
+    """A wall at distance d whose normal points to body bearing α: sector k reads
+    d / cos(max(0, |θ_k − α| − increment/2)): at most that (1 cm: the cm floor), and no
+    nearer than the same for the voxelized wall's front (d less the voxels' depth along
+    the normal), less one footprint diagonal (a voxel's nearest point is conservative)."""
+    space = _map()
+    _wall(space, d_m, math.radians(alpha_deg + yaw_deg))
+    sec = sectors_from_map(space, POS, math.radians(yaw_deg), CFG)
+    reach = map_reach_m(space)
+    a = math.radians(alpha_deg + yaw_deg)
+    thick = VOXEL * (abs(math.cos(a)) + abs(math.sin(a)))  # the voxelized wall's front
+    theta = sec.bearings_deg()
+    off = np.maximum(np.abs(_wrap_deg(theta - alpha_deg)) - CFG.increment_deg / 2.0, 0.0)
+    checked = 0
+    for k in range(CFG.n_sectors):
+        got_cm = int(sec.distances_cm[k])
+        if off[k] >= 90.0:
+            assert got_cm == sec.no_obstacle_cm, f"sector {k} faces away: clear"
+            continue
+        expect = d_m / math.cos(math.radians(off[k]))
+        lowest = (d_m - thick) / math.cos(math.radians(off[k])) - DIAG
+        if lowest > reach:
+            assert got_cm == sec.no_obstacle_cm, f"sector {k}: wall beyond reach"
+        elif expect < reach:
+            got = got_cm / 100.0
+            assert lowest - 0.01 <= got <= expect + 0.01, (
+                f"sector {k} (θ={theta[k]:.1f}°): {got:.3f} m, closed form {expect:.3f} m"
+            )
+            checked += 1
+    assert checked >= 8
+
+
+def test_unknown_is_never_clear():
+    """All UNKNOWN: every sector UINT16_MAX; all FREE: every sector 'no obstacle'; one
+    unseen voxel: only the sectors its footprint touches are unknown."""
+    assert np.all(sectors_from_map(_map(UNKNOWN), POS, 0.0, CFG).distances_cm == UINT16_MAX)
+    clear = sectors_from_map(_map(FREE), POS, 0.0, CFG)
+    assert np.all(clear.distances_cm[:72] == clear.no_obstacle_cm)
+    assert clear.counts() == (0, 72, 0)
+    for state in (UNKNOWN, TENTATIVE):
+        space = _map(FREE)
+        target = POS + np.array([3.0 * math.cos(0.6), 3.0 * math.sin(0.6), 0.0])
+        idx = np.floor(target / VOXEL).astype(int) - space.origin_vox
+        space.grid[tuple(idx)] = state
+        sec = sectors_from_map(space, POS, 0.0, CFG)
+        unknown = np.flatnonzero(sec.distances_cm[:72] == UINT16_MAX)
+        centre = (idx + space.origin_vox + 0.5) * VOXEL - POS
+        corners = [
+            math.degrees(math.atan2(centre[1] + de, centre[0] + dn))
+            for dn in (-0.1, 0.1)
+            for de in (-0.1, 0.1)
+        ]
+        lo, hi = min(corners), max(corners)
+        expect = [
+            k
+            for k in range(72)
+            if 5.0 * k - 2.5 < hi and 5.0 * k + 2.5 > lo  # sector touches the footprint
+        ]
+        assert list(unknown) == expect and 1 <= len(expect) <= 2
+
+
+def test_the_height_band_and_the_body_are_respected():
+    """Occupied ground below the band, a ceiling above it and the vehicle's own voxels
+    do not count; an obstacle inside the band does."""
+    space = _map(FREE)
+    _, _, down = _centres(space)
+    band = CFG.band_half_height_m
+    outside = (down - 0.5 * VOXEL > band + 1e-9) | (down + 0.5 * VOXEL < -band - 1e-9)
+    space.grid[np.broadcast_to(outside, space.grid.shape)] = OCCUPIED
+    idx = np.floor(POS / VOXEL).astype(int) - space.origin_vox
+    space.grid[tuple(idx)] = OCCUPIED  # the vehicle's own voxel
+    sec = sectors_from_map(space, POS, 0.0, CFG)
+    assert sec.counts() == (0, 72, 0)
+    edge = (down + 0.5 * VOXEL > band) & (down - 0.5 * VOXEL < band)  # touches the band
+    n, e, _ = _centres(space)
+    post = (np.abs(n - 2.5) < 0.15) & (np.abs(e) < 0.15) & edge
+    space.grid[np.broadcast_to(post, space.grid.shape)] = OCCUPIED
+    sec = sectors_from_map(space, POS, 0.0, CFG)
+    assert sec.counts()[0] >= 1
+    assert 2.5 - DIAG <= sec.distances_cm[0] / 100.0 <= 2.5
+
+
+def test_body_frame_follows_yaw():
+    """A post due east reads at body bearing 90° heading north, 0° heading east and
+    −90° (sector 54) heading west."""
+    space = _map(FREE)
+    n, e, _ = _centres(space)
+    post = (np.abs(n) < 0.15) & (np.abs(e - 3.0) < 0.15)
+    space.grid[np.broadcast_to(post, space.grid.shape)] = OCCUPIED
+    for yaw_deg, sector in ((0.0, 18), (90.0, 0), (-90.0, 36), (180.0, 54)):
+        sec = sectors_from_map(space, POS, math.radians(yaw_deg), CFG)
+        d = sec.distances_cm[:72]
+        nearest = np.flatnonzero(d == d.min())  # the post's corners reach the neighbours
+        assert sector in nearest and len(nearest) <= 3, f"yaw {yaw_deg}°: nearest {nearest}"
+        assert np.count_nonzero(d < sec.no_obstacle_cm) <= 3
+
+
+def test_an_obstacle_nearer_than_min_distance_is_reported_at_it():
+    """Autopilots drop readings below min_distance: a real obstacle is never dropped."""
+    space = _map(FREE)
+    n, e, _ = _centres(space)
+    post = (np.abs(n - 0.45) < 0.15) & (np.abs(e) < 0.15)
+    space.grid[np.broadcast_to(post, space.grid.shape)] = OCCUPIED
+    cfg = ProximityConfig(min_distance_m=0.5)
+    sec = sectors_from_map(space, POS, 0.0, cfg)
+    assert sec.distances_cm[0] == 50 == sec.min_distance_cm
+
+
+def test_layout_is_configurable():
+    """36 sectors of 10° centred from −175°; 10 sectors of 4.8° (the camera's 48°)."""
+    space = _map(FREE)
+    _wall(space, 3.0, 0.0)
+    wide = sectors_from_map(space, POS, 0.0, ProximityConfig(n_sectors=36, increment_deg=10.0))
+    assert wide.distances_cm[0] / 100.0 == pytest.approx(3.0, abs=DIAG + 0.01)
+    assert np.all(wide.distances_cm[36:] == UINT16_MAX)
+    front = ProximityConfig(n_sectors=10, increment_deg=4.8, angle_offset_deg=-21.6)
+    sec = sectors_from_map(space, POS, 0.0, front)
+    expect = 3.0 / np.cos(np.radians(np.maximum(np.abs(sec.bearings_deg()) - 2.4, 0.0)))
+    np.testing.assert_allclose(sec.distances_cm[:10] / 100.0, expect, atol=DIAG + 0.01)
+    assert np.all(sec.distances_cm[10:] == UINT16_MAX)
+
+
+def test_before_the_map_everything_is_unknown_and_bad_configs_are_refused():
+    sec = unknown_sectors(CFG, 6.2)
+    assert sec.distances_cm.shape == (MAX_SECTORS,)
+    assert np.all(sec.distances_cm == UINT16_MAX) and sec.max_distance_cm == 620
+    for bad in (
+        {"n_sectors": 73},
+        {"n_sectors": 72, "increment_deg": 6.0},
+        {"rate_hz": 0.0},
+        {"min_distance_m": 0.0},
+        {"enabled": "yes"},
+    ):
+        with pytest.raises(ValueError):
+            ProximityConfig(**bad)
+
+
+def test_reach_is_the_smaller_of_the_trusted_range_and_the_grid():
+    """Default map: 8 m trusted range, but the vehicle may sit 32 voxels from the edge."""
+    assert map_reach_m(KnownSpace()) == pytest.approx(6.2)
+
+
+def test_sectoring_is_cheap():
+    """Budget: well below a millisecond-scale share of a frame (median of 20 calls)."""
+    space = _map(FREE)
+    _wall(space, 3.0, 0.3)
+    sectors_from_map(space, POS, 0.0, CFG)
+    times = []
+    for _ in range(20):
+        t0 = time.perf_counter()
+        sectors_from_map(space, POS, 0.1, CFG)
+        times.append(time.perf_counter() - t0)
+    assert float(np.median(times)) < 2e-3, f"median {np.median(times) * 1e3:.2f} ms"
+
+
+def test_the_run_keeps_the_sectors_of_its_closest_approach_and_draws_them():
+    """History keeps the sectors at the smallest surface distance; the polar figure's
+    obstacle bars are the sector distances and the other sectors reach the map's reach."""
+    from evaluation.history import History
+    from evaluation.plots import proximity_polar
+
+    space = _map(FREE)
+    _wall(space, 3.0, 0.0)
+    history = History()
+    calls = []
+
+    def sectors():
+        calls.append(1)
+        return sectors_from_map(space, POS, 0.0, CFG)
+
+    for surface in (5.0, 3.0, 4.0):
+        history.note_proximity(surface, sectors)
+    assert history.proximity_surface_m == 3.0 and len(calls) == 2
+    sec = history.proximity_at_closest
+    fig = proximity_polar(sec, 3.0)
+    heights = sorted(round(p.get_height(), 6) for p in fig.axes[0].patches)
+    seen = sec.distances_cm[:72][sec.distances_cm[:72] <= sec.max_distance_cm] / 100.0
+    expect = sorted([round(x, 6) for x in seen] + [6.2] * (72 - len(seen)))
+    assert heights == pytest.approx(expect)
