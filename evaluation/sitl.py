@@ -56,6 +56,7 @@ from evaluation.sil import (
     verdict_from_truth,
 )
 from evaluation.sitl_scene import SitlScene, paper_sitl_scene
+from evaluation.starve import Starvation, starve
 
 __all__ = [
     "ARDUCOPTER_SITL_ENV",
@@ -253,6 +254,8 @@ class SitlOptions:
     startup_timeout_s: float = 240.0  # wall: boot, EKF/GPS, takeoff
     companion_args: tuple[str, ...] = ()
     plant_args: tuple[str, ...] = ()
+    # the companion held to this fraction of one core (evaluation.starve); None: unlimited
+    companion_core_fraction: float | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.speedup) and self.speedup > 0):
@@ -277,6 +280,7 @@ class SitlRig:
         self.companion: ChildProcess | None = None
         self.plant: ChildProcess | None = None
         self.t0_s: float | None = None  # autopilot time of the first setpoint
+        self.starved: Starvation | None = None
         self._wall_start = time.monotonic()
         self._closed = False
 
@@ -320,6 +324,9 @@ class SitlRig:
                 *o.companion_args,
             ],
         )
+        if o.companion_core_fraction is not None:
+            self.starved = starve(self.companion.proc.pid, o.companion_core_fraction)
+            self.say(f"companion starved: {self.starved.describe()}")
         self.companion.wait_line(r"^COMPANION READY ", 60.0)
         self.sitl.wait_output(r"SERIAL1 on TCP port", 30.0)
         self.plant = ChildProcess(
@@ -467,6 +474,8 @@ class SitlRig:
         for child in (self.plant, self.companion):
             if child is not None:
                 child.stop()
+        if self.starved is not None:
+            self.starved.close()
         if self.sitl is not None:
             self.sitl.stop()
             with contextlib.suppress(OSError):
