@@ -17,6 +17,7 @@ import numpy as np
 from companion.core.events import Event, MissionStep, Notice
 from companion.guidance import GuidanceConfig, Mode, Reason
 from companion.guidance.envelope import EnvelopeConfig
+from companion.guidance.tracking import TrackingMonitor
 from companion.known_space import KnownSpaceConfig
 from companion.perception import PerceptionConfig
 from companion.pipeline import AvoidancePipeline, PipelineOutput, PoseAtCapture
@@ -60,6 +61,8 @@ class Mission:
         self._guidance_state: tuple[Mode, Reason] | None = None
         self._avoiding = False
         self._hold_escaped = False  # this hold already said its target was moved out
+        self.tracking = TrackingMonitor(self.pipeline.envelope_config.margin_m)
+        self._flown_target: np.ndarray | None = None  # the previous frame's command
 
     @property
     def target_ned_m(self) -> np.ndarray:
@@ -94,7 +97,35 @@ class Mission:
         out = self.pipeline.process(frame, pose, steering=steering, latency_s=latency_s)
         self._check_goal(pose.pos_ned_m, frame.capture_ns, notices, events)
         self._report_changes(out, frame.capture_ns, notices, events)
+        self._check_tracking(pose, frame.capture_ns, notices, events)
+        self._flown_target = np.array(out.setpoint_ned_m) if steering else None
         return MissionStep(out, self.waypoint, tuple(notices), tuple(events))
+
+    def _check_tracking(self, pose: PoseAtCapture, capture_ns: int, notices, events) -> None:
+        """Say once when the vehicle rests farther from its target than the margin."""
+        report = self.tracking.update(
+            capture_ns * 1e-9, pose.pos_ned_m, pose.vel_ned_mps, self._flown_target
+        )
+        if report is None:
+            return
+        notices.append(
+            Notice(
+                f"Holding {report.offset_m:.2f} m off target (wind?): margin "
+                f"{report.margin_m:.2f} m not kept",
+                warning=True,
+            )
+        )
+        events.append(
+            Event(
+                "tracking_offset",
+                {
+                    "offset_m": round(report.offset_m, 3),
+                    "margin_m": report.margin_m,
+                    "target_ned_m": list(report.target_ned_m),
+                    "capture_s": capture_ns * 1e-9,
+                },
+            )
+        )
 
     def _advance_waypoint(self, pos_ned_m: np.ndarray, notices: list[Notice]) -> None:
         if self.on_last_waypoint:
