@@ -575,7 +575,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
-    logging.getLogger("stereo_camera").info("%s: %s", _PROG, threads.describe())
+    logging.getLogger("stereo_camera").debug("%s: %s", _PROG, threads.describe())
     import cv2
     import zenoh
 
