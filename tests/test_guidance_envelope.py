@@ -125,6 +125,86 @@ def test_too_little_room_brakes_at_the_current_position():
     assert out.speed_limit_mps < 0.3  # 2·(−0.15 + √(0.0225 + 0.05)) = 0.24 m/s
 
 
+def _free_by_direction(free_of):
+    """A map whose free distance depends on the direction only: ``free_of(unit) -> m``."""
+
+    def free(pos, direction, radius_m, limit_m, half_height_m, body_m, near_field_m):
+        return min(free_of(np.asarray(direction)), limit_m)
+
+    return free
+
+
+NORTH_OPEN = _free_by_direction(lambda u: 8.0 if u[0] > 0.9 else 1.0)  # 8 m ahead, 1 m aside
+
+
+def test_a_turn_at_speed_brakes_first_and_states_the_bound_of_the_way_it_moves():
+    """3 m/s north (8 m free), guidance turns east (1 m free, 1.4 m/s there): the vehicle
+    cannot take the new direction at this speed, so it brakes (carrot at the vehicle) and
+    the stated bound is the one along its motion, which its speed obeys."""
+    pos = np.array([0.0, 0.0, -7.0])
+    out = envelope_step(
+        **SECTION,
+        pos_ned_m=pos,
+        vel_ned_mps=(3.0, 0.0, 0.0),
+        setpoint_ned_m=(0.0, 5.0, -7.0),
+        free_distance=NORTH_OPEN,
+    )
+    np.testing.assert_array_equal(out.setpoint_ned_m, pos)
+    np.testing.assert_allclose(out.path_dir_ned, (1.0, 0.0, 0.0))
+    assert out.free_distance_m == 8.0
+    v8 = speed_limit_mps(8.0, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+    assert out.speed_limit_mps == pytest.approx(v8)
+    assert out.speed_mps <= out.speed_limit_mps and not out.overspeed
+    # slow enough for the new direction: it turns, with that direction's bound
+    slow = envelope_step(
+        **SECTION,
+        pos_ned_m=pos,
+        vel_ned_mps=(0.5, 0.0, 0.0),
+        setpoint_ned_m=(0.0, 5.0, -7.0),
+        free_distance=NORTH_OPEN,
+    )
+    assert slow.speed_limit_mps == pytest.approx(
+        speed_limit_mps(1.0, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+    )
+    assert slow.path_dir_ned[1] == pytest.approx(1.0)
+
+
+def test_a_hold_entered_at_speed_states_the_bound_it_brakes_in():
+    """The setpoint is the vehicle's position (a latched hold) at 2 m/s: the bound is the
+    one along the motion (was 0 m/s: every hold at speed read as an overspeed)."""
+    pos = np.array([0.0, 0.0, -7.0])
+    out = envelope_step(
+        **SECTION,
+        pos_ned_m=pos,
+        vel_ned_mps=(2.0, 0.0, 0.0),
+        setpoint_ned_m=pos,
+        free_distance=NORTH_OPEN,
+    )
+    np.testing.assert_array_equal(out.setpoint_ned_m, pos)
+    assert out.speed_limit_mps == pytest.approx(
+        speed_limit_mps(8.0, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+    )
+    assert not out.overspeed
+
+
+def test_space_shrinking_ahead_at_speed_is_reported_as_overspeed():
+    """Everything ahead 1 m free at 3 m/s (something new seen): brake, and the stated
+    bound (1.4 m/s) is honest, so the speed is reported over it."""
+    pos = np.array([0.0, 0.0, -7.0])
+    out = envelope_step(
+        **SECTION,
+        pos_ned_m=pos,
+        vel_ned_mps=(3.0, 0.0, 0.0),
+        setpoint_ned_m=(10.0, 0.0, -7.0),
+        free_distance=_const_free(1.0),
+    )
+    np.testing.assert_array_equal(out.setpoint_ned_m, pos)
+    assert out.speed_limit_mps == pytest.approx(
+        speed_limit_mps(1.0, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+    )
+    assert out.overspeed
+
+
 def test_config_rejects_unknown_keys_and_bad_values():
     with pytest.raises(TypeError, match="latency_ms"):
         EnvelopeConfig.from_dict({"latency_ms": 5})

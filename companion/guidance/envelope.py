@@ -30,6 +30,15 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    ``τ·v + v²/(2·accel_mps2) + margin_m ≤ F``, i.e.
    ``v = a·(−τ + √(τ² + 2(F − margin)/a))``, capped at ``max_speed_mps``; ``overspeed``
    is raised when the measured speed exceeds it by ``overspeed_tolerance_mps``.
+   **Braking** (issue 36): when the vehicle is faster than the limit along ``u`` (guidance
+   turned onto a path with less free space, a hold was entered at speed, or the space ahead
+   shrank), the carrot is the vehicle's own position (step 4 gives ``c = 0``) and the bound
+   stated is the one along the *velocity*, the way the vehicle actually moves while it
+   brakes: the known-free distance ``F_v`` along ``v/|v|`` and its limit. The stated
+   speed is then the flown speed: a turn at speed no longer states the slower bound of the
+   new direction the vehicle cannot take yet, and a hold entered at speed no longer
+   states 0 m/s. When ``F_v`` itself shrank below the stopping distance (something new
+   ahead), the limit is below the speed and ``overspeed`` reports it, as it must.
 6. **Look before moving**: the yaw guidance commands faces ``u`` (not the carrot, which
    may be at the vehicle), so a vehicle that must travel where it has not looked turns
    first; the carrot grows only as the view fills the map with free space.
@@ -60,6 +69,8 @@ FreeDistanceFn = Callable[..., float]
 → known-free metres (:meth:`companion.known_space.KnownSpace.free_distance_m`, with the
 pipeline's obstacle extents bound: :func:`companion.guidance.map_boundaries.solid_extent`)."""
 
+
+_BRAKE_MIN_SPEED_MPS = 0.1  # below this the vehicle has no direction of motion to state a bound for
 
 _BOUNDS = (  # (field, min, max) beyond "finite and >= 0"
     ("latency_window_s", 0.0, 60.0),  # and > 0
@@ -269,6 +280,14 @@ def envelope_step(
     d_stop = stopping_distance_m(speed, tau, cfg.accel_mps2)
     to_setpoint = target - pos
     dist = math.sqrt(float(to_setpoint @ to_setpoint))
+    section = (vehicle_radius_m, cfg.lookahead_m, cfg.vehicle_half_height_m)
+
+    def free_along(unit: np.ndarray) -> float:
+        return float(free_distance(pos, unit, *section, vehicle_radius_m, cfg.near_field_m))
+
+    def limit_for(free_m: float) -> float:
+        return min(speed_limit_mps(free_m, tau, cfg.accel_mps2, cfg.margin_m), cfg.max_speed_mps)
+
     if dist < 1e-6:
         direction = np.zeros(3)
         free = 0.0
@@ -276,15 +295,21 @@ def envelope_step(
         limited = False
     else:
         direction = _path_direction(to_setpoint, max_path_elevation_rad)
-        section = (vehicle_radius_m, cfg.lookahead_m, cfg.vehicle_half_height_m)
-        free = float(free_distance(pos, direction, *section, vehicle_radius_m, cfg.near_field_m))
+        free = free_along(direction)
         reach = min(dist, max(0.0, free - d_stop - cfg.margin_m))
         if reach < min(cfg.min_advance_m, dist):
             reach = 0.0
         clamped = not np.allclose(direction * dist, to_setpoint, atol=1e-9)
         limited = clamped or reach < dist - 1e-9
         carrot = pos + direction * reach if limited else target.copy()
-    limit = min(speed_limit_mps(free, tau, cfg.accel_mps2, cfg.margin_m), cfg.max_speed_mps)
+    limit = limit_for(free)
+    braking = speed > limit and speed >= _BRAKE_MIN_SPEED_MPS
+    if braking:
+        # Too fast to turn onto the path (or the path's free space shrank): the carrot is
+        # at the vehicle (reach 0), and the stated bound is the one for the way it moves.
+        direction = vel / speed
+        free = free_along(direction)
+        limit = limit_for(free)
     carrot.setflags(write=False)
     direction.setflags(write=False)
     return EnvelopeOutput(
