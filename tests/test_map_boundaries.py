@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from companion.guidance import BoundarySphere, GuidanceConfig
-from companion.guidance.cone import collision_cone
+from companion.guidance.cone import collision_cone, segment_intersects_sphere
 from companion.guidance.map_boundaries import (
     MapBoundaryConfig,
     map_boundaries,
@@ -209,3 +209,36 @@ def test_vertical_weight_prefers_a_level_detour():
     assert abs(level.direction_ned[2]) < abs(eq28.direction_ned[2]) / 2
     with pytest.raises(ValueError):
         choose_aiming_point(cones, [1.0, 0.0, 0.0], vertical_weight=0.0)
+
+
+def _space_with_opening(opening_m: float, centre_east_m: float, north_m: float = 3.1):
+    """The 9.6 m wide wall across north with an opening ``opening_m`` wide centred at
+    ``centre_east_m`` (nothing else known)."""
+    space = _space_with_wall(north_m=north_m)
+    c = space.config
+    j0 = math.floor((centre_east_m - 0.5 * opening_m) / c.voxel_m) - space.origin_vox[1]
+    j1 = math.ceil((centre_east_m + 0.5 * opening_m) / c.voxel_m) - space.origin_vox[1]
+    i = math.floor(north_m / c.voxel_m) - space.origin_vox[0]
+    space.grid[i, j0:j1, :] = FREE
+    return space
+
+
+@pytest.mark.parametrize(("opening_m", "goal_east_m"), [(2.5, 1.0), (2.5, -1.5), (2.5, 2.5)])
+def test_an_opening_wider_than_the_vehicle_and_margins_stays_open(opening_m, goal_east_m):
+    """An opening 2.5 m wide (vehicle 0.7 m + 2 × 0.3 m margins fit) crossed obliquely by
+    the straight path to the goal: the pieces at its edges, their spheres grown sideways by
+    the blind spot and the cube's height, closed it; now no boundary sphere crosses the path
+    through it, every occupied voxel is still inside a sphere's solid extent, and an opening
+    narrower than the vehicle and its margins stays closed."""
+    goal = np.array([10.1, goal_east_m, -7.1])
+    crossing_east_m = POS[1] + (goal_east_m - POS[1]) * (3.1 - POS[0]) / (goal[0] - POS[0])
+    space = _space_with_opening(opening_m, crossing_east_m)
+    spheres = map_boundaries(space, POS, goal)
+    assert spheres
+    assert not any(segment_intersects_sphere(POS, goal, s) for s in spheres)
+    solid = solid_extent(spheres)
+    for p in _occupied_within(space, 4.0):
+        assert np.any(np.linalg.norm(solid[:, :3] - p, axis=1) + HALF_DIAG_M <= solid[:, 3] + 1e-9)
+    assert len({s.track_key for s in spheres}) == len(spheres)
+    narrow = map_boundaries(_space_with_opening(0.8, crossing_east_m), POS, goal)
+    assert any(segment_intersects_sphere(POS, goal, s) for s in narrow)

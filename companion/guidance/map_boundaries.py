@@ -41,6 +41,28 @@ its centroid than its voxels reach) keeps its full sphere: the goal counts as bl
 guidance stops short of it, reported. Guidance then sees a goal inside a sphere exactly
 when it is blocked (``Reason.GOAL_UNREACHABLE``).
 
+Gaps stay open
+--------------
+The enclosing sphere of a piece and its blind spot grows sideways by ``e / 2`` and by the
+piece's own extent: two pieces at the edges of a 3 m opening in a wall (or the two walls
+of a corridor) each reach ~1.5 m into it and the opening closes although the vehicle and
+its margins fit (issue 36: the vehicle detoured round a 30 m wall, or never entered a
+corridor). So every pair of boundary spheres that overlap while the real surfaces behind
+them leave a passable gap, ``|c_a − c_b| − r_a − r_b ≥ 2 · inflate_m`` (piece centroids
+``c``, piece radii ``r``: a lower bound on the voxels' distance) with no third piece
+between them (no piece's ``r + inflate_m`` reaching the part of the segment ``c_a c_b``
+between the two inflated pieces: the rest of the same wall), are *opened*: each is
+replaced by a chain along its bearing, the piece's own sphere ``(c, r + inflate_m)`` and
+its copies moved back by ``e / 2`` and ``e`` (the blind spot of Fig. 4, covered without
+growing sideways; consecutive spheres ``e / 2 ≤ 0.6 m`` apart overlap, their waist at
+least ``0.87 (r + inflate_m)`` wide). The inflated pieces themselves are then at least
+``|c_a − c_b| − r_a − r_b − 2 · inflate_m ≥ 0`` apart: the opening the vehicle fits
+through stays open to the cone and the aiming point (§5 unchanged). A sphere that crosses
+the straight path to the goal only by that sideways growth (its chain does not) is opened
+too: the far side of an opening is often not yet within the detection range when the
+near side's sphere first closes the way. The copies carry levels 2 and 3 of the piece's
+key.
+
 Each boundary carries a stable ``track_key``: the global index of its cube (and its
 level), the same in every frame, so guidance's hysteresis and side commitment follow a
 piece from frame to frame; the obstacle memory replaces a keyed track's sphere each frame
@@ -51,6 +73,7 @@ Pure: the map is read, never written; no clock, no I/O.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -67,7 +90,8 @@ _TRIM_EPS_M = 1e-3  # a trimmed sphere ends this far short of the goal
 
 
 def track_key(level: int, cube: np.ndarray) -> int:
-    """Stable track id of the cube ``cube`` (3 ints) at ``level`` (0 piece, 1 sub-piece)."""
+    """Stable track id of the cube ``cube`` (3 ints) at ``level`` (0 piece, 1 sub-piece,
+    2 and 3 a chained piece's blind-spot copies: see "Gaps stay open")."""
     i, j, k = (int(v) + _KEY_OFFSET for v in cube)
     if not (0 <= i < 1 << 20 and 0 <= j < 1 << 20 and 0 <= k < 1 << 20):
         raise ValueError(f"cube index {tuple(int(v) for v in cube)} out of the key range")
@@ -127,6 +151,8 @@ class MapBoundary:
     nearest_m: float
     goal_gap_m: float
     trimmed: bool = False
+    piece_center_ned_m: tuple[float, float, float] | None = None
+    """Centroid of the piece's voxels [m, NED] (None: the sphere's centre)."""
 
 
 def _boundaries_of(
@@ -167,9 +193,108 @@ def _boundaries_of(
                 nearest_m=float(pieces.nearest_m[m]),
                 goal_gap_m=gap,
                 trimmed=trimmed,
+                piece_center_ned_m=tuple(float(x) for x in c),
             )
         )
     return out
+
+
+_CHAIN_LEVELS = (2, 3)  # key levels of a chained piece's blind-spot copies (e/2, e)
+
+
+def _segment_distance(a: np.ndarray, b: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Distance from each of ``points`` (n, 3) to the segment ``a b`` [m]."""
+    ab = b - a
+    length_sq = float(ab @ ab)
+    if length_sq <= 0.0:
+        return np.linalg.norm(points - a, axis=1)
+    t = np.clip((points - a) @ ab / length_sq, 0.0, 1.0)
+    return np.linalg.norm(points - (a + t[:, None] * ab), axis=1)
+
+
+def _open_gaps(
+    boundaries: list[MapBoundary], pos: np.ndarray, goal: np.ndarray, config: MapBoundaryConfig
+) -> list[MapBoundary]:
+    """Chain the spheres that close a passable gap (see "Gaps stay open")."""
+    if not boundaries:
+        return boundaries
+    centre = np.array([b.center_ned_m for b in boundaries])
+    radius = np.array([b.radius_m for b in boundaries])
+    piece = np.array([b.piece_center_ned_m or b.center_ned_m for b in boundaries])
+    piece_r = np.array([b.piece_radius_m for b in boundaries])
+    between = np.linalg.norm(centre[:, None, :] - centre[None, :, :], axis=2)
+    overlap = between < radius[:, None] + radius[None, :]
+    real_gap = np.linalg.norm(piece[:, None, :] - piece[None, :, :], axis=2)
+    real_gap -= piece_r[:, None] + piece_r[None, :]
+    passable = overlap & (real_gap >= 2.0 * config.inflate_m)
+    np.fill_diagonal(passable, False)
+    opened = np.zeros(len(boundaries), dtype=bool)
+    for a, b in zip(*np.nonzero(np.triu(passable)), strict=True):
+        # a third piece between them (the rest of one wall) fills the gap
+        ab = piece[b] - piece[a]
+        length = math.sqrt(float(ab @ ab))
+        t0 = (piece_r[a] + config.inflate_m) / length  # the opening: between the inflated
+        t1 = 1.0 - (piece_r[b] + config.inflate_m) / length  # pieces, on the segment
+        t = np.clip((piece - piece[a]) @ ab / (length * length), t0, t1)
+        off = np.linalg.norm(piece - (piece[a] + t[:, None] * ab), axis=1)
+        between_ab = off < piece_r + config.inflate_m
+        between_ab[[a, b]] = False
+        if not between_ab.any():
+            opened[[a, b]] = True
+    # a sphere across the straight path to the goal only by its sideways growth
+    grown = _segment_distance(pos, goal, centre) < radius
+    own = _segment_distance(pos, goal, piece) < piece_r + config.inflate_m
+    for n in np.flatnonzero(grown & ~own):
+        opened[n] |= not _chain_blocks(boundaries[n], pos, goal, config)
+    level0 = np.array([_decode_key(b.track_key)[0] == 0 for b in boundaries])
+    opened &= level0  # sub-pieces (near the goal) stay whole
+    if not opened.any():
+        return boundaries
+    out = [b for b, o in zip(boundaries, opened, strict=True) if not o]
+    for b in (b for b, o in zip(boundaries, opened, strict=True) if o):
+        out.extend(_chain(b, pos, config))
+    return out
+
+
+def _chain_blocks(b: MapBoundary, pos, goal, config) -> bool:
+    """Whether the chain of ``b`` (:func:`_chain`) crosses the segment ``pos → goal``."""
+    chain = _chain(b, pos, config)
+    centres = np.array([c.center_ned_m for c in chain])
+    radii = np.array([c.radius_m for c in chain])
+    return bool(np.any(_segment_distance(pos, goal, centres) < radii))
+
+
+def _chain(b: MapBoundary, pos: np.ndarray, config: MapBoundaryConfig) -> list[MapBoundary]:
+    """The piece's own sphere and its blind-spot copies at ``e/2`` and ``e`` behind it."""
+    c = np.asarray(b.piece_center_ned_m or b.center_ned_m, dtype=float)
+    bearing = c - pos
+    dist = math.sqrt(float(bearing @ bearing))
+    _, cube = _decode_key(b.track_key)
+    spheres = [dataclasses.replace(b, center_ned_m=tuple(float(x) for x in c),
+                                   radius_m=b.piece_radius_m + config.inflate_m,
+                                   blind_depth_m=0.0)]  # fmt: skip
+    if b.blind_depth_m <= 0.0 or dist <= 1e-9:
+        return spheres
+    u = bearing / dist
+    for n, copy_level in enumerate(_CHAIN_LEVELS, start=1):
+        moved = c + u * (0.5 * n * b.blind_depth_m)
+        spheres.append(
+            dataclasses.replace(
+                spheres[0],
+                center_ned_m=tuple(float(x) for x in moved),
+                track_key=track_key(copy_level, cube),
+                piece_center_ned_m=tuple(float(x) for x in moved),
+            )
+        )
+    return spheres
+
+
+def _decode_key(key: int) -> tuple[int, np.ndarray]:
+    """Inverse of :func:`track_key`: ``(level, cube)``."""
+    mask = (1 << 20) - 1
+    level = (key >> 60) & 3
+    cube = np.array([((key >> s) & mask) - _KEY_OFFSET for s in (40, 20, 0)], dtype=np.int64)
+    return level, cube
 
 
 def map_boundaries(
@@ -215,6 +340,7 @@ def map_boundaries(
         sub = Pieces(*(np.asarray(f)[keep] for f in _fields(sub)))
         boundaries = [b for b in boundaries if b.track_key not in split]
         boundaries += _boundaries_of(space, sub, 1, pos, goal, goal_free, cfg)
+    boundaries = _open_gaps(boundaries, pos, goal, cfg)
     return tuple(sorted(boundaries, key=lambda b: b.track_key))
 
 
