@@ -29,7 +29,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from plant_sim.lockstep.sil import ChildProcess, free_port  # noqa: E402
+from evaluation.sil import ChildProcess, free_port  # noqa: E402
 from plant_sim.stereo_camera import StereoCameraRenderer  # noqa: E402
 from plant_sim.world import paper_world  # noqa: E402
 from protocols import stereo_frame  # noqa: E402

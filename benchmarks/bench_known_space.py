@@ -18,7 +18,7 @@ import numpy as np
 from companion.guidance.map_boundaries import map_boundaries
 from companion.known_space import KnownSpace, KnownSpaceConfig
 from companion.perception import StereoPerception
-from plant_sim.lockstep.scenes import paper_scene
+from evaluation.scenes import paper_scene
 from plant_sim.stereo_camera import StereoCameraRenderer
 from protocols.camera import CameraModel
 from protocols.frames import rotation_321

@@ -47,11 +47,11 @@ from companion.guidance import Guidance, avoidance
 from companion.known_space import KnownSpace
 from companion.perception import StereoPerception
 from companion.stereo_bm import PaddedStereoBM
-from plant_sim.lockstep import harness
-from plant_sim.lockstep.harness import RunConfig, run_scene
-from plant_sim.lockstep.montecarlo import run_config, scene_of
-from plant_sim.lockstep.scenes import Scene, paper_scene
-from plant_sim.lockstep.truth_perception import TruthDepthSource
+from evaluation import harness
+from evaluation.harness import RunConfig, run_scene
+from evaluation.montecarlo import run_config, scene_of
+from evaluation.scenes import Scene, paper_scene
+from evaluation.truth_perception import TruthDepthSource
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.vehicle import Quadrotor
 
@@ -229,7 +229,7 @@ def main() -> None:
 
     if args.scenes < 1:
         return
-    from plant_sim.lockstep.mc_cluster import dask_client, fly_on_cluster
+    from evaluation.mc_cluster import dask_client, fly_on_cluster
 
     with dask_client(n_workers=args.jobs) as client:  # cluster start-up and warm-up excluded
         for perception in ("stereo", "truth"):

@@ -1,6 +1,7 @@
 """Benchmark: stereo renderer, perception per frame vs the bare OpenCV matcher, depth accuracy.
 
-Run with ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_perception.py``.
+Run with ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_perception.py``; with
+``--threads``, the thread-count table (issue 32 item 7; run it without ``NUMBA_NUM_THREADS``).
 """
 
 from __future__ import annotations
@@ -10,6 +11,8 @@ import dataclasses
 import math
 import os
 import statistics
+import subprocess
+import sys
 import time
 
 import cv2
@@ -187,6 +190,58 @@ def bench_accuracy(n: int) -> None:
         )
 
 
+def _busy_neighbours(n: int) -> list[subprocess.Popen]:
+    """``n`` processes spinning at nice 19: the camera driver and logger of a real
+    companion computer (they still take a core whenever it is free)."""
+    spin = "import os; os.nice(19)\nwhile True: pass"
+    return [subprocess.Popen([sys.executable, "-c", spin]) for _ in range(n)]
+
+
+def _median_ms(f, n: int) -> float:
+    times = []
+    for i in range(n):
+        t0 = time.perf_counter()
+        f(i)
+        times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times)
+
+
+def bench_threads(n: int) -> None:
+    """Issue 32 item 7: renderer (numba) and perception (OpenCV) per 320x240 frame with 1
+    and 2 threads, alone and beside a busy neighbour on every other core."""
+    camera = CameraModel()
+    renderer = StereoCameraRenderer(camera)
+    poses = _poses(n)
+    frames = []
+    for i, (pos, R) in enumerate(poses):
+        out = renderer.render(WORLD, pos, R, noise_seed=i)
+        frames.append(StereoFrame(i, i, camera.intrinsics, out.left, out.right))
+    perception = StereoPerception()
+    perception.process(frames[0], *poses[0])
+    pool = numba.config.NUMBA_NUM_THREADS
+    print(f"threads table, 320x240, median of {n} frames (numba pool {pool} threads):")
+    print("  neighbour  threads  renderer ms  perception ms  load")
+    for busy in (0, max(1, (os.cpu_count() or 2) - 1)):
+        neighbours = _busy_neighbours(busy)
+        try:
+            time.sleep(0.5 if busy else 0.0)
+            for threads in (1, 2):
+                numba.set_num_threads(min(threads, pool))
+                cv2.setNumThreads(threads)
+                render_ms = _median_ms(lambda i: renderer.render(WORLD, *poses[i % n]), n)
+                perceive_ms = _median_ms(
+                    lambda i: perception.process(frames[i % n], *poses[i % n]), n
+                )
+                print(
+                    f"  {'busy x' + str(busy) if busy else 'none':9s}  {threads:7d}  "
+                    f"{render_ms:11.2f}  {perceive_ms:13.2f}  {os.getloadavg()[0]:4.1f}"
+                )
+        finally:
+            for proc in neighbours:
+                proc.kill()
+                proc.wait()
+
+
 def main(argv: list[str] | None = None) -> None:
     """Print the figures issue 3 asks for."""
     parser = argparse.ArgumentParser(description=__doc__)
@@ -194,6 +249,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=3, help="passes over the frames")
     parser.add_argument("--only-perception", action="store_true", help="timing ratios only")
     parser.add_argument("--stages", action="store_true", help="CPU time per stage")
+    parser.add_argument(
+        "--threads",
+        action="store_true",
+        help="only the threads table: 1 vs 2 threads, alone and beside a busy neighbour",
+    )
     parser.add_argument(
         "--cv-threads",
         type=int,
@@ -208,6 +268,9 @@ def main(argv: list[str] | None = None) -> None:
         f"cv2 threads {cv2.getNumThreads()}, numba threads {numba.get_num_threads()}, "
         f"cpus {os.cpu_count()}"
     )
+    if args.threads:
+        bench_threads(args.frames)
+        return
     if not args.only_perception:
         bench_renderer(args.frames * args.repeats)
     bench_perception(320, 240, args.frames, args.repeats, args.stages)

@@ -21,7 +21,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from plant_sim.lockstep.sitl import (  # noqa: E402
+from evaluation.sitl import (  # noqa: E402
     SITL_HOWTO,
     SitlOptions,
     find_arducopter_sitl,

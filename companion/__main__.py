@@ -18,12 +18,13 @@ rather than steer a vehicle that is not flying).
 from __future__ import annotations
 
 import json
-import os
+import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from protocols.process import run_until_signalled
+from protocols.threads import configure_threads
 
 __all__ = ["main", "run"]
 
@@ -57,13 +58,18 @@ def run(
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point (``companion``)."""
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    try:
+        threads = configure_threads()
+    except ValueError as exc:
+        print(f"companion: configuration error: {exc}", file=sys.stderr)
+        return 2
     from companion.config import ConfigError, build_parser, config_from_args
     from protocols.logfile import start_logging
 
     args = build_parser().parse_args(argv)
     if not start_logging("companion", args.log_file, args.log_level):
         return 2
+    logging.getLogger("companion").info("companion: %s", threads.describe())
     try:
         config = config_from_args(args)
     except ConfigError as exc:

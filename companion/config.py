@@ -28,7 +28,7 @@ optional, and an unknown key anywhere is an error that names it (``link.rate`` �
     config_file = "zenoh.json5"
 
     [failsafe]
-    frame_timeout_s = 0.3                # frames late: hold position (frame clock, sim time in SIL)
+    frame_timeout_s = 1.0                # frames late: hold position (frame clock, sim time in SIL)
     telemetry_timeout_s = 0.3            # telemetry late: hold position
     frame_loss_s = 2.0                   # no frames this long: BRAKE/LOITER (last resort)
     telemetry_loss_s = 2.0               # no telemetry this long: BRAKE/LOITER (last resort)
@@ -152,7 +152,9 @@ class LinkConfig:
 class FailsafeConfig:
     """When to stop steering and hold (frame clock = simulation time in the SIL)."""
 
-    frame_timeout_s: float = 0.3  # newest frame older than this → hold position [s]
+    # newest frame older than this → hold position [s]; below it the measured latency budget
+    # slows the vehicle instead (issue 32: a slow frame is not a reason to stop)
+    frame_timeout_s: float = 1.0
     telemetry_timeout_s: float = 0.3  # newest pose older than this → hold position [s]
     # the last resort: the autopilot's own hold (BRAKE/LOITER, PX4 hold) only when no frame
     # (no pose) arrived for this long [s, frame clock]; > the timeouts above

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import cv2
 import numba
@@ -41,10 +41,35 @@ from companion.speckle import filter_speckles
 from protocols.camera import StereoIntrinsics
 from protocols.stereo_frame import PixelEncoding, StereoFrame
 
-if TYPE_CHECKING:
-    from companion.perception import PerceptionConfig
+__all__ = [
+    "MatcherSettings",
+    "PaddedStereoBM",
+    "configured_bm",
+    "noise_sigma",
+    "speckle_params",
+    "speckle_window_px",
+]
 
-__all__ = ["PaddedStereoBM", "configured_bm", "noise_sigma", "speckle_params", "speckle_window_px"]
+
+class MatcherSettings(Protocol):
+    """What the matcher reads of its configuration (the perception config provides it:
+    :class:`companion.perception.PerceptionConfig` documents each field)."""
+
+    threshold_m: float  # detection threshold on depth [m]
+    extent_margin_m: float  # how far past the threshold matches still matter [m]
+    min_range_m: float  # nearest depth matched [m]
+    near_range_m: float  # nearest depth the coarse pass catches [m]; <= 0: no coarse pass
+    max_range_m: float  # farthest depth reported [m]
+    block_size_px: int | None  # StereoBM block [px]; None: scaled from the image width
+    uniqueness_ratio: int  # StereoBM uniqueness margin [%]
+    texture_threshold: int  # StereoBM texture threshold
+    speckle_window_px: int  # speckle filter region [px at the reference width]
+    speckle_range_px: float  # speckle filter neighbour difference [px]
+    lr_max_diff_px: int  # left/right check [px]; < 0: off
+    prefilter_sigma_px: float | None  # Gaussian prefilter [px]; None: from the noise
+    min_edge_ratio: float  # gate on edge strength
+    min_far_fraction: float  # smallest far region kept [fraction of the image]
+
 
 _REFERENCE_WIDTH_PX = 320  # the paper's camera; block size scales from it
 _PREFILTER_BASE_PX = 1.0  # Gaussian prefilter sigma on a clean image [px]
@@ -188,7 +213,7 @@ def _abs_sobel(image):
 
 
 def configured_bm(
-    config: PerceptionConfig, n_disp: int, block_px: int, width_px: int, *, speckle: bool = True
+    config: MatcherSettings, n_disp: int, block_px: int, width_px: int, *, speckle: bool = True
 ) -> cv2.StereoBM:
     """``cv2.StereoBM`` with the perception config's gates (texture, uniqueness, speckle
     window scaled to ``width_px``, left/right check) for ``n_disp`` disparities; without
@@ -203,7 +228,7 @@ def configured_bm(
     return matcher
 
 
-def speckle_params(config: PerceptionConfig, width_px: int) -> tuple[int, int]:
+def speckle_params(config: MatcherSettings, width_px: int) -> tuple[int, int]:
     """The speckle filter's (largest speckle [px], neighbour difference [1/16 px]) for an
     image ``width_px`` wide, as ``cv2.filterSpeckles`` takes them. (StereoBM compares the
     range with its 1/16 px fixed-point disparities as they are, unlike SGBM.)"""
@@ -412,11 +437,11 @@ class PaddedStereoBM:
 
     Parameters
     ----------
-    config : PerceptionConfig
+    config : MatcherSettings
         The matcher settings (range, block, gates) of the perception config.
     """
 
-    def __init__(self, config: PerceptionConfig):
+    def __init__(self, config: MatcherSettings):
         self.config = config
         self._matchers: dict[tuple, cv2.StereoMatcher] = {}
         self._tables: dict[tuple, np.ndarray] = {}

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import logging
 import math
 import os
 import sys
@@ -33,6 +34,7 @@ from protocols.process import (
     run_until_signalled,
     signing_key_text,
 )
+from protocols.threads import configure_threads
 
 __all__ = ["build_parser", "config_from_args", "main", "run"]
 
@@ -309,12 +311,17 @@ def run(config, ready_file: Path | None = None) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point (``plant-sim``)."""
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    try:
+        threads = configure_threads()
+    except ValueError as exc:
+        print(f"plant-sim: configuration error: {exc}", file=sys.stderr)
+        return 2
     from protocols.logfile import start_logging
 
     args = build_parser().parse_args(argv)
     if not start_logging("plant-sim", args.log_file, args.log_level):
         return 2
+    logging.getLogger("plant_sim").info("plant-sim: %s", threads.describe())
     try:
         config = config_from_args(args)
     except (ValueError, OSError) as exc:

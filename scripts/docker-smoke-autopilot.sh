@@ -47,9 +47,9 @@ import sys
 import time
 from pathlib import Path
 
-from plant_sim.lockstep.sil import free_port
-from plant_sim.lockstep.sitl_scene import paper_sitl_scene
-from plant_sim.lockstep.sitl import (
+from evaluation.sil import free_port
+from evaluation.sitl_scene import paper_sitl_scene
+from evaluation.sitl import (
     SITL_HOWTO,
     ArduCopterSitl,
     find_arducopter_sitl,

@@ -23,9 +23,9 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from _chromium import Browser, colourful_fraction, ink_fraction  # noqa: E402
 
-from plant_sim.lockstep.harness import RunConfig, run_scene  # noqa: E402
-from plant_sim.lockstep.scenes import paper_scene  # noqa: E402
-from plant_sim.lockstep.view import LockstepView  # noqa: E402
+from evaluation.harness import RunConfig, run_scene  # noqa: E402
+from evaluation.scenes import paper_scene  # noqa: E402
+from evaluation.view import LockstepView  # noqa: E402
 
 
 class _EnoughFlownError(Exception):

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import zenoh
 from _plant_sim_proc import free_port
 
-from plant_sim.lockstep.sil import ChildProcess
+from evaluation.sil import ChildProcess
 from protocols.keys import companion_status_key
 from protocols.zenoh_session import ZenohSettings, zenoh_config
 

@@ -8,7 +8,7 @@ import time
 
 from pymavlink import mavutil
 
-from plant_sim.lockstep.sil import ChildProcess, free_port
+from evaluation.sil import ChildProcess, free_port
 
 __all__ = ["READY_RE", "PlantProcess", "command", "connect", "free_port", "recv"]
 
@@ -16,7 +16,7 @@ READY_RE = re.compile(r"^PLANT_SIM READY mavlink=(\S+) zenoh=(\S+) key=(\S+) spe
 
 
 class PlantProcess(ChildProcess):
-    """A ``python -m plant_sim`` child (see :class:`plant_sim.lockstep.sil.ChildProcess`)
+    """A ``python -m plant_sim`` child (see :class:`evaluation.sil.ChildProcess`)
     that knows its readiness line, its STATS line and its MAVLink port."""
 
     def __init__(self, args: list[str], env: dict | None = None) -> None:

@@ -5,6 +5,15 @@ from __future__ import annotations
 import pytest
 from _plant_sim_proc import PlantProcess
 
+from protocols.threads import configure_threads
+
+
+def pytest_configure(config):
+    """The test processes run their kernels on the threads every product process uses
+    (:mod:`protocols.threads`: one by default): lockstep flights in the test workers then
+    cost what they cost in ``stereo-avoid``, not a barrier's wait on a shared machine."""
+    configure_threads()
+
 
 @pytest.fixture
 def plant_factory(tmp_path):

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("companion", "plant_sim", "protocols", "benchmarks", "scripts")
+PACKAGES = ("companion", "plant_sim", "protocols", "evaluation", "benchmarks", "scripts")
 MAX_LINES = 80
 
 

@@ -206,11 +206,11 @@ def test_core_failsafe_holds_on_stale_frames_and_resumes():
     (no mode request); none for frame_loss_s → BRAKE, the last resort; frames back for
     resume_after_s → GUIDED again and a resume event."""
     rig = _steering_rig()
-    rig.run(1.0, frames=False)
+    rig.run(1.5, frames=False)  # > frame_timeout_s (1 s)
     holds = rig.events("hold")
     assert [(h["reason"], h["command"]) for h in holds] == [("stale_frames", "hold position")]
     assert rig.custom_mode == GUIDED and rig.core.counters["mode_requests"] == 0
-    rig.run(1.5, frames=False)  # 2.5 s without frames > frame_loss_s (2 s)
+    rig.run(1.0, frames=False)  # 2.5 s without frames > frame_loss_s (2 s)
     holds = rig.events("hold")
     assert [(h["reason"], h["command"]) for h in holds] == [
         ("stale_frames", "hold position"),
@@ -240,7 +240,7 @@ def test_time_in_a_failsafe_hold_is_not_counted_as_guidance_making_no_progress()
         guidance=dataclasses.replace(base.guidance, stall_timeout_s=3.0),
     )
     rig = _steering_rig(cfg)
-    rig.frame_lag_s = 0.5  # frame_timeout_s is 0.3 s
+    rig.frame_lag_s = 1.2  # frame_timeout_s is 1.0 s
     rig.run(5.0)
     assert [h["reason"] for h in rig.events("hold")] == ["stale_frames"]
     assert rig.custom_mode == GUIDED
@@ -321,7 +321,7 @@ def test_core_in_its_hold_keeps_control_when_a_standby_twin_appears():
     MAV_STATE_CRITICAL, which a twin reads as "in control"): a standby twin with a lower
     instance id appearing then must not make it yield, or both yield and nobody steers."""
     rig = _steering_rig()  # instance 7
-    rig.run(1.0, frames=False)
+    rig.run(1.5, frames=False)  # > frame_timeout_s
     assert [h["reason"] for h in rig.events("hold")] == ["stale_frames"]
     rig.twin = mavlink.MAVLink_heartbeat_message(
         mavlink.MAV_TYPE_ONBOARD_CONTROLLER,

@@ -22,7 +22,8 @@ def _steering_rig(config: CompanionConfig | None = None) -> Rig:
 
 def test_core_measures_the_data_age_of_its_commands_and_budgets_it():
     """Frames captured 0.4 s before they are handed over: the data age p50/p99 is 0.4 s,
-    the latency budget 0.4 s + unmeasured_latency_s, the status document says so."""
+    the latency budget 0.4 s + unmeasured_latency_s, the status document says so, and
+    the companion keeps steering (slower) instead of holding."""
     rig = _steering_rig()
     env = rig.core.config.envelope
     doc = rig.statuses()[-1]["pipeline"]
@@ -40,6 +41,9 @@ def test_core_measures_the_data_age_of_its_commands_and_budgets_it():
     assert doc["speed_limit_mps"] is not None
     assert "mode_requests" in rig.statuses()[-1]
     assert "latency budget 0.50 s" in rig.core.progress_text()
+    # a slow frame is not a reason to stop: it budgets, it does not hold (frame_timeout_s)
+    assert not rig.events("hold"), rig.events("hold")
+    assert rig.statuses()[-1]["state"] != "hold"
 
 
 def _hold_setpoints_after(rig: Rig, index: int) -> list:
@@ -52,7 +56,7 @@ def test_late_but_present_frames_hold_position_in_guided_with_zero_mode_requests
     rig = _steering_rig()
     assert rig.core.counters["mode_requests"] == 0  # the rig starts in GUIDED
     start = len(rig.outputs)
-    rig.frame_lag_s = 0.45  # > frame_timeout_s (0.3), frames keep coming
+    rig.frame_lag_s = 1.2  # > frame_timeout_s (1.0), frames keep coming
     rig.run(6.0)  # > 2 × frame_loss_s
     holds = rig.events("hold")
     assert [(h["reason"], h["command"]) for h in holds] == [("stale_frames", "hold position")]
@@ -98,17 +102,19 @@ def test_no_frames_for_the_last_resort_time_is_exactly_one_brake_then_a_settled_
 
 
 def test_frames_late_by_turns_do_not_flap_modes():
-    """The loaded-machine pattern of issue 32: frames alternately late and on time every
-    ~0.7 s for a minute. Before: a BRAKE/GUIDED pair per cycle; now no mode request."""
+    """The loaded-machine pattern of issue 32: frames alternately late (past the timeout)
+    and on time, for 40 s. Before: a BRAKE/GUIDED pair per cycle; now no mode request."""
     rig = _steering_rig()
-    for _ in range(40):
-        rig.frame_lag_s = 0.4
-        rig.run(0.4)
+    for _ in range(25):
+        rig.frame_lag_s = 1.2  # > frame_timeout_s, long enough for the newest to age past it
+        rig.run(1.4)
         rig.frame_lag_s = 0.0
         rig.run(0.3)
     assert rig.core.counters["mode_requests"] == 0
     assert rig.custom_mode == 4
-    assert rig.core.counters["hold_commands"] == 1  # never healthy for the settle time
+    # at most one hold per late burst (released after the settle time), never a hold and
+    # release at the frame rate
+    assert 1 <= rig.core.counters["hold_commands"] <= 25
 
 
 def test_hold_target_is_never_inside_a_boundary_and_is_told_once():
@@ -152,8 +158,8 @@ def test_core_hold_target_moves_out_of_a_boundary_once():
     """In a position hold, a boundary around the vehicle (drift into a margin) moves the
     hold target out along the escape direction, said once (STATUSTEXT + event)."""
     rig = _steering_rig()
-    rig.frame_lag_s = 0.45
-    rig.run(1.0)
+    rig.frame_lag_s = 1.2  # > frame_timeout_s
+    rig.run(1.5)
     assert rig.events("hold")
 
     class Ball:

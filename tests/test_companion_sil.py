@@ -24,9 +24,9 @@ import pytest
 import zenoh
 from pymavlink import mavutil
 
-from plant_sim.lockstep.harness import run_scene
-from plant_sim.lockstep.scenes import paper_scene
-from plant_sim.lockstep.sil import (
+from evaluation.harness import run_scene
+from evaluation.scenes import paper_scene
+from evaluation.sil import (
     ChildProcess,
     SilOptions,
     _avoid_intervals,
@@ -263,8 +263,8 @@ def test_sil_paper_scenario_with_signing_matches_lockstep(tmp_path, lockstep_ver
 
 def test_frames_stop_hold_within_half_a_second_then_resume(rig):
     """Frames stop until the hold (~1 s of simulation time at --speedup 4, < frame_loss_s):
-    a position hold in GUIDED within 0.5 s of simulation time, no BRAKE (issue 32: no mode
-    flapping), then resume."""
+    a position hold in GUIDED within 0.5 s of simulation time after frame_timeout_s (1 s),
+    no BRAKE (issue 32: no mode flapping), then resume."""
     companion = rig.companion("--vehicle-id", "fwd")
     plant = rig.plant(connect=False)
     fwd = Forwarder(rig)
@@ -275,7 +275,7 @@ def test_frames_stop_hold_within_half_a_second_then_resume(rig):
         last_capture_s = fwd.last_capture_ns * 1e-9
         hold = rig.wait_event(companion, "hold", 5)
         assert hold["reason"] == "stale_frames" and hold["command"] == "hold position"
-        assert hold["now_frame_ns"] * 1e-9 - last_capture_s <= 0.5, hold
+        assert hold["now_frame_ns"] * 1e-9 - last_capture_s <= 1.0 + 0.5, hold
         fwd.paused.clear()
         rig.wait_event(companion, "resume", 5)
         rig.wait_event(companion, "goal_reached", 40)

@@ -481,7 +481,7 @@ def rig(tmp_path):
 def test_takeoff_from_the_ground_then_the_paper_flight_to_the_goal(rig):
     """plant-sim starts disarmed on the ground in GUIDED; the companion arms, takes off to
     7 m, and only then steers the paper's scenario to the goal without a collision."""
-    from plant_sim.lockstep.sil import _read_truth
+    from evaluation.sil import _read_truth
 
     companion = rig.companion("--takeoff-alt", "7")
     started = time.monotonic()

@@ -16,7 +16,7 @@ import pytest
 from _hostile import HostileMavlink
 from test_companion_sil import Forwarder, Rig, _flight_verdict
 
-from plant_sim.lockstep.sil import ChildProcess, free_port
+from evaluation.sil import ChildProcess, free_port
 from protocols import stereo_frame
 
 _S = 1_000_000_000

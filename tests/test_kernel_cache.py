@@ -13,7 +13,7 @@ import pytest
 _SCRIPT = """
 import importlib, pkgutil, types, numba
 from numba.core.registry import CPUDispatcher
-from plant_sim.lockstep.kernels import compile_kernels
+from evaluation.kernels import compile_kernels
 lines = []
 compile_kernels(jobs=1, log=lines.append)
 print("\\n".join(lines))

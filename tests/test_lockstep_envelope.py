@@ -9,8 +9,8 @@ import pytest
 
 from companion.guidance.envelope import EnvelopeConfig
 from companion.perception import PerceptionConfig
-from plant_sim.lockstep.harness import RunConfig, run_scene
-from plant_sim.lockstep.scenes import paper_scene
+from evaluation.harness import RunConfig, run_scene
+from evaluation.scenes import paper_scene
 from plant_sim.profiles import profile, terminal_speed_mps
 from plant_sim.world import paper_world
 

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from plant_sim.lockstep.montecarlo import run_batch, summarize
-from plant_sim.lockstep.scenes import FAMILIES, family_scene, mixed_scene, random_scene
+from evaluation.montecarlo import run_batch, summarize
+from evaluation.scenes import FAMILIES, family_scene, mixed_scene, random_scene
 
 SEEDS = range(100, 108)
 

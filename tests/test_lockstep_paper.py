@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from companion.known_space import KnownSpaceConfig
-from plant_sim.lockstep.harness import RunConfig, run_scene
-from plant_sim.lockstep.scenes import paper_scene
+from evaluation.harness import RunConfig, run_scene
+from evaluation.scenes import paper_scene
 from plant_sim.params import QuadrotorParams
 from protocols.camera import CameraModel
 

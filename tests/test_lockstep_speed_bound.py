@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from companion.guidance.envelope import EnvelopeConfig
-from plant_sim.lockstep.harness import RunConfig, run_scene
-from plant_sim.lockstep.passage_scenes import corridor_scene, gap_scene
-from plant_sim.lockstep.scenes import Scene, mixed_scene, wall_scene
+from evaluation.harness import RunConfig, run_scene
+from evaluation.passage_scenes import corridor_scene, gap_scene
+from evaluation.scenes import Scene, mixed_scene, wall_scene
 from plant_sim.profiles import profile
 from plant_sim.world import Box, World
 

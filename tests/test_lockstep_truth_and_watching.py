@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from companion.perception import StereoPerception
-from plant_sim.lockstep.harness import RunConfig, nearest_surface_m
-from plant_sim.lockstep.mc_progress import ProgressBar, format_duration
-from plant_sim.lockstep.scenes import paper_scene
-from plant_sim.lockstep.truth_perception import TruthPerception, truth_disparity_fixed
+from evaluation.harness import RunConfig, nearest_surface_m
+from evaluation.mc_progress import ProgressBar, format_duration
+from evaluation.scenes import paper_scene
+from evaluation.truth_perception import TruthPerception, truth_disparity_fixed
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.vehicle import Quadrotor, Setpoint
 from protocols.camera import CameraModel

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from companion.known_space import KnownSpaceConfig
-from plant_sim.lockstep.harness import RunConfig, run_scene
-from plant_sim.lockstep.scenes import wall_scene
+from evaluation.harness import RunConfig, run_scene
+from evaluation.scenes import wall_scene
 from plant_sim.profiles import profile
 
 STOP_CLEARANCE_M = 0.5  # issue 14: safe stop at least this far before the wall

@@ -9,8 +9,8 @@ import math
 import pytest
 
 from companion.known_space import KnownSpaceConfig
-from plant_sim.lockstep.harness import RunConfig, run_scene
-from plant_sim.lockstep.scenes import Scene
+from evaluation.harness import RunConfig, run_scene
+from evaluation.scenes import Scene
 from plant_sim.params import QuadrotorParams
 from plant_sim.world import Box, World
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from plant_sim.lockstep.harness import RunConfig, run_scene
-from plant_sim.lockstep.scenes import Scene
+from evaluation.harness import RunConfig, run_scene
+from evaluation.scenes import Scene
 from plant_sim.world import World
 
 TOLERANCE_M = 0.5

@@ -16,16 +16,16 @@ from pathlib import Path
 
 import pytest
 
-from plant_sim.lockstep.cli import main
-from plant_sim.lockstep.mc_cluster import dask_client, fly_on_cluster
-from plant_sim.lockstep.mc_provenance import code_counts, code_fingerprint, source_fingerprint
-from plant_sim.lockstep.mc_results import (
+from evaluation.cli import main
+from evaluation.mc_cluster import dask_client, fly_on_cluster
+from evaluation.mc_provenance import code_counts, code_fingerprint, source_fingerprint
+from evaluation.mc_results import (
     BatchSpec,
     ResultsFile,
     ResultsFileError,
     verdict_from_record,
 )
-from plant_sim.lockstep.montecarlo import fly_record, fly_seed
+from evaluation.montecarlo import fly_record, fly_seed
 
 SEEDS = range(40, 60)  # 20 seeds, five of each family
 HORIZON_S = 1.5  # simulation seconds per scene
@@ -99,7 +99,7 @@ def test_a_killed_batch_resumes_without_flying_a_finished_seed_again(tmp_path):
     cmd = [
         sys.executable,
         "-m",
-        "plant_sim.lockstep.cli",
+        "evaluation.cli",
         "montecarlo",
         "--n",
         "10",

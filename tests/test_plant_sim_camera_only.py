@@ -14,8 +14,8 @@ import zenoh
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from evaluation.sil import ChildProcess, _read_truth, free_port
 from plant_sim.__main__ import build_parser, config_from_args
-from plant_sim.lockstep.sil import ChildProcess, _read_truth, free_port
 from plant_sim.pose_track import PoseTrack
 from protocols import stereo_frame
 from protocols.frames import rotation_321

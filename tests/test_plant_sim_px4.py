@@ -133,7 +133,7 @@ def test_companion_px4_path_flies_the_paper_scene_from_the_ground(rig):
     """plant-sim as a PX4 multicopter, on the ground: the companion arms, takes off with an
     AMSL altitude, PX4 holds at the top, the companion streams setpoints, enters OFFBOARD
     and flies the paper's scenario to the goal without a collision."""
-    from plant_sim.lockstep.sil import _read_truth
+    from evaluation.sil import _read_truth
 
     companion = rig.companion("--takeoff-alt", "7")
     rig.plant("--autopilot-flavour", "px4", "--start-on-ground")

@@ -14,7 +14,7 @@ import socket
 import numpy as np
 import pytest
 
-from plant_sim.lockstep.sil import ChildProcess, _read_truth, free_port
+from evaluation.sil import ChildProcess, _read_truth, free_port
 
 SPEEDUP = 4.0
 STOP_CLEARANCE_M = 0.5

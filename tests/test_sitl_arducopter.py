@@ -26,8 +26,8 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from plant_sim.lockstep.sil import _read_truth
-from plant_sim.lockstep.sitl import (
+from evaluation.sil import _read_truth
+from evaluation.sitl import (
     ARDUCOPTER_SITL_ENV,
     SITL_HOWTO,
     SitlOptions,
@@ -36,7 +36,7 @@ from plant_sim.lockstep.sitl import (
     free_sitl_instance,
     run_sitl_sil,
 )
-from plant_sim.lockstep.sitl_scene import sitl_scene
+from evaluation.sitl_scene import sitl_scene
 
 M = mavlink
 SPEEDUP = 3.0
@@ -320,7 +320,7 @@ def test_the_cli_without_a_binary_exits_2_and_says_how_to_get_one(tmp_path):
     import sys
 
     env = {k: v for k, v in os.environ.items() if k != ARDUCOPTER_SITL_ENV}
-    cmd = [sys.executable, "-m", "plant_sim.lockstep.cli", "sil", "--autopilot"]
+    cmd = [sys.executable, "-m", "evaluation.cli", "sil", "--autopilot"]
     cmd += ["arducopter-sitl", "--out", str(tmp_path / "run")]
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stdout + done.stderr

@@ -1,6 +1,6 @@
 """Scenes on a real autopilot and how a networked run ends (pure parts, no processes):
 
-* :mod:`plant_sim.lockstep.sitl_scene` moves a plant-sim scenario so that its start is
+* :mod:`evaluation.sitl_scene` moves a plant-sim scenario so that its start is
   ArduCopter SITL's home, and refuses what SITL cannot fly;
 * a SIL/SITL run judged from the truth log ends in a reported stop by the lockstep's own
   rule (guidance HOLD, slower than 0.05 m/s for 2 s), with the hold's reason.
@@ -14,9 +14,9 @@ import math
 import numpy as np
 import pytest
 
-from plant_sim.lockstep.harness import HOLD_REST_S, HOLD_REST_SPEED_MPS, Verdict
-from plant_sim.lockstep.sil import _hold_intervals, _read_truth, verdict_from_truth
-from plant_sim.lockstep.sitl_scene import SITL_HOME_LAT_LON_ALT, paper_sitl_scene, sitl_scene
+from evaluation.harness import HOLD_REST_S, HOLD_REST_SPEED_MPS, Verdict
+from evaluation.sil import _hold_intervals, _read_truth, verdict_from_truth
+from evaluation.sitl_scene import SITL_HOME_LAT_LON_ALT, paper_sitl_scene, sitl_scene
 from plant_sim.scenario import ScenarioError, scenario_from_dict
 
 

@@ -20,7 +20,7 @@ import zenoh
 from companion.camera.__main__ import main
 from companion.camera.calibration import Rectifier, load_calibration
 from companion.perception import StereoPerception
-from plant_sim.lockstep.sil import ChildProcess, free_port
+from evaluation.sil import ChildProcess, free_port
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import Sphere, World
 from protocols import stereo_frame

@@ -25,7 +25,7 @@ from _chromium import Browser, colourful_fraction, ink_fraction
 from _plant_sim_proc import free_port
 
 from companion.record.replay import replay
-from plant_sim.lockstep.sil import ChildProcess
+from evaluation.sil import ChildProcess
 
 pytestmark = pytest.mark.slow
 

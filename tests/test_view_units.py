@@ -161,7 +161,7 @@ def test_without_the_view_extra_the_flags_name_it(tmp_path, capsys, monkeypatch)
         importlib.util, "find_spec", lambda name, *a: None if name in missing else real(name, *a)
     )
     from companion.__main__ import main
-    from plant_sim.lockstep.cli import main as stereo_avoid
+    from evaluation.cli import main as stereo_avoid
 
     assert main(["--rerun", str(tmp_path / "x.rrd")]) == 2
     err = capsys.readouterr().err
@@ -448,7 +448,7 @@ def test_replay_refuses_files_that_are_not_recordings(tmp_path):
 
 
 def test_stereo_avoid_replay_dispatches_on_the_argument(flight, tmp_path, capsys):
-    from plant_sim.lockstep.cli import main
+    from evaluation.cli import main
 
     path, flown = flight
     assert main(["replay", str(path), "--json"]) == 0
@@ -512,9 +512,9 @@ def test_companion_rerun_view_logs_the_scene_per_frame(tmp_path):
 
 
 def test_lockstep_rerun_view_adds_ground_truth(tmp_path):
-    from plant_sim.lockstep.harness import RunConfig, run_scene
-    from plant_sim.lockstep.scenes import paper_scene
-    from plant_sim.lockstep.view import LockstepView
+    from evaluation.harness import RunConfig, run_scene
+    from evaluation.scenes import paper_scene
+    from evaluation.view import LockstepView
 
     rrd = tmp_path / "paper.rrd"
     cfg = RunConfig(max_time_s=0.3)

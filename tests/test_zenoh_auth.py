@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from plant_sim.lockstep.sil import ChildProcess, free_port
+from evaluation.sil import ChildProcess, free_port
 from protocols import stereo_frame
 from protocols.camera import StereoIntrinsics
 from protocols.keys import stereo_key

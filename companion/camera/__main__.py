@@ -33,7 +33,6 @@ import enum
 import json
 import logging
 import math
-import os
 import re
 import sys
 import time
@@ -48,6 +47,7 @@ from protocols.process import (
     default_listen,
     run_until_signalled,
 )
+from protocols.threads import configure_threads
 from protocols.zenoh_session import ZenohSettings, zenoh_config
 
 if TYPE_CHECKING:  # numpy & co. load inside main(), after OPENBLAS_NUM_THREADS is set
@@ -579,13 +579,18 @@ def _one_line(exc: BaseException) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point (``stereo-camera``); returns the exit status."""
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    try:
+        threads = configure_threads()
+    except ValueError as exc:
+        print(f"{_PROG}: configuration error: {exc}", file=sys.stderr)
+        return 2
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=getattr(logging, args.log_level),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    logging.getLogger("stereo_camera").info("%s: %s", _PROG, threads.describe())
     import cv2
     import zenoh
 

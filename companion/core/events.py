@@ -44,10 +44,9 @@ import numpy as np
 from companion.link.setpoints import PositionTarget
 from protocols.stereo_frame import StereoFrame
 
-if TYPE_CHECKING:  # mission.py imports this module
-    from companion.core.mission import MissionStep
+if TYPE_CHECKING:
     from companion.known_space import KnownSpace
-    from companion.pipeline import PoseAtCapture
+    from companion.pipeline import PipelineOutput, PoseAtCapture
 
 __all__ = [
     "Event",
@@ -55,6 +54,8 @@ __all__ = [
     "FrameReceived",
     "Input",
     "MavlinkReceived",
+    "MissionStep",
+    "Notice",
     "Output",
     "SendMavlink",
     "SendSetpoint",
@@ -127,12 +128,30 @@ class Status:
     host_capture_ns: int | None
 
 
+@dataclass(frozen=True)
+class Notice:
+    """A line for the operator (STATUSTEXT on the networked path)."""
+
+    text: str
+    warning: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class MissionStep:
+    """One frame's result: the pipeline output toward waypoint ``waypoint`` and reports."""
+
+    output: PipelineOutput
+    waypoint: int
+    notices: tuple[Notice, ...]
+    events: tuple[Event, ...]
+
+
 @dataclass(frozen=True, eq=False)
 class FrameProcessed:
     """A frame went through the mission (for viewers; see :mod:`companion.viz`).
 
     ``pose`` (:class:`~companion.pipeline.PoseAtCapture`) gave ``step``
-    (:class:`~companion.core.mission.MissionStep`: the pipeline output and waypoint);
+    (:class:`MissionStep`: the pipeline output and waypoint);
     ``goal_ned_m`` is the waypoint flown to [m, NED]; ``known_space`` the pipeline's live
     known-space model (read it on another thread only as a picture: it keeps changing);
     ``setpoint_sent``: the frame's setpoint went to the autopilot. Read-only.

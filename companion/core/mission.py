@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core.events import Event
+from companion.core.events import Event, MissionStep, Notice
 from companion.guidance import GuidanceConfig, Mode, Reason
 from companion.guidance.envelope import EnvelopeConfig
 from companion.known_space import KnownSpaceConfig
@@ -24,24 +23,6 @@ from companion.pipeline import AvoidancePipeline, PipelineOutput, PoseAtCapture
 from protocols.stereo_frame import StereoFrame
 
 __all__ = ["Mission", "MissionStep", "Notice"]
-
-
-@dataclass(frozen=True)
-class Notice:
-    """A line for the operator (STATUSTEXT on the networked path)."""
-
-    text: str
-    warning: bool = False
-
-
-@dataclass(frozen=True, eq=False)
-class MissionStep:
-    """One frame's result: the pipeline output toward waypoint ``waypoint`` and reports."""
-
-    output: PipelineOutput
-    waypoint: int
-    notices: tuple[Notice, ...]
-    events: tuple[Event, ...]
 
 
 class Mission:

@@ -6,7 +6,7 @@ the order the scenes finished, with the worker that flew it). Every line is flus
 written, so a killed run loses at most the scene in flight; ``--resume`` reads the file
 back, drops a torn last line, and flies only the seeds not in it. A folder is never mixed
 between batches: resuming with another spec is an error, and so is resuming seeds flown by
-other code (each record's ``code``, :mod:`plant_sim.lockstep.mc_provenance`) unless
+other code (each record's ``code``, :mod:`evaluation.mc_provenance`) unless
 ``allow_code_change`` says the mix is wanted.
 """
 
@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-from plant_sim.lockstep.harness import Verdict
-from plant_sim.lockstep.mc_provenance import code_counts
+from evaluation.harness import Verdict
+from evaluation.mc_provenance import code_counts
 
 __all__ = [
     "PERCEPTIONS",

@@ -13,7 +13,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Rectangle
 
-from plant_sim.lockstep.history import History
+from evaluation.history import History
 from plant_sim.world import World
 
 __all__ = ["write_figures"]

@@ -11,9 +11,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
 
-from plant_sim.lockstep.harness import Verdict
-from plant_sim.lockstep.history import History
-from plant_sim.lockstep.plots import write_figures
+from evaluation.harness import Verdict
+from evaluation.history import History
+from evaluation.plots import write_figures
 from plant_sim.params import ControlParams, QuadrotorParams
 from plant_sim.world import World
 

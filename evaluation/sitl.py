@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plant_sim.lockstep.sil import (
+from evaluation.sil import (
     ChildProcess,
     SilResult,
     _avoid_intervals,
@@ -55,7 +55,7 @@ from plant_sim.lockstep.sil import (
     settled_in_hold,
     verdict_from_truth,
 )
-from plant_sim.lockstep.sitl_scene import SitlScene, paper_sitl_scene
+from evaluation.sitl_scene import SitlScene, paper_sitl_scene
 
 __all__ = [
     "ARDUCOPTER_SITL_ENV",

@@ -14,8 +14,8 @@ import sys
 from pathlib import Path
 
 from companion.viz.options import ViewOptionError, require_extra
-from plant_sim.lockstep.harness import RunConfig
-from plant_sim.lockstep.scenes import Scene
+from evaluation.harness import RunConfig
+from evaluation.scenes import Scene
 
 __all__ = ["LockstepView", "ViewOptionError", "replay_recording"]
 

@@ -5,7 +5,7 @@ Starts ``python -m companion`` (Zenoh listening, MAVLink ``udpout`` to the plant
 ports of 127.0.0.1 with multicast scouting off, waits for both readiness lines, shows
 progress, stops both with SIGTERM when the companion reports the goal (or a timeout), and
 judges the run from plant-sim's ground-truth log (``truth.csv``) with the same
-:class:`~plant_sim.lockstep.harness.Verdict` and figures as the lockstep run.
+:class:`~evaluation.harness.Verdict` and figures as the lockstep run.
 
 The run is judged from the moment the companion sent its first setpoint (the plant hovers
 while the companion connects), so ``sim_time_s`` is comparable with the lockstep run's.
@@ -29,13 +29,14 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from plant_sim.lockstep.harness import HOLD_REST_S, HOLD_REST_SPEED_MPS, RunConfig, Verdict
-from plant_sim.lockstep.history import History
+from evaluation.harness import HOLD_REST_S, HOLD_REST_SPEED_MPS, RunConfig, Verdict
+from evaluation.history import History
+from evaluation.starve import Starvation, starve
 from plant_sim.scenario import Scenario, load_scenario, paper_scenario
 
 __all__ = [
@@ -384,6 +385,8 @@ class SilOptions:
     companion_args: tuple[str, ...] = ()
     plant_args: tuple[str, ...] = ()
     startup_timeout_s: float = 60.0
+    # the companion held to this fraction of one core (evaluation.starve); None: unlimited
+    companion_core_fraction: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -394,6 +397,7 @@ class SilResult:
     companion_stats: dict | None
     events: list[tuple[str, dict]] = field(default_factory=list)
     truth_path: Path | None = None
+    starvation: str | None = None  # how the companion was starved, if it was
 
 
 def run_sil(
@@ -428,8 +432,12 @@ def run_sil(
         env,
     )
     plant: ChildProcess | None = None
+    starved: Starvation | None = None
     wall_start = time.monotonic()
     try:
+        if options.companion_core_fraction is not None:
+            starved = starve(companion.proc.pid, options.companion_core_fraction)
+            say(f"companion starved: {starved.describe()}")
         companion.wait_line(r"^COMPANION READY ", options.startup_timeout_s)
         plant = _start_plant(options, out, mav_port, zen, env)
         plant.wait_line(r"^PLANT_SIM READY ", options.startup_timeout_s)
@@ -439,7 +447,10 @@ def run_sil(
         if plant is not None:
             plant.stop()
         companion.stop()
-    return _collect(options, out, goal, companion, plant, t0, time.monotonic() - wall_start)
+        if starved is not None:
+            starved.close()
+    result = _collect(options, out, goal, companion, plant, t0, time.monotonic() - wall_start)
+    return replace(result, starvation=None if starved is None else starved.describe())
 
 
 def _start_plant(

@@ -19,8 +19,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 
-from plant_sim.lockstep.harness import Verdict
-from plant_sim.lockstep.montecarlo import scene_of
+from evaluation.harness import Verdict
+from evaluation.montecarlo import scene_of
 
 __all__ = ["format_summary", "write_report"]
 
@@ -78,7 +78,7 @@ def write_report(
     code_counts: dict[str, int] | None = None,
 ) -> str:
     """Write the table and the figures to ``out_dir``; returns the table. ``code_counts``:
-    seeds per code fingerprint (:mod:`plant_sim.lockstep.mc_provenance`), a line of the
+    seeds per code fingerprint (:mod:`evaluation.mc_provenance`), a line of the
     table (flagged when the batch mixes code)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

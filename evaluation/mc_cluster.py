@@ -9,7 +9,7 @@ own docs (``dask-jobqueue`` for SLURM/PBS/SGE, ``dask-kubernetes``, SSH, cloud),
 local cluster is the same API for the tests and a laptop.
 
 Each worker process flies one scene at a time with one numba and one OpenCV thread
-(:func:`~plant_sim.lockstep.montecarlo.single_threaded`); a worker plugin
+(:func:`~evaluation.mc_scene.single_threaded`); a worker plugin
 (:class:`WarmUp`) loads the numba caches and OpenCV's matchers once per worker, before
 its first task. A seed whose worker dies more often than Dask's retry limit is an
 ``"error"`` verdict, reported, not a lost run.
@@ -26,9 +26,9 @@ from typing import Any
 from distributed import Client, LocalCluster, as_completed
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from plant_sim.lockstep.mc_provenance import code_fingerprint
-from plant_sim.lockstep.mc_results import verdict_to_record
-from plant_sim.lockstep.montecarlo import error_verdict, fly_record, single_threaded
+from evaluation.mc_provenance import code_fingerprint
+from evaluation.mc_results import verdict_to_record
+from evaluation.mc_scene import error_verdict, fly_record, single_threaded
 
 __all__ = ["WarmUp", "dask_client", "fly_on_cluster", "warm_up"]
 
@@ -39,8 +39,8 @@ _WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THR
 def warm_up() -> None:
     """Fly a fraction of a second of a scene with each perception in this process: imports,
     numba's compiled kernels (from its cache) and OpenCV's matchers are ready afterwards."""
-    from plant_sim.lockstep.harness import RunConfig, run_scene
-    from plant_sim.lockstep.montecarlo import scene_of
+    from evaluation.harness import RunConfig, run_scene
+    from evaluation.mc_scene import scene_of
 
     single_threaded()
     for truth in (False, True):

@@ -1,5 +1,5 @@
-"""``stereo-avoid sil`` reporting: run :func:`~plant_sim.lockstep.sil.run_sil`, print
-progress, then the verdict and files through :func:`~plant_sim.lockstep.report.write_run_report`."""
+"""``stereo-avoid sil`` reporting: run :func:`~evaluation.sil.run_sil`, print
+progress, then the verdict and files through :func:`~evaluation.report.write_run_report`."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
-from plant_sim.lockstep.harness import RunConfig
-from plant_sim.lockstep.report import write_run_report
-from plant_sim.lockstep.sil import SilOptions, run_sil
+from evaluation.harness import RunConfig
+from evaluation.report import write_run_report
+from evaluation.sil import SilOptions, run_sil
 from plant_sim.scenario import (
     ScenarioError,
     load_scenario,
@@ -20,8 +20,8 @@ from plant_sim.scenario import (
 )
 
 if TYPE_CHECKING:
-    from plant_sim.lockstep.sitl import SitlResult
-    from plant_sim.lockstep.sitl_scene import SitlScene
+    from evaluation.sitl import SitlResult
+    from evaluation.sitl_scene import SitlScene
 
 __all__ = ["fly_sil_and_report", "fly_sitl_and_report"]
 
@@ -84,17 +84,17 @@ def fly_sitl_and_report(
     scenario: Path | None = None,
 ) -> int:
     """``stereo-avoid sil --autopilot arducopter-sitl``: fly the paper's scene (or
-    ``scenario``, placed so that its start is SITL's home: :mod:`~plant_sim.lockstep.sitl_scene`)
+    ``scenario``, placed so that its start is SITL's home: :mod:`~evaluation.sitl_scene`)
     on ArduPilot's ArduCopter SITL (plant-sim as the camera only), report like the
     plant-sim SIL run plus the speed figures; exit status as :func:`write_run_report`'s,
     2 on bad input."""
-    from plant_sim.lockstep.sitl import (
+    from evaluation.sitl import (
         SITL_HOWTO,
         SitlOptions,
         find_arducopter_sitl,
         run_sitl_sil,
     )
-    from plant_sim.lockstep.sitl_scene import paper_sitl_scene
+    from evaluation.sitl_scene import paper_sitl_scene
 
     log = sys.stderr if as_json else sys.stdout
     binary = find_arducopter_sitl()
@@ -168,7 +168,7 @@ def _report_sitl(
 def _sitl_scene_of(path: Path, log: TextIO) -> SitlScene:
     """The scenario file at ``path`` placed in SITL's world; says how it was moved and what
     SITL decides for itself. A :class:`ScenarioError` names the file."""
-    from plant_sim.lockstep.sitl_scene import sitl_scene
+    from evaluation.sitl_scene import sitl_scene
 
     data = read_scenario_data(path)
     try:

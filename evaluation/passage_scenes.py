@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from plant_sim.lockstep.scenes import Scene
+from evaluation.scenes import Scene
 from plant_sim.world import Box, GroundPlane, World
 
 __all__ = ["PASSAGE_FAMILIES", "corridor_scene", "gap_scene", "passage_scene"]

@@ -26,9 +26,9 @@ from companion.guidance.envelope import EnvelopeConfig
 from companion.known_space import KnownSpaceConfig
 from companion.perception import PerceptionConfig
 from companion.pipeline import PoseAtCapture
-from plant_sim.lockstep.history import History
-from plant_sim.lockstep.scenes import Scene
-from plant_sim.lockstep.truth_perception import TruthPerception
+from evaluation.history import History
+from evaluation.scenes import Scene
+from evaluation.truth_perception import TruthPerception
 from plant_sim.params import ControlParams, QuadrotorParams
 from plant_sim.stereo_camera import RenderParams, StereoCameraRenderer
 from plant_sim.vehicle import Quadrotor, Setpoint, VehicleState
@@ -77,7 +77,7 @@ class RunConfig:
     # the vehicle has stopped (speed below 0.05 m/s for 1 s) or at max_time_s.
     companion_stop_s: float | None = None
     # Ground-truth perception: the renderer's exact depth instead of the stereo matcher
-    # (plant_sim.lockstep.truth_perception); guidance, envelope and known space unchanged.
+    # (evaluation.truth_perception); guidance, envelope and known space unchanged.
     truth_perception: bool = False
 
     def __post_init__(self) -> None:
@@ -180,7 +180,7 @@ def run_scene(
         Keep the per-frame time history (figures, CSV); False leaves ``RunResult.history``
         empty (Monte Carlo keeps only the verdict).
     on_step : callable(frame, pose, step, mission), optional
-        Called after every mission step (a Rerun view, :mod:`plant_sim.lockstep.view`);
+        Called after every mission step (a Rerun view, :mod:`evaluation.view`);
         ``pose`` is the plant's true pose at capture.
     """
     cfg = config or RunConfig()

@@ -5,6 +5,10 @@ Subcommands
 ``stereo-avoid paper [--out DIR] [--json]``
     Fly §6 (start (20, 0, −7), goal (0, 0, −7), obstacle (10, 0, −7) r 1.5 m), print
     progress and a verdict, write Fig. 6–11 as PNG and the time history as CSV.
+``stereo-avoid fly --scenario FILE [--out DIR] [--json]``
+    A plant-sim scenario file (``.toml``/``.json``: start, heading, goal, obstacles,
+    airframe, camera) flown in lockstep like ``paper``
+    (:mod:`evaluation.scene_files`); ``docker/config/scenario.toml`` is the paper's.
 ``stereo-avoid montecarlo --n N [--seed S] [--family F] [--perception stereo|truth]
 [--cluster ADDRESS | --jobs J] [--out DIR] [--resume [--allow-code-change]] [--json]``
     N random scenes (seeds S … S+N−1) as tasks on a Dask cluster: the scheduler at
@@ -13,10 +17,10 @@ Subcommands
     flew it (``--resume`` flies only the seeds not in it, and refuses seeds flown by other
     code unless ``--allow-code-change``), with a progress bar (rate, ETA); at the end a
     summary table (with the code that flew it) and figures in DIR, with the seed of every
-    failure to replay. Families (``plant_sim.lockstep.scenes``):
+    failure to replay. Families (``evaluation.scenes``):
     path, climb, goal_near, facing_away, or mixed (the default: the family of seed s is
     the (s mod 4)-th). ``--perception truth``: the renderer's exact depth instead of the
-    stereo matcher (``plant_sim.lockstep.truth_perception``).
+    stereo matcher (``evaluation.truth_perception``).
 ``stereo-avoid replay SEED [--family F] [--perception P] [--out DIR] [--json]``
     One random scene, with figures, exactly as Monte Carlo flew it (same verdict).
 ``stereo-avoid replay FILE.mcap [--rerun FILE.rrd|serve] [--json]``
@@ -27,20 +31,20 @@ Subcommands
     plant-sim and the companion as two processes over MAVLink and Zenoh on loopback;
     the same verdict and figures, from plant-sim's ground-truth log.
 ``stereo-avoid compile [--jobs J]``
-    Compile every numba kernel into numba's cache (:mod:`plant_sim.lockstep.kernels`), so
+    Compile every numba kernel into numba's cache (:mod:`evaluation.kernels`), so
     no process pays ~70 s of JIT at its first frame; ``scripts/setup.sh`` runs it.
 
 ``paper``, ``replay`` and ``sil`` take ``--rerun FILE.rrd|serve[:PORT]``: the run in Rerun
-(:mod:`plant_sim.lockstep.view`; needs the optional ``view`` extra).
+(:mod:`evaluation.view`; needs the optional ``view`` extra).
 ``stereo-avoid sil --autopilot arducopter-sitl [--scenario FILE] [--autopilot-params FILE]``
     the paper's scene (north from home at 7 m), or a plant-sim scenario moved so that its
-    start is SITL's home (:mod:`plant_sim.lockstep.sitl_scene`), on ArduPilot's ArduCopter
+    start is SITL's home (:mod:`evaluation.sitl_scene`), on ArduPilot's ArduCopter
     SITL, taken off by the companion, plant-sim as the camera only
-    (:mod:`plant_sim.lockstep.sitl`).
+    (:mod:`evaluation.sitl`).
 
 Exit status: 0 when every run reached its goal without collision (montecarlo: every
 scene ended safely, at the goal or in a reported stop, and none collided); for one run
-(``paper``, ``replay SEED``, ``sil``) 3 when it ended in a safe stop (guidance reported a
+(``paper``, ``fly``, ``replay SEED``, ``sil``) 3 when it ended in a safe stop (guidance reported a
 hold and the vehicle came to rest, no collision: the goal is unreachable); 1 otherwise; 2
 on a usage error.
 """
@@ -55,16 +59,17 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from plant_sim.lockstep.harness import RunConfig, RunResult, run_scene
-from plant_sim.lockstep.montecarlo import (
+from evaluation.harness import RunConfig, RunResult, run_scene
+from evaluation.montecarlo import (
     is_safe,
     run_config,
     scene_of,
     single_threaded,
     summarize,
 )
-from plant_sim.lockstep.report import write_run_report
-from plant_sim.lockstep.scenes import FAMILIES, Scene, paper_scene
+from evaluation.report import write_run_report
+from evaluation.scenes import FAMILIES, Scene, paper_scene
+from protocols.threads import configure_threads
 
 __all__ = ["main"]
 
@@ -75,6 +80,20 @@ def _progress(stream):
         stream.flush()
 
     return report
+
+
+def _fly_scenario(args: argparse.Namespace) -> int:
+    """``stereo-avoid fly --scenario FILE``: the file's scene and airframe in lockstep."""
+    from evaluation.scene_files import scene_and_config
+    from plant_sim.scenario import ScenarioError, load_scenario
+
+    try:
+        scenario = load_scenario(args.scenario)
+        scene, cfg = scene_and_config(scenario, args.scenario.stem)
+    except (ScenarioError, ValueError, OSError) as exc:
+        print(f"stereo-avoid fly: {exc}", file=sys.stderr)
+        return 2
+    return _fly_and_report(scene, args.out, args.json, cfg, rerun=args.rerun)
 
 
 def _fly_and_report(
@@ -89,7 +108,7 @@ def _fly_and_report(
     print(f"flying scene '{scene.name}' in lockstep (simulation time)", file=log)
     view = None
     if rerun is not None:
-        from plant_sim.lockstep.view import LockstepView, ViewOptionError
+        from evaluation.view import LockstepView, ViewOptionError
 
         try:
             view = LockstepView(rerun, scene, cfg)
@@ -121,7 +140,7 @@ def _fly_and_report(
 def _record_sink(results, bar, code: str) -> Callable[[dict], None]:
     """``on_record`` for a batch: append the record to ``results``, advance ``bar``, and warn
     (once per fingerprint) when a worker flew it with other code than this client's."""
-    from plant_sim.lockstep.mc_results import verdict_from_record
+    from evaluation.mc_results import verdict_from_record
 
     foreign: set[str] = set()
 
@@ -143,11 +162,11 @@ def _record_sink(results, bar, code: str) -> Callable[[dict], None]:
 
 
 def _montecarlo(args: argparse.Namespace) -> int:
-    from plant_sim.lockstep.mc_cluster import dask_client, fly_on_cluster
-    from plant_sim.lockstep.mc_progress import ProgressBar
-    from plant_sim.lockstep.mc_provenance import code_counts, code_fingerprint
-    from plant_sim.lockstep.mc_report import write_report
-    from plant_sim.lockstep.mc_results import BatchSpec, ResultsFile, ResultsFileError
+    from evaluation.mc_cluster import dask_client, fly_on_cluster
+    from evaluation.mc_progress import ProgressBar
+    from evaluation.mc_provenance import code_counts, code_fingerprint
+    from evaluation.mc_report import write_report
+    from evaluation.mc_results import BatchSpec, ResultsFile, ResultsFileError
 
     if args.allow_code_change and not args.resume:
         print(
@@ -226,7 +245,7 @@ def _replay(args: argparse.Namespace) -> int:
     """``replay TARGET``: an integer is a Monte Carlo seed (flown again in lockstep), a
     ``.mcap`` file a companion recording (replayed through a fresh core)."""
     if args.target.endswith(".mcap"):
-        from plant_sim.lockstep.view import replay_recording
+        from evaluation.view import replay_recording
 
         return replay_recording(Path(args.target), args.rerun, args.json)
     try:
@@ -256,6 +275,12 @@ def _parser() -> argparse.ArgumentParser:
     paper = sub.add_parser("paper", help="fly the paper's §6 scenario in lockstep")
     paper.add_argument("--out", type=Path, default=Path("runs/paper"), help="output folder")
     paper.add_argument("--json", action="store_true", help="print the verdict as JSON")
+    fly = sub.add_parser("fly", help="fly a plant-sim scenario file in lockstep")
+    fly.add_argument(
+        "--scenario", type=Path, required=True, help="plant-sim scenario (.toml or .json)"
+    )
+    fly.add_argument("--out", type=Path, default=Path("runs/fly"), help="output folder")
+    fly.add_argument("--json", action="store_true", help="print the verdict as JSON")
     _add_montecarlo(sub.add_parser("montecarlo", help="random scenes on a Dask cluster"))
     replay = sub.add_parser(
         "replay", help="fly one Monte Carlo scene again by its seed, or replay FILE.mcap"
@@ -282,7 +307,7 @@ def _parser() -> argparse.ArgumentParser:
     compile_.add_argument(
         "--jobs", type=int, default=2, help="processes compiling at once (default 2)"
     )
-    for p in (paper, replay, sil):
+    for p in (paper, fly, replay, sil):
         p.add_argument(
             "--rerun",
             metavar="FILE.rrd|serve[:PORT]",
@@ -369,11 +394,18 @@ def _add_sil(sil: argparse.ArgumentParser) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``stereo-avoid`` console script."""
+    try:
+        configure_threads()
+    except ValueError as exc:
+        print(f"stereo-avoid: configuration error: {exc}", file=sys.stderr)
+        return 2
     args = _parser().parse_args(argv)
     if args.command == "paper":
         return _fly_and_report(paper_scene(), args.out, args.json, rerun=args.rerun)
+    if args.command == "fly":
+        return _fly_scenario(args)
     if args.command == "sil":
-        from plant_sim.lockstep.sil_report import fly_sil_and_report, fly_sitl_and_report
+        from evaluation.sil_report import fly_sil_and_report, fly_sitl_and_report
 
         if args.autopilot == "arducopter-sitl":
             out = args.out if args.out != Path("runs/sil") else Path("runs/sitl")
@@ -391,7 +423,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command == "replay":
         return _replay(args)
     if args.command == "compile":
-        from plant_sim.lockstep.kernels import compile_kernels
+        from evaluation.kernels import compile_kernels
 
         if args.jobs < 1:
             print("stereo-avoid compile: --jobs must be >= 1", file=sys.stderr)
