@@ -123,78 +123,74 @@ def passage_scene(seed: int, family: str) -> Scene:
     origin = rng.uniform(-20.0, 20.0, 2)
     heading = _HEADINGS[int(rng.integers(4))]
     alt = rng.uniform(*ALTITUDE_RANGE_M)
-    name = f"{family}-{seed}"
-    t = WALL_THICKNESS_M
-    if family == "gap":
-        width = rng.uniform(*PASSAGE_WIDTH_RANGE_M)
-        centre = rng.uniform(-0.6, 0.6)
-        wall_at = rng.uniform(6.0, 10.0)
-        goal_at = wall_at + rng.uniform(5.0, 10.0)
-        sides = rng.uniform(8.0, 15.0, 2)
-        boxes = [
-            _slab(
-                wall_at, centre - 0.5 * width - 0.5 * sides[0], t, sides[0], heading, (-14.0, 0.0)
-            ),
-            _slab(
-                wall_at, centre + 0.5 * width + 0.5 * sides[1], t, sides[1], heading, (-14.0, 0.0)
-            ),
-        ]
-        start, goal = (
-            _ned(origin, heading, 0.0, 0.0, -alt),
-            _ned(origin, heading, goal_at, 0.0, -alt),
-        )
-    elif family == "corridor":
-        width = rng.uniform(*PASSAGE_WIDTH_RANGE_M)
-        centre = rng.uniform(-0.3, 0.3)
-        begin = rng.uniform(5.0, 8.0)
-        length = rng.uniform(8.0, 14.0)
-        goal_at = begin + length + rng.uniform(3.0, 6.0)
-        boxes = [
-            _slab(
-                begin + 0.5 * length,
-                centre + s * 0.5 * (width + t),
-                length,
-                t,
-                heading,
-                (-12.0, 0.0),
-            )
-            for s in (-1.0, 1.0)
-        ]
-        start, goal = (
-            _ned(origin, heading, 0.0, 0.0, -alt),
-            _ned(origin, heading, goal_at, 0.0, -alt),
-        )
-    elif family == "goal_surface":
-        gap = rng.uniform(*GOAL_SURFACE_RANGE_M)
-        goal_at = rng.uniform(14.0, 20.0)
-        kind = int(rng.integers(3))
-        if kind == 0:  # a wall beyond the goal, facing the vehicle
-            boxes = [_slab(goal_at + gap + 0.5 * t, 0.0, t, 12.0, heading, (-alt - 4.0, 0.0))]
-        elif kind == 1:  # a wall beside the goal, along the path
-            side = rng.choice([-1.0, 1.0])
-            boxes = [_slab(goal_at, side * (gap + 0.5 * t), 10.0, t, heading, (-alt - 4.0, 0.0))]
-        else:  # a thin wall between the start and the goal, the goal behind it
-            width = rng.uniform(3.0, 5.0)
-            boxes = [
-                _slab(
-                    goal_at - gap - 0.5 * t,
-                    rng.uniform(-0.5, 0.5),
-                    t,
-                    width,
-                    heading,
-                    (-alt - 2.0, -alt + 2.0),
-                )
-            ]
-        start, goal = (
-            _ned(origin, heading, 0.0, 0.0, -alt),
-            _ned(origin, heading, goal_at, 0.0, -alt),
-        )
-    else:  # vertical
-        rise = rng.uniform(*VERTICAL_RANGE_M) * rng.choice([-1.0, 1.0])
+    if family == "vertical":
+        rise = rng.uniform(*VERTICAL_RANGE_M) * rng.choice([-1.0, 1.0])  # + up
         alt = rng.uniform(8.0, 10.0) if rise < 0 else rng.uniform(4.0, 6.0)
         beside = rng.uniform(1.5, 3.0) * rng.choice([-1.0, 1.0])
-        boxes = [_slab(0.0, beside + math.copysign(0.5 * t, beside), 6.0, t, heading, (-16.0, 0.0))]
+        wall_at = beside + math.copysign(0.5 * WALL_THICKNESS_M, beside)
+        boxes = [_slab(0.0, wall_at, 6.0, WALL_THICKNESS_M, heading, (-16.0, 0.0))]
         off = rng.uniform(-0.05, 0.05, 2)
         start = _ned(origin, heading, 0.0, 0.0, -alt)
         goal = (start[0] + float(off[0]), start[1] + float(off[1]), -alt - rise)
-    return _scene(name, seed, origin, heading, start, goal, boxes)
+    else:
+        boxes, goal_at = _FAMILY_BOXES[family](rng, heading, alt)
+        start = _ned(origin, heading, 0.0, 0.0, -alt)
+        goal = _ned(origin, heading, goal_at, 0.0, -alt)
+    return _scene(f"{family}-{seed}", seed, origin, heading, start, goal, boxes)
+
+
+def _gap_boxes(rng, heading, alt):
+    t = WALL_THICKNESS_M
+    width = rng.uniform(*PASSAGE_WIDTH_RANGE_M)
+    centre = rng.uniform(-0.6, 0.6)
+    wall_at = rng.uniform(6.0, 10.0)
+    goal_at = wall_at + rng.uniform(5.0, 10.0)
+    sides = rng.uniform(8.0, 15.0, 2)
+    left = centre - 0.5 * width - 0.5 * sides[0]
+    right = centre + 0.5 * width + 0.5 * sides[1]
+    boxes = [
+        _slab(wall_at, left, t, sides[0], heading, (-14.0, 0.0)),
+        _slab(wall_at, right, t, sides[1], heading, (-14.0, 0.0)),
+    ]
+    return boxes, goal_at
+
+
+def _corridor_boxes(rng, heading, alt):
+    t = WALL_THICKNESS_M
+    width = rng.uniform(*PASSAGE_WIDTH_RANGE_M)
+    centre = rng.uniform(-0.3, 0.3)
+    begin = rng.uniform(5.0, 8.0)
+    length = rng.uniform(8.0, 14.0)
+    goal_at = begin + length + rng.uniform(3.0, 6.0)
+    mid = begin + 0.5 * length
+    boxes = [
+        _slab(mid, centre + s * 0.5 * (width + t), length, t, heading, (-12.0, 0.0))
+        for s in (-1.0, 1.0)
+    ]
+    return boxes, goal_at
+
+
+def _goal_surface_boxes(rng, heading, alt):
+    t = WALL_THICKNESS_M
+    gap = rng.uniform(*GOAL_SURFACE_RANGE_M)
+    goal_at = rng.uniform(14.0, 20.0)
+    kind = int(rng.integers(3))
+    if kind == 0:  # a wall beyond the goal, facing the vehicle
+        return [_slab(goal_at + gap + 0.5 * t, 0.0, t, 12.0, heading, (-alt - 4.0, 0.0))], goal_at
+    if kind == 1:  # a wall beside the goal, along the path
+        side = rng.choice([-1.0, 1.0])
+        return [
+            _slab(goal_at, side * (gap + 0.5 * t), 10.0, t, heading, (-alt - 4.0, 0.0))
+        ], goal_at
+    # a thin wall 3–5 m wide between the start and the goal, the goal behind it
+    width = rng.uniform(3.0, 5.0)
+    lateral = rng.uniform(-0.5, 0.5)
+    z = (-alt - 2.0, -alt + 2.0)
+    return [_slab(goal_at - gap - 0.5 * t, lateral, t, width, heading, z)], goal_at
+
+
+_FAMILY_BOXES = {
+    "gap": _gap_boxes,
+    "corridor": _corridor_boxes,
+    "goal_surface": _goal_surface_boxes,
+}

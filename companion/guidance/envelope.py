@@ -233,6 +233,17 @@ def _budget_s(cfg: EnvelopeConfig, latency_s: float | None) -> float:
     return cfg.latency_s
 
 
+def _free_m(free_distance: FreeDistanceFn, pos, unit, vehicle_radius_m: float, cfg) -> float:
+    """Known-free distance along ``unit`` for the vehicle's section [m]."""
+    section = (vehicle_radius_m, cfg.lookahead_m, cfg.vehicle_half_height_m)
+    return float(free_distance(pos, unit, *section, vehicle_radius_m, cfg.near_field_m))
+
+
+def _limit_mps(free_m: float, tau_s: float, cfg: EnvelopeConfig) -> float:
+    """The speed bound for ``free_m`` of known-free space, capped [m/s]."""
+    return min(speed_limit_mps(free_m, tau_s, cfg.accel_mps2, cfg.margin_m), cfg.max_speed_mps)
+
+
 def envelope_step(
     *,
     pos_ned_m,
@@ -280,19 +291,12 @@ def envelope_step(
     d_stop = stopping_distance_m(speed, tau, cfg.accel_mps2)
     to_setpoint = target - pos
     dist = math.sqrt(float(to_setpoint @ to_setpoint))
-    section = (vehicle_radius_m, cfg.lookahead_m, cfg.vehicle_half_height_m)
 
     def free_along(unit: np.ndarray) -> float:
-        return float(free_distance(pos, unit, *section, vehicle_radius_m, cfg.near_field_m))
-
-    def limit_for(free_m: float) -> float:
-        return min(speed_limit_mps(free_m, tau, cfg.accel_mps2, cfg.margin_m), cfg.max_speed_mps)
+        return _free_m(free_distance, pos, unit, vehicle_radius_m, cfg)
 
     if dist < 1e-6:
-        direction = np.zeros(3)
-        free = 0.0
-        carrot = target.copy()
-        limited = False
+        direction, free, carrot, limited = np.zeros(3), 0.0, target.copy(), False
     else:
         direction = _path_direction(to_setpoint, max_path_elevation_rad)
         free = free_along(direction)
@@ -302,14 +306,13 @@ def envelope_step(
         clamped = not np.allclose(direction * dist, to_setpoint, atol=1e-9)
         limited = clamped or reach < dist - 1e-9
         carrot = pos + direction * reach if limited else target.copy()
-    limit = limit_for(free)
-    braking = speed > limit and speed >= _BRAKE_MIN_SPEED_MPS
-    if braking:
+    limit = _limit_mps(free, tau, cfg)
+    if speed > limit and speed >= _BRAKE_MIN_SPEED_MPS:
         # Too fast to turn onto the path (or the path's free space shrank): the carrot is
         # at the vehicle (reach 0), and the stated bound is the one for the way it moves.
         direction = vel / speed
         free = free_along(direction)
-        limit = limit_for(free)
+        limit = _limit_mps(free, tau, cfg)
     carrot.setflags(write=False)
     direction.setflags(write=False)
     return EnvelopeOutput(
