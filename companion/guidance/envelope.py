@@ -292,14 +292,11 @@ def envelope_step(
     to_setpoint = target - pos
     dist = math.sqrt(float(to_setpoint @ to_setpoint))
 
-    def free_along(unit: np.ndarray) -> float:
-        return _free_m(free_distance, pos, unit, vehicle_radius_m, cfg)
-
     if dist < 1e-6:
         direction, free, carrot, limited = np.zeros(3), 0.0, target.copy(), False
     else:
         direction = _path_direction(to_setpoint, max_path_elevation_rad)
-        free = free_along(direction)
+        free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
         reach = min(dist, max(0.0, free - d_stop - cfg.margin_m))
         if reach < min(cfg.min_advance_m, dist):
             reach = 0.0
@@ -311,7 +308,7 @@ def envelope_step(
         # Too fast to turn onto the path (or the path's free space shrank): the carrot is
         # at the vehicle (reach 0), and the stated bound is the one for the way it moves.
         direction = vel / speed
-        free = free_along(direction)
+        free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
         limit = _limit_mps(free, tau, cfg)
     carrot.setflags(write=False)
     direction.setflags(write=False)
