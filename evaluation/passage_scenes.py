@@ -31,7 +31,13 @@ import numpy as np
 from evaluation.scenes import Scene
 from plant_sim.world import Box, GroundPlane, World
 
-__all__ = ["PASSAGE_FAMILIES", "corridor_scene", "gap_scene", "passage_scene"]
+__all__ = [
+    "PASSAGE_FAMILIES",
+    "corridor_scene",
+    "gap_scene",
+    "passage_scene",
+    "passages_scene",
+]
 
 PASSAGE_FAMILIES: tuple[str, ...] = ("gap", "corridor", "goal_surface", "vertical")
 
@@ -137,6 +143,11 @@ def passage_scene(seed: int, family: str) -> Scene:
         start = _ned(origin, heading, 0.0, 0.0, -alt)
         goal = _ned(origin, heading, goal_at, 0.0, -alt)
     return _scene(f"{family}-{seed}", seed, origin, heading, start, goal, boxes)
+
+
+def passages_scene(seed: int) -> Scene:
+    """The ``passages`` mix: the family of ``seed`` is ``PASSAGE_FAMILIES[seed % 4]``."""
+    return passage_scene(seed, PASSAGE_FAMILIES[seed % len(PASSAGE_FAMILIES)])
 
 
 def _gap_boxes(rng, heading, alt):
