@@ -23,6 +23,7 @@ from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope
 from companion.guidance.map_boundaries import (
     MapBoundary,
     MapBoundaryConfig,
+    goal_surely_blocked,
     map_boundaries,
     solid_extent,
 )
@@ -137,6 +138,9 @@ class AvoidancePipeline:
             detections=boundaries,
             yaw_rad=pose.yaw_rad,
             steering=steering,
+            goal_surely_blocked=goal_surely_blocked(
+                boundaries, self.goal_ned_m, self.boundary_config
+            ),
         )
         bounded = envelope_step(
             pos_ned_m=pose.pos_ned_m,

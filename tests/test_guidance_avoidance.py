@@ -940,3 +940,28 @@ def test_an_unreachable_goal_stays_held_when_its_obstacle_is_forgotten():
     assert state.memory.tracks == ()  # forgotten, still held
     state, out = _step(state, 3.2, pos, [0.0, 0.0, 0.0], START_NED_M, [], cfg)
     assert out.mode is Mode.NAVIGATE
+
+
+def test_a_stop_for_an_unseen_goal_is_released_once_the_goal_is_seen_free():
+    """Held short of a goal that lay in a blind spot only (``goal_surely_blocked`` False):
+    the hold lasts while the goal stays inside a sphere and ends once it does not (seen
+    free from the stop point), so the goal is then approached; nothing is latched."""
+    cfg = GuidanceConfig(**ONE_SHOT, memory_timeout_s=0.5, forget_distance_m=0.1)
+    goal = CENTER_NED_M + np.array([0.5, 0.0, 0.0])
+    stop = CENTER_NED_M + np.array([INFLATED.radius_m + cfg.goal_standoff_m, 0.0, 0.0])
+    pos = stop + np.array([0.2, 0.0, 0.0])
+    state = GuidanceState()
+    for k in range(10):
+        state, out = guidance_step(
+            state, time_s=k * DT_S, pos_ned_m=pos, vel_ned_mps=[0.0, 0.0, 0.0],
+            goal_ned_m=goal, detections=[INFLATED], config=cfg, goal_surely_blocked=False,
+        )  # fmt: skip
+        assert out.mode is Mode.HOLD and out.reason is Reason.GOAL_UNREACHABLE
+    assert not state.progress.unreachable
+    for k in range(round(2.0 / DT_S)):  # the blind spot seen free: the sphere goes
+        state, out = guidance_step(
+            state, time_s=1.0 + k * DT_S, pos_ned_m=pos, vel_ned_mps=[0.0, 0.0, 0.0],
+            goal_ned_m=goal, config=cfg, goal_surely_blocked=False,
+        )  # fmt: skip
+    assert out.mode is Mode.NAVIGATE
+    np.testing.assert_allclose(out.setpoint_ned_m, goal)

@@ -12,6 +12,7 @@ from companion.guidance import BoundarySphere, GuidanceConfig
 from companion.guidance.cone import collision_cone, segment_intersects_sphere
 from companion.guidance.map_boundaries import (
     MapBoundaryConfig,
+    goal_surely_blocked,
     map_boundaries,
     solid_extent,
     track_key,
@@ -242,3 +243,18 @@ def test_an_opening_wider_than_the_vehicle_and_margins_stays_open(opening_m, goa
     assert len({s.track_key for s in spheres}) == len(spheres)
     narrow = map_boundaries(_space_with_opening(0.8, crossing_east_m), POS, goal)
     assert any(segment_intersects_sphere(POS, goal, s) for s in narrow)
+
+
+def test_a_goal_is_surely_blocked_only_within_the_inflation_of_a_seen_surface():
+    """0.4 m in front of the wall (inside vehicle + margin of the seen surface): surely
+    blocked; 1.2 m behind the wall, in its unseen blind spot: held short, not for sure;
+    far from it: not blocked."""
+    space = _space_with_wall(north_m=3.1)
+    in_front = np.array([2.7, 0.1, -7.1])  # surface at 3.0: 0.3 m
+    behind = np.array([4.3, 0.1, -7.1])  # 1.1 m behind the far face (unseen)
+    far = np.array([0.1, 0.1, -20.0])
+    assert goal_surely_blocked(map_boundaries(space, POS, in_front), in_front)
+    spheres = map_boundaries(space, POS, behind)
+    assert any(np.linalg.norm(behind - np.array(s.center_ned_m)) < s.radius_m for s in spheres)
+    assert not goal_surely_blocked(spheres, behind)
+    assert not goal_surely_blocked(map_boundaries(space, POS, far), far)

@@ -306,13 +306,14 @@ def guidance_step(
     yaw_rad: float | None = None,
     config: GuidanceConfig | None = None,
     steering: bool = True,
+    goal_surely_blocked: bool = True,
 ) -> tuple[GuidanceState, GuidanceOutput]:
     """Advance guidance by one perception frame.
 
     Parameters
     ----------
     state : GuidanceState
-        State after the previous step (``GuidanceState()`` to start).
+        After the previous step (``GuidanceState()`` to start).
     time_s : float
         Simulation time of this frame [s]; must not decrease.
     pos_ned_m, vel_ned_mps : array_like, shape (3,)
@@ -320,15 +321,16 @@ def guidance_step(
     goal_ned_m : array_like, shape (3,)
         Navigation goal [m, NED].
     detections : iterable of SphereLike
-        Boundary spheres perceived in this frame (inflated; may be empty).
+        This frame's (inflated) boundary spheres.
     yaw_rad : float, optional
-        Current vehicle yaw [rad]; only the first yaw command falls back to it when the
-        setpoint is too close to define a direction.
-    config : GuidanceConfig, optional
-        Defaults to ``GuidanceConfig()``.
+        Current yaw [rad]; the first yaw command falls back to it (setpoint too close).
+    config : GuidanceConfig, optional (``GuidanceConfig()``)
     steering : bool
-        Whether the vehicle flies this step's setpoint (not in the companion's failsafe hold
-        or a pilot's mode): time it does not is not counted toward ``NO_PROGRESS``.
+        The vehicle flies this step's setpoint (not a failsafe hold or a pilot's mode):
+        only such time counts toward ``NO_PROGRESS``.
+    goal_surely_blocked : bool
+        A sphere holds the goal for certain, not by a blind spot only: a ``GOAL_UNREACHABLE``
+        hold is latched (``_watch_progress``; ``map_boundaries.goal_surely_blocked``).
 
     Returns
     -------
@@ -344,14 +346,9 @@ def guidance_step(
     goal_in = vec3(goal_ned_m, "goal_ned_m")
     goal = np.array(goal_in)
     memory = update_memory(
-        state.memory,
-        detections,
-        time_s=time_s,
-        pos_ned_m=pos,
-        vel_ned_mps=vel,
-        goal_ned_m=goal,
-        config=cfg,
-    )
+        state.memory, detections, time_s=time_s, pos_ned_m=pos, vel_ned_mps=vel,
+        goal_ned_m=goal, config=cfg,
+    )  # fmt: skip
     tracks = tuple(t for t in memory.tracks if t.confirmed)
     apex = pos.copy()  # one read-only apex shared by this step's cones
     cones = [_collision_cone(apex, t.sphere) for t in tracks]
@@ -371,7 +368,7 @@ def guidance_step(
         _avoid_threats(state, f, d, cfg)
     if unreachable:
         _hold_at_stop_point(state, f, d, cfg)
-    progress = _watch_progress(state, f, tuple(goal_in), d, cfg, steering)
+    progress = _watch_progress(state, f, tuple(goal_in), d, cfg, steering, goal_surely_blocked)
     hold = _latch_hold(state, f, d)
     yaw = _yaw(state, f, d, yaw_rad, cfg)
     return _outputs(f, d, memory, hold, yaw, progress)
@@ -591,12 +588,14 @@ def _watch_progress(
     d: _Decision,
     cfg,
     steering: bool,
+    surely_blocked: bool = True,
 ) -> Progress:
     """Every stall ends in a latched, reported HOLD (until the goal changes).
 
-    * ``GOAL_UNREACHABLE`` once held for it stays held for this goal: the map's pieces
-      change from frame to frame, and a goal that left every confirmed sphere for one frame
-      must not release the stop into a go-around (issue 36).
+    * ``GOAL_UNREACHABLE`` entered while the goal is surely blocked (``surely_blocked``)
+      stays held for this goal: the map's pieces change from frame to frame, and a goal
+      that left every confirmed sphere for one frame must not release the stop into a
+      go-around (issue 36).
     * ``NO_PROGRESS``: ``stall_timeout_s`` of steering outside a HOLD without getting
       ``stall_progress_m`` nearer the goal. The count restarts in other HOLDs and on each
       step of an ``AVOID`` detour into a cell not visited since the best distance (a detour
@@ -615,8 +614,10 @@ def _watch_progress(
     if progress.stalled:
         _hold(d, Reason.NO_PROGRESS)
         return progress
-    if progress.unreachable or (d.mode is Mode.HOLD and d.reason is Reason.GOAL_UNREACHABLE):
+    if progress.unreachable:
         _hold(d, Reason.GOAL_UNREACHABLE)
+        return progress
+    if d.mode is Mode.HOLD and d.reason is Reason.GOAL_UNREACHABLE and surely_blocked:
         return dataclasses.replace(progress, unreachable=True)
     if dist <= progress.best_distance_m - cfg.stall_progress_m or d.mode is Mode.HOLD:
         return Progress(goal, min(dist, progress.best_distance_m))
@@ -752,6 +753,7 @@ class Guidance:
         detections: Iterable[SphereLike] = (),
         yaw_rad: float | None = None,
         steering: bool = True,
+        goal_surely_blocked: bool = True,
     ) -> GuidanceOutput:
         """Run :func:`guidance_step` on the held state; returns the output."""
         self.state, output = guidance_step(
@@ -764,5 +766,6 @@ class Guidance:
             yaw_rad=yaw_rad,
             config=self.config,
             steering=steering,
+            goal_surely_blocked=goal_surely_blocked,
         )
         return output

@@ -82,7 +82,14 @@ import numpy as np
 from companion.known_space import FREE, KnownSpace, Pieces
 from protocols.config import check_numbers
 
-__all__ = ["MapBoundary", "MapBoundaryConfig", "map_boundaries", "solid_extent", "track_key"]
+__all__ = [
+    "MapBoundary",
+    "MapBoundaryConfig",
+    "goal_surely_blocked",
+    "map_boundaries",
+    "solid_extent",
+    "track_key",
+]
 
 _KEY_FLAG = 1 << 62  # keyed tracks: ids far above the memory's own counter
 _KEY_OFFSET = 1 << 19  # cube indices within ±2^19 (±629 km at 1.2 m cubes)
@@ -342,6 +349,19 @@ def map_boundaries(
         boundaries += _boundaries_of(space, sub, 1, pos, goal, goal_free, cfg)
     boundaries = _open_gaps(boundaries, pos, goal, cfg)
     return tuple(sorted(boundaries, key=lambda b: b.track_key))
+
+
+def goal_surely_blocked(boundaries, goal_ned_m, config: MapBoundaryConfig | None = None) -> bool:
+    """Whether a boundary holding the goal holds it for certain: the goal within
+    ``inflate_m`` of that piece's seen surface (``goal_gap_m``), not only in its blind spot
+    (which may turn out free once seen). False when no boundary holds the goal."""
+    cfg = MapBoundaryConfig() if config is None else config
+    goal = np.asarray(goal_ned_m, dtype=float)
+    return any(
+        b.goal_gap_m < cfg.inflate_m
+        for b in boundaries
+        if float(np.linalg.norm(goal - np.asarray(b.center_ned_m))) < b.radius_m
+    )
 
 
 def solid_extent(boundaries) -> np.ndarray:
