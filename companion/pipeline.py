@@ -153,6 +153,7 @@ class AvoidancePipeline:
             max_path_elevation_rad=self.guidance.config.max_aim_elevation_rad,
             config=self.envelope_config,
             latency_s=latency_s,
+            heading_rad=pose.yaw_rad,
         )
         return PipelineOutput(
             perception=seen, guidance=decision, envelope=bounded, boundaries=boundaries

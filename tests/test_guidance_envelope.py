@@ -205,6 +205,39 @@ def test_space_shrinking_ahead_at_speed_is_reported_as_overspeed():
     assert out.overspeed
 
 
+@pytest.mark.parametrize("rise_m", [5.0, -4.0])
+def test_a_goal_straight_above_or_below_is_flown_in_stages_along_the_heading(rise_m):
+    """Straight up or down (2 cm aside) facing east: the path climbs or descends at the
+    path limit along the heading, where the camera looks, and the carrot stops inside the
+    known-free space (a stage); without a heading the old purely vertical path."""
+    pos = np.array([0.0, 0.0, -7.0])
+    goal = pos + np.array([0.02, 0.0, -rise_m])
+    elev = SECTION["max_path_elevation_rad"]
+    out = envelope_step(
+        **SECTION, pos_ned_m=pos, vel_ned_mps=(0, 0, 0), setpoint_ned_m=goal,
+        free_distance=_const_free(3.0), heading_rad=0.5 * math.pi,
+    )  # fmt: skip
+    expected = (0.0, math.cos(elev), -math.copysign(math.sin(elev), rise_m))
+    np.testing.assert_allclose(out.path_dir_ned, expected, atol=1e-12)
+    reach = float(np.linalg.norm(out.setpoint_ned_m - pos))
+    assert reach == pytest.approx(3.0 - CFG.margin_m)  # the stage ends in known-free space
+    assert out.limited
+    # a stage never takes the vehicle past the goal's altitude: 0.6 m to go, 10 m free
+    near = goal + np.array([0.0, 0.0, math.copysign(0.6, rise_m)])
+    out = envelope_step(
+        **SECTION, pos_ned_m=near, vel_ned_mps=(0, 0, 0), setpoint_ned_m=goal,
+        free_distance=_const_free(10.0), heading_rad=0.5 * math.pi,
+    )  # fmt: skip
+    assert abs(out.setpoint_ned_m[2] - near[2]) < 0.6
+    assert np.sign(out.setpoint_ned_m[2] - near[2]) == np.sign(goal[2] - near[2])
+    above = pos - np.array([0.0, 0.0, rise_m])
+    plain = envelope_step(
+        **SECTION, pos_ned_m=pos, vel_ned_mps=(0, 0, 0), setpoint_ned_m=above,
+        free_distance=_const_free(3.0),
+    )  # fmt: skip
+    np.testing.assert_allclose(plain.path_dir_ned, (0.0, 0.0, -math.copysign(1.0, rise_m)))
+
+
 def test_config_rejects_unknown_keys_and_bad_values():
     with pytest.raises(TypeError, match="latency_ms"):
         EnvelopeConfig.from_dict({"latency_ms": 5})
