@@ -51,17 +51,18 @@ corridor). So every pair of boundary spheres that overlap while the real surface
 them leave a passable gap, ``|c_a − c_b| − r_a − r_b ≥ 2 · inflate_m`` (piece centroids
 ``c``, piece radii ``r``: a lower bound on the voxels' distance) with no third piece
 between them (no piece's ``r + inflate_m`` reaching the part of the segment ``c_a c_b``
-between the two inflated pieces: the rest of the same wall), are *opened*: each is
-replaced by a chain along its bearing, the piece's own sphere ``(c, r + inflate_m)`` and
-its copies moved back by ``e / 2`` and ``e`` (the blind spot of Fig. 4, covered without
-growing sideways; consecutive spheres ``e / 2 ≤ 0.6 m`` apart overlap, their waist at
-least ``0.87 (r + inflate_m)`` wide). The inflated pieces themselves are then at least
-``|c_a − c_b| − r_a − r_b − 2 · inflate_m ≥ 0`` apart: the opening the vehicle fits
-through stays open to the cone and the aiming point (§5 unchanged). A sphere that crosses
-the straight path to the goal only by that sideways growth (its chain does not) is opened
-too: the far side of an opening is often not yet within the detection range when the
-near side's sphere first closes the way. The copies carry levels 2 and 3 of the piece's
-key.
+between the two inflated pieces: the rest of the same wall), are *opened*: each becomes
+the piece's own inflated sphere ``(c, r + inflate_m)``, without the blind spot's growth.
+The inflated pieces are then at least ``|c_a − c_b| − r_a − r_b − 2 · inflate_m ≥ 0``
+apart: the opening the vehicle fits through stays open to the cone and the aiming point
+(§5 unchanged). A sphere that crosses the straight path to the goal only by that growth
+(its own sphere does not) is opened too: the far side of an opening is often not yet
+within the detection range when the near side's sphere first closes the way. An opened
+piece's blind spot is no longer in its cone sphere, but it stays unknown space (the safety
+envelope never puts a carrot there) and stays in the piece's solid extent
+(:func:`solid_extent`, so the envelope's near-field excuse does not apply there).
+Pairs are tested in numpy, one vectorised pass (no per-pair Python loop): the corridor's
+two long walls give a few hundred pairs.
 
 Each boundary carries a stable ``track_key``: the global index of its cube (and its
 level), the same in every frame, so guidance's hysteresis and side commitment follow a
@@ -97,8 +98,7 @@ _TRIM_EPS_M = 1e-3  # a trimmed sphere ends this far short of the goal
 
 
 def track_key(level: int, cube: np.ndarray) -> int:
-    """Stable track id of the cube ``cube`` (3 ints) at ``level`` (0 piece, 1 sub-piece,
-    2 and 3 a chained piece's blind-spot copies: see "Gaps stay open")."""
+    """Stable track id of the cube ``cube`` (3 ints) at ``level`` (0 piece, 1 sub-piece)."""
     i, j, k = (int(v) + _KEY_OFFSET for v in cube)
     if not (0 <= i < 1 << 20 and 0 <= j < 1 << 20 and 0 <= k < 1 << 20):
         raise ValueError(f"cube index {tuple(int(v) for v in cube)} out of the key range")
@@ -206,9 +206,6 @@ def _boundaries_of(
     return out
 
 
-_CHAIN_LEVELS = (2, 3)  # key levels of a chained piece's blind-spot copies (e/2, e)
-
-
 def _segment_distance(a: np.ndarray, b: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Distance from each of ``points`` (n, 3) to the segment ``a b`` [m]."""
     ab = b - a
@@ -222,78 +219,48 @@ def _segment_distance(a: np.ndarray, b: np.ndarray, points: np.ndarray) -> np.nd
 def _open_gaps(
     boundaries: list[MapBoundary], pos: np.ndarray, goal: np.ndarray, config: MapBoundaryConfig
 ) -> list[MapBoundary]:
-    """Chain the spheres that close a passable gap (see "Gaps stay open")."""
+    """Shrink the spheres that close a passable gap to their pieces (see "Gaps stay open")."""
     if not boundaries:
         return boundaries
     centre = np.array([b.center_ned_m for b in boundaries])
     radius = np.array([b.radius_m for b in boundaries])
     piece = np.array([b.piece_center_ned_m or b.center_ned_m for b in boundaries])
     piece_r = np.array([b.piece_radius_m for b in boundaries])
-    between = np.linalg.norm(centre[:, None, :] - centre[None, :, :], axis=2)
-    overlap = between < radius[:, None] + radius[None, :]
-    real_gap = np.linalg.norm(piece[:, None, :] - piece[None, :, :], axis=2)
-    real_gap -= piece_r[:, None] + piece_r[None, :]
-    passable = overlap & (real_gap >= 2.0 * config.inflate_m)
-    np.fill_diagonal(passable, False)
+    own_r = piece_r + config.inflate_m
+    overlap = np.linalg.norm(centre[:, None, :] - centre[None, :, :], axis=2)
+    overlap = overlap < radius[:, None] + radius[None, :]
+    ab = piece[None, :, :] - piece[:, None, :]  # (n, n, 3)
+    length = np.linalg.norm(ab, axis=2)
+    passable = np.triu(overlap & (length - own_r[:, None] - own_r[None, :] >= 0.0), k=1)
     opened = np.zeros(len(boundaries), dtype=bool)
-    for a, b in zip(*np.nonzero(np.triu(passable)), strict=True):
-        # a third piece between them (the rest of one wall) fills the gap
-        ab = piece[b] - piece[a]
-        length = math.sqrt(float(ab @ ab))
-        t0 = (piece_r[a] + config.inflate_m) / length  # the opening: between the inflated
-        t1 = 1.0 - (piece_r[b] + config.inflate_m) / length  # pieces, on the segment
-        t = np.clip((piece - piece[a]) @ ab / (length * length), t0, t1)
-        off = np.linalg.norm(piece - (piece[a] + t[:, None] * ab), axis=1)
-        between_ab = off < piece_r + config.inflate_m
-        between_ab[[a, b]] = False
-        if not between_ab.any():
-            opened[[a, b]] = True
+    a, b = np.nonzero(passable)
+    if a.size:
+        # no third piece's inflated sphere reaches the opening between the two inflated
+        # pieces on the segment a → b (the rest of one wall fills it)
+        seg, seg_len = ab[a, b], length[a, b]  # (p, 3), (p,)
+        t = np.einsum("pnk,pk->pn", piece[None, :, :] - piece[a][:, None, :], seg)
+        t0, t1 = own_r[a] / seg_len, 1.0 - own_r[b] / seg_len
+        t = np.clip(t / (seg_len * seg_len)[:, None], t0[:, None], t1[:, None])
+        nearest = piece[a][:, None, :] + t[:, :, None] * seg[:, None, :]
+        blocked = np.linalg.norm(piece[None, :, :] - nearest, axis=2) < own_r[None, :]
+        blocked[np.arange(a.size), a] = False
+        blocked[np.arange(a.size), b] = False
+        open_pair = ~blocked.any(axis=1)
+        opened[a[open_pair]] = True
+        opened[b[open_pair]] = True
     # a sphere across the straight path to the goal only by its sideways growth
     grown = _segment_distance(pos, goal, centre) < radius
-    own = _segment_distance(pos, goal, piece) < piece_r + config.inflate_m
-    for n in np.flatnonzero(grown & ~own):
-        opened[n] |= not _chain_blocks(boundaries[n], pos, goal, config)
+    opened |= grown & (_segment_distance(pos, goal, piece) >= own_r)
     level0 = np.array([_decode_key(b.track_key)[0] == 0 for b in boundaries])
     opened &= level0  # sub-pieces (near the goal) stay whole
-    if not opened.any():
-        return boundaries
-    out = [b for b, o in zip(boundaries, opened, strict=True) if not o]
-    for b in (b for b, o in zip(boundaries, opened, strict=True) if o):
-        out.extend(_chain(b, pos, config))
-    return out
+    return [_own_sphere(b, config) if o else b for b, o in zip(boundaries, opened, strict=True)]
 
 
-def _chain_blocks(b: MapBoundary, pos, goal, config) -> bool:
-    """Whether the chain of ``b`` (:func:`_chain`) crosses the segment ``pos → goal``."""
-    chain = _chain(b, pos, config)
-    centres = np.array([c.center_ned_m for c in chain])
-    radii = np.array([c.radius_m for c in chain])
-    return bool(np.any(_segment_distance(pos, goal, centres) < radii))
-
-
-def _chain(b: MapBoundary, pos: np.ndarray, config: MapBoundaryConfig) -> list[MapBoundary]:
-    """The piece's own sphere and its blind-spot copies at ``e/2`` and ``e`` behind it."""
-    c = np.asarray(b.piece_center_ned_m or b.center_ned_m, dtype=float)
-    bearing = c - pos
-    dist = math.sqrt(float(bearing @ bearing))
-    _, cube = _decode_key(b.track_key)
-    spheres = [dataclasses.replace(b, center_ned_m=tuple(float(x) for x in c),
-                                   radius_m=b.piece_radius_m + config.inflate_m,
-                                   blind_depth_m=0.0)]  # fmt: skip
-    if b.blind_depth_m <= 0.0 or dist <= 1e-9:
-        return spheres
-    u = bearing / dist
-    for n, copy_level in enumerate(_CHAIN_LEVELS, start=1):
-        moved = c + u * (0.5 * n * b.blind_depth_m)
-        spheres.append(
-            dataclasses.replace(
-                spheres[0],
-                center_ned_m=tuple(float(x) for x in moved),
-                track_key=track_key(copy_level, cube),
-                piece_center_ned_m=tuple(float(x) for x in moved),
-            )
-        )
-    return spheres
+def _own_sphere(b: MapBoundary, config: MapBoundaryConfig) -> MapBoundary:
+    """The piece's own inflated sphere: centroid, ``r + inflate_m``; ``blind_depth_m`` is
+    kept, so its solid extent (:func:`solid_extent`) still reaches into the blind spot."""
+    c = b.piece_center_ned_m or b.center_ned_m
+    return dataclasses.replace(b, center_ned_m=c, radius_m=b.piece_radius_m + config.inflate_m)
 
 
 def _decode_key(key: int) -> tuple[int, np.ndarray]:
@@ -366,7 +333,8 @@ def goal_surely_blocked(boundaries, goal_ned_m, config: MapBoundaryConfig | None
 
 def solid_extent(boundaries) -> np.ndarray:
     """Where each boundary's obstacle may be: ``(n, 4)`` rows ``(north, east, down,
-    radius)`` [m], the sphere without its inflation (the piece and its blind spot, Fig. 4).
+    radius)`` [m], the sphere without its inflation (the piece and its blind spot, Fig. 4;
+    an opened piece's row keeps the blind spot's ``e / 2`` about the piece).
 
     The safety envelope's near-field excuse (unseen space beside the vehicle's path that
     no forward camera could have shown) never applies inside these spheres
