@@ -55,12 +55,14 @@ between the two inflated pieces: the rest of the same wall), are *opened*: each 
 the piece's own inflated sphere ``(c, r + inflate_m)``, without the blind spot's growth.
 The inflated pieces are then at least ``|c_a − c_b| − r_a − r_b − 2 · inflate_m ≥ 0``
 apart: the opening the vehicle fits through stays open to the cone and the aiming point
-(§5 unchanged). A sphere that crosses the straight path to the goal only by that growth
-(its own sphere does not) is opened too: the far side of an opening is often not yet
-within the detection range when the near side's sphere first closes the way. An opened
+(§5 unchanged). Only pairs are opened: a single sphere across the straight path by its
+growth alone is kept whole (opening it let a goal-near Monte Carlo seed, 762, pass 0.247 m
+from a sphere whose unseen back the growth had covered), so an opening whose far side is
+not yet within the detection range still looks closed until it is. An opened
 piece's blind spot is no longer in its cone sphere, but it stays unknown space (the safety
-envelope never puts a carrot there) and stays in the piece's solid extent
-(:func:`solid_extent`, so the envelope's near-field excuse does not apply there).
+envelope never puts a carrot there) and the solid extent (:func:`solid_extent`) stays the
+whole sphere of piece and blind spot, so the envelope's near-field excuse never applies
+there.
 Pairs are tested in numpy, one vectorised pass (no per-pair Python loop): the corridor's
 two long walls give a few hundred pairs.
 
@@ -160,6 +162,9 @@ class MapBoundary:
     trimmed: bool = False
     piece_center_ned_m: tuple[float, float, float] | None = None
     """Centroid of the piece's voxels [m, NED] (None: the sphere's centre)."""
+    solid_ned_m: tuple[float, float, float, float] | None = None
+    """An opened piece's solid extent ``(north, east, down, radius)`` [m]: the sphere of
+    the piece and its blind spot it had before opening (None: from this sphere)."""
 
 
 def _boundaries_of(
@@ -206,19 +211,7 @@ def _boundaries_of(
     return out
 
 
-def _segment_distance(a: np.ndarray, b: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Distance from each of ``points`` (n, 3) to the segment ``a b`` [m]."""
-    ab = b - a
-    length_sq = float(ab @ ab)
-    if length_sq <= 0.0:
-        return np.linalg.norm(points - a, axis=1)
-    t = np.clip((points - a) @ ab / length_sq, 0.0, 1.0)
-    return np.linalg.norm(points - (a + t[:, None] * ab), axis=1)
-
-
-def _open_gaps(
-    boundaries: list[MapBoundary], pos: np.ndarray, goal: np.ndarray, config: MapBoundaryConfig
-) -> list[MapBoundary]:
+def _open_gaps(boundaries: list[MapBoundary], config: MapBoundaryConfig) -> list[MapBoundary]:
     """Shrink the spheres that close a passable gap to their pieces (see "Gaps stay open")."""
     if not boundaries:
         return boundaries
@@ -248,19 +241,19 @@ def _open_gaps(
         open_pair = ~blocked.any(axis=1)
         opened[a[open_pair]] = True
         opened[b[open_pair]] = True
-    # a sphere across the straight path to the goal only by its sideways growth
-    grown = _segment_distance(pos, goal, centre) < radius
-    opened |= grown & (_segment_distance(pos, goal, piece) >= own_r)
     level0 = np.array([_decode_key(b.track_key)[0] == 0 for b in boundaries])
     opened &= level0  # sub-pieces (near the goal) stay whole
     return [_own_sphere(b, config) if o else b for b, o in zip(boundaries, opened, strict=True)]
 
 
 def _own_sphere(b: MapBoundary, config: MapBoundaryConfig) -> MapBoundary:
-    """The piece's own inflated sphere: centroid, ``r + inflate_m``; ``blind_depth_m`` is
-    kept, so its solid extent (:func:`solid_extent`) still reaches into the blind spot."""
+    """The piece's own inflated sphere: centroid, ``r + inflate_m``; its solid extent
+    (:func:`solid_extent`) stays the whole piece and blind spot it was before."""
     c = b.piece_center_ned_m or b.center_ned_m
-    return dataclasses.replace(b, center_ned_m=c, radius_m=b.piece_radius_m + config.inflate_m)
+    solid = (*b.center_ned_m, b.piece_radius_m + 0.5 * b.blind_depth_m)
+    return dataclasses.replace(
+        b, center_ned_m=c, radius_m=b.piece_radius_m + config.inflate_m, solid_ned_m=solid
+    )
 
 
 def _decode_key(key: int) -> tuple[int, np.ndarray]:
@@ -314,7 +307,7 @@ def map_boundaries(
         sub = Pieces(*(np.asarray(f)[keep] for f in _fields(sub)))
         boundaries = [b for b in boundaries if b.track_key not in split]
         boundaries += _boundaries_of(space, sub, 1, pos, goal, goal_free, cfg)
-    boundaries = _open_gaps(boundaries, pos, goal, cfg)
+    boundaries = _open_gaps(boundaries, cfg)
     return tuple(sorted(boundaries, key=lambda b: b.track_key))
 
 
@@ -334,7 +327,7 @@ def goal_surely_blocked(boundaries, goal_ned_m, config: MapBoundaryConfig | None
 def solid_extent(boundaries) -> np.ndarray:
     """Where each boundary's obstacle may be: ``(n, 4)`` rows ``(north, east, down,
     radius)`` [m], the sphere without its inflation (the piece and its blind spot, Fig. 4;
-    an opened piece's row keeps the blind spot's ``e / 2`` about the piece).
+    an opened piece's row is the piece and blind spot it had before opening).
 
     The safety envelope's near-field excuse (unseen space beside the vehicle's path that
     no forward camera could have shown) never applies inside these spheres
@@ -342,6 +335,10 @@ def solid_extent(boundaries) -> np.ndarray:
     """
     out = np.empty((len(boundaries), 4))
     for n, b in enumerate(boundaries):
+        solid = getattr(b, "solid_ned_m", None)
+        if solid is not None:
+            out[n] = solid
+            continue
         out[n, :3] = b.center_ned_m
         out[n, 3] = b.piece_radius_m + 0.5 * b.blind_depth_m
     return out
