@@ -25,6 +25,7 @@ from companion.guidance.hold import hold_point, inside_any
 from companion.guidance.map_boundaries import (
     MapBoundary,
     MapBoundaryConfig,
+    goal_surely_blocked,
     map_boundaries,
     solid_extent,
 )
@@ -142,6 +143,9 @@ class AvoidancePipeline:
             detections=boundaries,
             yaw_rad=pose.yaw_rad,
             steering=steering,
+            goal_surely_blocked=goal_surely_blocked(
+                boundaries, self.goal_ned_m, self.boundary_config
+            ),
         )
         bounded = envelope_step(
             pos_ned_m=pose.pos_ned_m,
@@ -154,6 +158,7 @@ class AvoidancePipeline:
             max_path_elevation_rad=self.guidance.config.max_aim_elevation_rad,
             config=self.envelope_config,
             latency_s=latency_s,
+            heading_rad=pose.yaw_rad,
         )
         escape = None
         if decision.mode is Mode.HOLD:

@@ -19,8 +19,10 @@ Subcommands
     summary table (with the code that flew it) and figures in DIR, with the seed of every
     failure to replay. Families (``evaluation.scenes``):
     path, climb, goal_near, facing_away, or mixed (the default: the family of seed s is
-    the (s mod 4)-th). ``--perception truth``: the renderer's exact depth instead of the
-    stereo matcher (``evaluation.truth_perception``).
+    the (s mod 4)-th); and (``evaluation.passage_scenes``, issue 36) gap, corridor,
+    goal_surface, vertical, or passages (their mix, by seed likewise), with a figure per
+    family (outcomes, time to goal). ``--perception truth``: the renderer's exact depth
+    instead of the stereo matcher (``evaluation.truth_perception``).
 ``stereo-avoid replay SEED [--family F] [--perception P] [--out DIR] [--json]``
     One random scene, with figures, exactly as Monte Carlo flew it (same verdict).
 ``stereo-avoid replay FILE.mcap [--rerun FILE.rrd|serve] [--json]``
@@ -61,6 +63,7 @@ from pathlib import Path
 
 from evaluation.harness import RunConfig, RunResult, run_scene
 from evaluation.montecarlo import (
+    ALL_FAMILIES,
     is_safe,
     run_config,
     scene_of,
@@ -68,7 +71,7 @@ from evaluation.montecarlo import (
     summarize,
 )
 from evaluation.report import write_run_report
-from evaluation.scenes import FAMILIES, Scene, paper_scene
+from evaluation.scenes import Scene, paper_scene
 from protocols.threads import configure_threads
 
 __all__ = ["main"]
@@ -263,7 +266,7 @@ def _replay(args: argparse.Namespace) -> int:
     return _fly_and_report(scene_of(seed, args.family), out, args.json, cfg, args.rerun)
 
 
-_FAMILIES = ["mixed", *FAMILIES]
+_FAMILIES = list(ALL_FAMILIES)
 _PERCEPTIONS = ["stereo", "truth", "depth"]
 
 

@@ -4,8 +4,10 @@ Writes ``summary.txt`` (the table printed on the console), ``summary.json`` (the
 with every verdict), ``min_separation_hist.png`` (minimum distance from the vehicle
 centre to an obstacle surface, the collision distance marked), ``failures_by_cause.png``
 and ``failing_scenes.png`` (plan view of every scene that did not reach its goal, up to
-24, coloured by cause, with the seed to replay). matplotlib's object API (``Figure``), no
-pyplot: no global backend or state.
+24, coloured by cause, with the seed to replay), and ``family_<name>.png`` per scene family
+in the batch (outcomes, a reported stop by its reason, and the time to goal of the scenes
+that reached it). matplotlib's object API (``Figure``), no pyplot: no global backend or
+state.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
-from matplotlib.patches import Circle
+from matplotlib.patches import Circle, Rectangle
 
 from evaluation.harness import Verdict
 from evaluation.montecarlo import scene_of
@@ -104,7 +106,56 @@ def write_report(
     _separation_histogram(out_dir / "min_separation_hist.png", verdicts, perception)
     _failures_by_cause(out_dir / "failures_by_cause.png", summary, perception)
     _failing_scenes(out_dir / "failing_scenes.png", verdicts, family)
+    for name, members in _by_family(verdicts).items():
+        _family_figure(out_dir / f"family_{name}.png", name, members, perception)
     return table
+
+
+def _by_family(verdicts: list[Verdict]) -> dict[str, list[Verdict]]:
+    """Verdicts by the family in their scene's name (``gap-12`` → ``gap``)."""
+    out: dict[str, list[Verdict]] = {}
+    for v in verdicts:
+        out.setdefault(v.scene.rsplit("-", 1)[0], []).append(v)
+    return dict(sorted(out.items()))
+
+
+def _outcome(v: Verdict) -> str:
+    if v.collided:
+        return "collision"
+    if v.passed:
+        return "goal"
+    if v.failure == "hold":
+        return f"stop: {v.hold_reason}"
+    return v.failure or "goal not reached"
+
+
+def _family_figure(path: Path, name: str, verdicts: list[Verdict], perception: str) -> None:
+    """Outcomes (a reported stop by its reason) and time to goal of one family."""
+    outcomes: dict[str, int] = {}
+    for v in verdicts:
+        outcomes[_outcome(v)] = outcomes.get(_outcome(v), 0) + 1
+    names = sorted(outcomes, key=lambda k: (k != "goal", k))
+    fig = Figure(figsize=(10, 4))
+    ax_out, ax_time = fig.subplots(1, 2)
+    colours = [
+        "tab:green" if k == "goal" else _CAUSE_COLOURS.get(k.split(":")[0], "tab:blue")
+        for k in names
+    ]
+    bars = ax_out.bar(names, [outcomes[k] for k in names], color=colours)
+    ax_out.bar_label(bars)
+    ax_out.tick_params(axis="x", labelsize=7, rotation=20)
+    ax_out.set_ylabel("scenes")
+    ax_out.set_title(f"{name}: outcomes of {len(verdicts)} scenes ({perception})", fontsize=9)
+    times = np.array([v.sim_time_s for v in verdicts if v.passed])
+    if times.size:
+        ax_time.hist(times, bins=min(20, max(5, times.size)), color="tab:green", alpha=0.8)
+        ax_time.axvline(float(np.median(times)), color="k", ls="--", label="median")
+        ax_time.legend()
+    ax_time.set_xlabel("time to goal [s, simulation]")
+    ax_time.set_ylabel("scenes")
+    ax_time.set_title(f"{name}: time to goal, {times.size} scenes reached it", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
 
 
 def _separation_histogram(path: Path, verdicts: list[Verdict], perception: str) -> None:
@@ -174,6 +225,11 @@ def _failing_scenes(path: Path, verdicts: list[Verdict], family: str) -> None:
         for s in scene.world.spheres:
             ax.add_patch(
                 Circle((s.center_ned_m[1], s.center_ned_m[0]), s.radius_m, color=colour, alpha=0.35)
+            )
+        for b in scene.world.boxes:
+            (bn, be, _), (ln, le, _) = b.center_ned_m, b.size_m
+            ax.add_patch(
+                Rectangle((be - 0.5 * le, bn - 0.5 * ln), le, ln, color=colour, alpha=0.35)
             )
         (sn, se, _), (gn, ge, _) = scene.start_ned_m, scene.goal_ned_m
         ax.plot([se, ge], [sn, gn], color="k", lw=0.8, ls=":")

@@ -20,6 +20,7 @@ from companion.perception import PerceptionConfig
 from evaluation.harness import RunConfig, Verdict, run_scene
 from evaluation.mc_provenance import code_fingerprint
 from evaluation.mc_results import PERCEPTIONS, verdict_to_record
+from evaluation.passage_scenes import PASSAGE_FAMILIES, passage_scene, passages_scene
 from evaluation.scenes import family_scene, mixed_scene
 from plant_sim.depth_camera import CameraEncoding, DepthNoiseParams
 
@@ -28,8 +29,15 @@ __all__ = ["error_verdict", "fly_record", "fly_seed", "run_config", "scene_of", 
 
 def scene_of(seed: int, family: str = "mixed"):
     """The scene Monte Carlo flies for ``seed``: ``family`` ("mixed": by seed, see
-    :func:`~evaluation.scenes.mixed_scene`)."""
-    return mixed_scene(seed) if family == "mixed" else family_scene(seed, family)
+    :func:`~evaluation.scenes.mixed_scene`; "passages" and the passage families of
+    :mod:`evaluation.passage_scenes`)."""
+    if family == "mixed":
+        return mixed_scene(seed)
+    if family == "passages":
+        return passages_scene(seed)
+    if family in PASSAGE_FAMILIES:
+        return passage_scene(seed, family)
+    return family_scene(seed, family)
 
 
 def run_config(perception: str = "stereo", max_time_s: float | None = None) -> RunConfig:

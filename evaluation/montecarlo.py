@@ -24,9 +24,14 @@ from evaluation.mc_scene import (
     scene_of,
     single_threaded,
 )
+from evaluation.passage_scenes import PASSAGE_FAMILIES
 from evaluation.scenes import FAMILIES
 
+#: every ``family`` a batch takes: the mixes, then the single families
+ALL_FAMILIES: tuple[str, ...] = ("mixed", "passages", *FAMILIES, *PASSAGE_FAMILIES)
+
 __all__ = [
+    "ALL_FAMILIES",
     "error_verdict",
     "fly_record",
     "fly_seed",
@@ -50,8 +55,8 @@ def run_batch(
 ) -> list[Verdict]:
     """Fly every seed; verdicts in seed order. ``jobs`` > 1: a local Dask cluster of that
     many single-threaded worker processes (:mod:`~evaluation.mc_cluster`)."""
-    if family != "mixed" and family not in FAMILIES:
-        raise ValueError(f"unknown scene family {family!r}; valid: mixed, {list(FAMILIES)}")
+    if family not in ALL_FAMILIES:
+        raise ValueError(f"unknown scene family {family!r}; valid: {list(ALL_FAMILIES)}")
     run_config(perception, max_time_s)  # validates
     seeds = list(seeds)
     verdicts: dict[int, Verdict] = {}

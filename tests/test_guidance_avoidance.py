@@ -861,3 +861,107 @@ def test_circling_close_past_the_goal_still_stalls():
     laps = [centre + 3.0 * np.array([-math.cos(a), math.sin(a), 0.0]) for a in angles]
     outs = _fly_positions(laps, [goal] * n, cfg)
     assert any(o.reason is Reason.NO_PROGRESS for o in outs)
+
+
+# --- every stall reported (issue 36) ----------------------------------------------------
+
+
+def test_hovering_short_of_the_goal_stalls_by_its_own_shorter_rule():
+    """0.9 m below the goal (the envelope cannot certify straight up): within
+    2·stall_progress_m of the goal the near-goal rule counts, and near_goal_stall_s later
+    guidance holds, reported (before: the count stood still there and the vehicle hovered
+    unreported until the run timed out)."""
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=30.0, near_goal_stall_s=10.0)
+    goal = np.array([0.0, 0.0, -7.0])
+    n = round(15.0 / DT_S)
+    outs = _fly_positions([goal + np.array([0.1, 0.0, 0.9])] * n, [goal] * n, cfg)
+    k_stall = next(k for k, o in enumerate(outs) if o.mode is Mode.HOLD)
+    assert k_stall * DT_S == pytest.approx(10.0, abs=1.5 * DT_S)
+    assert all(o.reason is Reason.NO_PROGRESS for o in outs[k_stall:])
+    # creeping nearer by 0.1 m every 5 s keeps it going (near progress: 0.2·0.5 m)
+    creep = [goal + np.array([0.0, 0.0, 0.95 - 0.02 * k * DT_S]) for k in range(round(20 / DT_S))]
+    outs = _fly_positions(creep, [goal] * len(creep), cfg)
+    assert all(o.mode is Mode.NAVIGATE for o in outs)
+
+
+def _detour_along(cfg, positions, vel, goal):
+    """Scripted positions past a 10 m boundary sphere that blocks the straight path to the
+    goal, the velocity ``vel`` into its cone: guidance avoids (AVOID) the whole time."""
+    big = BoundarySphere(center_ned_m=(15.0, 0.0, -7.0), radius_m=10.0)
+    state, outs = GuidanceState(), []
+    for k, pos in enumerate(positions):
+        state, out = _step(state, k * DT_S, pos, vel, goal, [big], cfg)
+        outs.append(out)
+    return outs
+
+
+def test_a_detour_into_new_space_does_not_stall_until_its_bound():
+    """Along the obstacle toward its edge at 0.5 m/s, getting farther from the goal: every
+    step enters a cell not visited since the best distance, so the no-progress count does
+    not run; max_detour_s still ends it in a reported stop."""
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=10.0, max_detour_s=40.0)
+    goal = np.array([0.0, 0.0, -7.0])
+    n = round(50.0 / DT_S)
+    path = [np.array([30.0, 0.5 * k * DT_S, -7.0]) for k in range(n)]
+    outs = _detour_along(cfg, path, [-0.5, 0.0, 0.0], goal)
+    k_stall = next(k for k, o in enumerate(outs) if o.mode is Mode.HOLD)
+    assert all(o.mode is Mode.AVOID for o in outs[:k_stall])
+    assert k_stall * DT_S == pytest.approx(40.0, abs=1.5 * DT_S)
+    assert outs[k_stall].reason is Reason.NO_PROGRESS
+
+
+def test_a_detour_that_circles_back_over_its_own_track_stalls():
+    """Back and forth over the same 3 m (a detour that revisits its cells): the count runs
+    once the cells are all visited, and stall_timeout_s later guidance holds."""
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=10.0, max_detour_s=100.0)
+    goal = np.array([0.0, 0.0, -7.0])
+    n = round(30.0 / DT_S)
+    shuttle = [np.array([30.0, 1.5 + 1.5 * math.sin(0.5 * k * DT_S), -7.0]) for k in range(n)]
+    outs = _detour_along(cfg, shuttle, [-0.5, 0.0, 0.0], goal)
+    k_stall = next(k for k, o in enumerate(outs) if o.mode is Mode.HOLD)
+    assert outs[k_stall].reason is Reason.NO_PROGRESS
+    assert 10.0 <= k_stall * DT_S <= 10.0 + 2.0 * math.pi / 0.5  # within a lap of the timeout
+
+
+def test_an_unreachable_goal_stays_held_when_its_obstacle_is_forgotten():
+    """The GOAL_UNREACHABLE hold is latched for the goal: the obstacle left the map (unseen
+    and forgotten) does not release it into a go-around; only a new goal does."""
+    cfg = GuidanceConfig(**ONE_SHOT, memory_timeout_s=0.5, forget_distance_m=0.1)
+    goal = CENTER_NED_M + np.array([0.5, 0.0, 0.0])
+    stop = CENTER_NED_M + np.array([INFLATED.radius_m + cfg.goal_standoff_m, 0.0, 0.0])
+    pos = stop + np.array([0.2, 0.0, 0.0])
+    state, out = _step(GuidanceState(), 0.0, pos, [0.0, 0.0, 0.0], goal, [INFLATED], cfg)
+    assert out.mode is Mode.HOLD and out.reason is Reason.GOAL_UNREACHABLE
+    held = out.setpoint_ned_m.copy()
+    for k in range(round(3.0 / DT_S)):
+        state, out = _step(state, 0.1 + k * DT_S, pos, [0.0, 0.0, 0.0], goal, [], cfg)
+        assert out.mode is Mode.HOLD and out.reason is Reason.GOAL_UNREACHABLE
+        np.testing.assert_array_equal(out.setpoint_ned_m, held)
+    assert state.memory.tracks == ()  # forgotten, still held
+    state, out = _step(state, 3.2, pos, [0.0, 0.0, 0.0], START_NED_M, [], cfg)
+    assert out.mode is Mode.NAVIGATE
+
+
+def test_a_stop_for_an_unseen_goal_is_released_once_the_goal_is_seen_free():
+    """Held short of a goal that lay in a blind spot only (``goal_surely_blocked`` False):
+    the hold lasts while the goal stays inside a sphere and ends once it does not (seen
+    free from the stop point), so the goal is then approached; nothing is latched."""
+    cfg = GuidanceConfig(**ONE_SHOT, memory_timeout_s=0.5, forget_distance_m=0.1)
+    goal = CENTER_NED_M + np.array([0.5, 0.0, 0.0])
+    stop = CENTER_NED_M + np.array([INFLATED.radius_m + cfg.goal_standoff_m, 0.0, 0.0])
+    pos = stop + np.array([0.2, 0.0, 0.0])
+    state = GuidanceState()
+    for k in range(10):
+        state, out = guidance_step(
+            state, time_s=k * DT_S, pos_ned_m=pos, vel_ned_mps=[0.0, 0.0, 0.0],
+            goal_ned_m=goal, detections=[INFLATED], config=cfg, goal_surely_blocked=False,
+        )  # fmt: skip
+        assert out.mode is Mode.HOLD and out.reason is Reason.GOAL_UNREACHABLE
+    assert not state.progress.unreachable
+    for k in range(round(2.0 / DT_S)):  # the blind spot seen free: the sphere goes
+        state, out = guidance_step(
+            state, time_s=1.0 + k * DT_S, pos_ned_m=pos, vel_ned_mps=[0.0, 0.0, 0.0],
+            goal_ned_m=goal, config=cfg, goal_surely_blocked=False,
+        )  # fmt: skip
+    assert out.mode is Mode.NAVIGATE
+    np.testing.assert_allclose(out.setpoint_ned_m, goal)

@@ -125,6 +125,119 @@ def test_too_little_room_brakes_at_the_current_position():
     assert out.speed_limit_mps < 0.3  # 2·(−0.15 + √(0.0225 + 0.05)) = 0.24 m/s
 
 
+def _free_by_direction(free_of):
+    """A map whose free distance depends on the direction only: ``free_of(unit) -> m``."""
+
+    def free(pos, direction, radius_m, limit_m, half_height_m, body_m, near_field_m):
+        return min(free_of(np.asarray(direction)), limit_m)
+
+    return free
+
+
+NORTH_OPEN = _free_by_direction(lambda u: 8.0 if u[0] > 0.9 else 1.0)  # 8 m ahead, 1 m aside
+
+
+def test_a_turn_at_speed_brakes_first_and_states_the_bound_of_the_way_it_moves():
+    """3 m/s north (8 m free), guidance turns east (1 m free, 1.4 m/s there): the vehicle
+    cannot take the new direction at this speed, so it brakes (carrot at the vehicle) and
+    the stated bound is the one along its motion, which its speed obeys."""
+    pos = np.array([0.0, 0.0, -7.0])
+    out = envelope_step(
+        **SECTION,
+        pos_ned_m=pos,
+        vel_ned_mps=(3.0, 0.0, 0.0),
+        setpoint_ned_m=(0.0, 5.0, -7.0),
+        free_distance=NORTH_OPEN,
+    )
+    np.testing.assert_array_equal(out.setpoint_ned_m, pos)
+    np.testing.assert_allclose(out.path_dir_ned, (1.0, 0.0, 0.0))
+    assert out.free_distance_m == 8.0
+    v8 = speed_limit_mps(8.0, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+    assert out.speed_limit_mps == pytest.approx(v8)
+    assert out.speed_mps <= out.speed_limit_mps and not out.overspeed
+    # slow enough for the new direction: it turns, with that direction's bound
+    slow = envelope_step(
+        **SECTION,
+        pos_ned_m=pos,
+        vel_ned_mps=(0.5, 0.0, 0.0),
+        setpoint_ned_m=(0.0, 5.0, -7.0),
+        free_distance=NORTH_OPEN,
+    )
+    assert slow.speed_limit_mps == pytest.approx(
+        speed_limit_mps(1.0, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+    )
+    assert slow.path_dir_ned[1] == pytest.approx(1.0)
+
+
+def test_a_hold_entered_at_speed_states_the_bound_it_brakes_in():
+    """The setpoint is the vehicle's position (a latched hold) at 2 m/s: the bound is the
+    one along the motion (was 0 m/s: every hold at speed read as an overspeed)."""
+    pos = np.array([0.0, 0.0, -7.0])
+    out = envelope_step(
+        **SECTION,
+        pos_ned_m=pos,
+        vel_ned_mps=(2.0, 0.0, 0.0),
+        setpoint_ned_m=pos,
+        free_distance=NORTH_OPEN,
+    )
+    np.testing.assert_array_equal(out.setpoint_ned_m, pos)
+    assert out.speed_limit_mps == pytest.approx(
+        speed_limit_mps(8.0, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+    )
+    assert not out.overspeed
+
+
+def test_space_shrinking_ahead_at_speed_is_reported_as_overspeed():
+    """Everything ahead 1 m free at 3 m/s (something new seen): brake, and the stated
+    bound (1.4 m/s) is honest, so the speed is reported over it."""
+    pos = np.array([0.0, 0.0, -7.0])
+    out = envelope_step(
+        **SECTION,
+        pos_ned_m=pos,
+        vel_ned_mps=(3.0, 0.0, 0.0),
+        setpoint_ned_m=(10.0, 0.0, -7.0),
+        free_distance=_const_free(1.0),
+    )
+    np.testing.assert_array_equal(out.setpoint_ned_m, pos)
+    assert out.speed_limit_mps == pytest.approx(
+        speed_limit_mps(1.0, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+    )
+    assert out.overspeed
+
+
+@pytest.mark.parametrize("rise_m", [5.0, -4.0])
+def test_a_goal_straight_above_or_below_is_flown_in_stages_along_the_heading(rise_m):
+    """Straight up or down (2 cm aside) facing east: the path climbs or descends at the
+    path limit along the heading, where the camera looks, and the carrot stops inside the
+    known-free space (a stage); without a heading the old purely vertical path."""
+    pos = np.array([0.0, 0.0, -7.0])
+    goal = pos + np.array([0.02, 0.0, -rise_m])
+    elev = SECTION["max_path_elevation_rad"]
+    out = envelope_step(
+        **SECTION, pos_ned_m=pos, vel_ned_mps=(0, 0, 0), setpoint_ned_m=goal,
+        free_distance=_const_free(3.0), heading_rad=0.5 * math.pi,
+    )  # fmt: skip
+    expected = (0.0, math.cos(elev), -math.copysign(math.sin(elev), rise_m))
+    np.testing.assert_allclose(out.path_dir_ned, expected, atol=1e-12)
+    reach = float(np.linalg.norm(out.setpoint_ned_m - pos))
+    assert reach == pytest.approx(3.0 - CFG.margin_m)  # the stage ends in known-free space
+    assert out.limited
+    # a stage never takes the vehicle past the goal's altitude: 0.6 m to go, 10 m free
+    near = goal + np.array([0.0, 0.0, math.copysign(0.6, rise_m)])
+    out = envelope_step(
+        **SECTION, pos_ned_m=near, vel_ned_mps=(0, 0, 0), setpoint_ned_m=goal,
+        free_distance=_const_free(10.0), heading_rad=0.5 * math.pi,
+    )  # fmt: skip
+    assert abs(out.setpoint_ned_m[2] - near[2]) < 0.6
+    assert np.sign(out.setpoint_ned_m[2] - near[2]) == np.sign(goal[2] - near[2])
+    above = pos - np.array([0.0, 0.0, rise_m])
+    plain = envelope_step(
+        **SECTION, pos_ned_m=pos, vel_ned_mps=(0, 0, 0), setpoint_ned_m=above,
+        free_distance=_const_free(3.0),
+    )  # fmt: skip
+    np.testing.assert_allclose(plain.path_dir_ned, (0.0, 0.0, -math.copysign(1.0, rise_m)))
+
+
 def test_config_rejects_unknown_keys_and_bad_values():
     with pytest.raises(TypeError, match="latency_ms"):
         EnvelopeConfig.from_dict({"latency_ms": 5})

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from companion.guidance import BoundarySphere, GuidanceConfig
-from companion.guidance.cone import collision_cone
+from companion.guidance.cone import collision_cone, segment_intersects_sphere
 from companion.guidance.map_boundaries import (
     MapBoundaryConfig,
+    goal_surely_blocked,
     map_boundaries,
     solid_extent,
     track_key,
@@ -209,3 +210,51 @@ def test_vertical_weight_prefers_a_level_detour():
     assert abs(level.direction_ned[2]) < abs(eq28.direction_ned[2]) / 2
     with pytest.raises(ValueError):
         choose_aiming_point(cones, [1.0, 0.0, 0.0], vertical_weight=0.0)
+
+
+def _space_with_opening(opening_m: float, centre_east_m: float, north_m: float = 3.1):
+    """The 9.6 m wide wall across north with an opening ``opening_m`` wide centred at
+    ``centre_east_m`` (nothing else known)."""
+    space = _space_with_wall(north_m=north_m)
+    c = space.config
+    j0 = math.floor((centre_east_m - 0.5 * opening_m) / c.voxel_m) - space.origin_vox[1]
+    j1 = math.ceil((centre_east_m + 0.5 * opening_m) / c.voxel_m) - space.origin_vox[1]
+    i = math.floor(north_m / c.voxel_m) - space.origin_vox[0]
+    space.grid[i, j0:j1, :] = FREE
+    return space
+
+
+@pytest.mark.parametrize(("opening_m", "goal_east_m"), [(2.5, 1.0), (2.5, -1.5), (2.5, 2.5)])
+def test_an_opening_wider_than_the_vehicle_and_margins_stays_open(opening_m, goal_east_m):
+    """An opening 2.5 m wide (vehicle 0.7 m + 2 × 0.3 m margins fit) crossed obliquely by
+    the straight path to the goal: the pieces at its edges, their spheres grown sideways by
+    the blind spot and the cube's height, closed it; now no boundary sphere crosses the path
+    through it, every occupied voxel is still inside a sphere's solid extent, and an opening
+    narrower than the vehicle and its margins stays closed."""
+    goal = np.array([10.1, goal_east_m, -7.1])
+    crossing_east_m = POS[1] + (goal_east_m - POS[1]) * (3.1 - POS[0]) / (goal[0] - POS[0])
+    space = _space_with_opening(opening_m, crossing_east_m)
+    spheres = map_boundaries(space, POS, goal)
+    assert spheres
+    assert not any(segment_intersects_sphere(POS, goal, s) for s in spheres)
+    solid = solid_extent(spheres)
+    for p in _occupied_within(space, 4.0):
+        assert np.any(np.linalg.norm(solid[:, :3] - p, axis=1) + HALF_DIAG_M <= solid[:, 3] + 1e-9)
+    assert len({s.track_key for s in spheres}) == len(spheres)
+    narrow = map_boundaries(_space_with_opening(0.8, crossing_east_m), POS, goal)
+    assert any(segment_intersects_sphere(POS, goal, s) for s in narrow)
+
+
+def test_a_goal_is_surely_blocked_only_within_the_inflation_of_a_seen_surface():
+    """0.4 m in front of the wall (inside vehicle + margin of the seen surface): surely
+    blocked; 1.2 m behind the wall, in its unseen blind spot: held short, not for sure;
+    far from it: not blocked."""
+    space = _space_with_wall(north_m=3.1)
+    in_front = np.array([2.7, 0.1, -7.1])  # surface at 3.0: 0.3 m
+    behind = np.array([4.3, 0.1, -7.1])  # 1.1 m behind the far face (unseen)
+    far = np.array([0.1, 0.1, -20.0])
+    assert goal_surely_blocked(map_boundaries(space, POS, in_front), in_front)
+    spheres = map_boundaries(space, POS, behind)
+    assert any(np.linalg.norm(behind - np.array(s.center_ned_m)) < s.radius_m for s in spheres)
+    assert not goal_surely_blocked(spheres, behind)
+    assert not goal_surely_blocked(map_boundaries(space, POS, far), far)

@@ -97,6 +97,7 @@ about to travel), so the forward camera looks where it goes; in HOLD and within
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Iterable
@@ -206,12 +207,23 @@ _MAX_STEP_GAP_S = 0.5  # a longer gap between steps is time guidance did not ste
 class Progress:
     """Progress toward one goal: the best distance to it so far, the guidance time spent
     since without getting ``stall_progress_m`` nearer, and whether guidance gave up
-    (``NO_PROGRESS``, latched until the goal changes)."""
+    (``NO_PROGRESS``, latched until the goal changes).
+
+    ``near_best_m``/``near_stuck_s`` are the near-goal rule's best distance and count,
+    ``detour_cells`` the cells (``detour_cell_m`` cubes) visited since the best distance
+    improved, ``since_best_s`` the steering time since then, new cells or not
+    (``max_detour_s``), and ``unreachable`` the latched ``GOAL_UNREACHABLE`` hold.
+    """
 
     goal_ned_m: tuple[float, float, float]
     best_distance_m: float
     stuck_s: float = 0.0
     stalled: bool = False
+    near_best_m: float = math.inf
+    near_stuck_s: float = 0.0
+    detour_cells: frozenset[tuple[int, int, int]] = frozenset()
+    since_best_s: float = 0.0
+    unreachable: bool = False
 
 
 def _stop_point(pos: np.ndarray, goal: np.ndarray, tracks, cfg) -> np.ndarray | None:
@@ -294,13 +306,14 @@ def guidance_step(
     yaw_rad: float | None = None,
     config: GuidanceConfig | None = None,
     steering: bool = True,
+    goal_surely_blocked: bool = True,
 ) -> tuple[GuidanceState, GuidanceOutput]:
     """Advance guidance by one perception frame.
 
     Parameters
     ----------
     state : GuidanceState
-        State after the previous step (``GuidanceState()`` to start).
+        After the previous step (``GuidanceState()`` to start).
     time_s : float
         Simulation time of this frame [s]; must not decrease.
     pos_ned_m, vel_ned_mps : array_like, shape (3,)
@@ -308,15 +321,16 @@ def guidance_step(
     goal_ned_m : array_like, shape (3,)
         Navigation goal [m, NED].
     detections : iterable of SphereLike
-        Boundary spheres perceived in this frame (inflated; may be empty).
+        This frame's (inflated) boundary spheres.
     yaw_rad : float, optional
-        Current vehicle yaw [rad]; only the first yaw command falls back to it when the
-        setpoint is too close to define a direction.
-    config : GuidanceConfig, optional
-        Defaults to ``GuidanceConfig()``.
+        Current yaw [rad]; the first yaw command falls back to it (setpoint too close).
+    config : GuidanceConfig, optional (``GuidanceConfig()``)
     steering : bool
-        Whether the vehicle flies this step's setpoint (not in the companion's failsafe hold
-        or a pilot's mode): time it does not is not counted toward ``NO_PROGRESS``.
+        The vehicle flies this step's setpoint (not a failsafe hold or a pilot's mode):
+        only such time counts toward ``NO_PROGRESS``.
+    goal_surely_blocked : bool
+        A sphere holds the goal for certain, not by a blind spot only: a ``GOAL_UNREACHABLE``
+        hold is latched (``_watch_progress``; ``map_boundaries.goal_surely_blocked``).
 
     Returns
     -------
@@ -332,14 +346,9 @@ def guidance_step(
     goal_in = vec3(goal_ned_m, "goal_ned_m")
     goal = np.array(goal_in)
     memory = update_memory(
-        state.memory,
-        detections,
-        time_s=time_s,
-        pos_ned_m=pos,
-        vel_ned_mps=vel,
-        goal_ned_m=goal,
-        config=cfg,
-    )
+        state.memory, detections, time_s=time_s, pos_ned_m=pos, vel_ned_mps=vel,
+        goal_ned_m=goal, config=cfg,
+    )  # fmt: skip
     tracks = tuple(t for t in memory.tracks if t.confirmed)
     apex = pos.copy()  # one read-only apex shared by this step's cones
     cones = [_collision_cone(apex, t.sphere) for t in tracks]
@@ -359,7 +368,7 @@ def guidance_step(
         _avoid_threats(state, f, d, cfg)
     if unreachable:
         _hold_at_stop_point(state, f, d, cfg)
-    progress = _watch_progress(state, f, tuple(goal_in), d, cfg, steering)
+    progress = _watch_progress(state, f, tuple(goal_in), d, cfg, steering, goal_surely_blocked)
     hold = _latch_hold(state, f, d)
     yaw = _yaw(state, f, d, yaw_rad, cfg)
     return _outputs(f, d, memory, hold, yaw, progress)
@@ -579,33 +588,82 @@ def _watch_progress(
     d: _Decision,
     cfg,
     steering: bool,
+    surely_blocked: bool = True,
 ) -> Progress:
-    """No progress toward ``goal`` for ``stall_timeout_s`` of steering outside a HOLD →
-    HOLD (``NO_PROGRESS``), latched until the goal changes. The count restarts in other
-    HOLDs and stands still within ``2 · stall_progress_m`` of the goal (hovering there is
-    arriving, not stalling; circling past it is not progress); a gap between steps (no
-    frames) and a step the vehicle does not fly (``steering`` false: a failsafe hold, a
-    pilot's mode) do not count."""
+    """Every stall ends in a latched, reported HOLD (until the goal changes).
+
+    * ``GOAL_UNREACHABLE`` entered while the goal is surely blocked (``surely_blocked``)
+      stays held for this goal: the map's pieces change from frame to frame, and a goal
+      that left every confirmed sphere for one frame must not release the stop into a
+      go-around (issue 36).
+    * ``NO_PROGRESS``: ``stall_timeout_s`` of steering outside a HOLD without getting
+      ``stall_progress_m`` nearer the goal. The count restarts in other HOLDs and on each
+      step of an ``AVOID`` detour into a cell not visited since the best distance (a detour
+      still going somewhere: along a wall toward its end), but never after ``max_detour_s``
+      without getting nearer. Within ``2 · stall_progress_m`` of the goal its own rule
+      counts instead (``near_goal_stall_s`` without getting ``0.2 · stall_progress_m``
+      nearer), standing still within ``stall_progress_m`` (arrived: hovering at the goal is
+      not a stall; circling past it is). A gap between steps (no frames) and a step the
+      vehicle does not fly (``steering`` false: a failsafe hold, a pilot's mode) do not
+      count.
+    """
     progress = state.progress
     dist = norm3(np.asarray(goal) - f.pos)
     if progress is None or progress.goal_ned_m != goal:
         return Progress(goal, dist)
     if progress.stalled:
-        d.mode, d.reason = Mode.HOLD, Reason.NO_PROGRESS
-        d.aim, d.aim_dir = None, None
+        _hold(d, Reason.NO_PROGRESS)
         return progress
+    if progress.unreachable:
+        _hold(d, Reason.GOAL_UNREACHABLE)
+        return progress
+    if d.mode is Mode.HOLD and d.reason is Reason.GOAL_UNREACHABLE and surely_blocked:
+        return dataclasses.replace(progress, unreachable=True)
     if dist <= progress.best_distance_m - cfg.stall_progress_m or d.mode is Mode.HOLD:
         return Progress(goal, min(dist, progress.best_distance_m))
-    if not steering or dist <= 2.0 * cfg.stall_progress_m:
-        # not flying our setpoints, or hovering at the goal: the count stands still
-        return Progress(goal, min(dist, progress.best_distance_m), progress.stuck_s)
     dt = f.time_s - state.time_s if state.time_s is not None else 0.0
-    stuck_s = progress.stuck_s + (dt if dt <= _MAX_STEP_GAP_S else 0.0)
-    if cfg.stall_timeout_s > 0.0 and stuck_s >= cfg.stall_timeout_s:
-        d.mode, d.reason = Mode.HOLD, Reason.NO_PROGRESS
-        d.aim, d.aim_dir = None, None
-        return Progress(goal, progress.best_distance_m, stuck_s, stalled=True)
-    return Progress(goal, progress.best_distance_m, stuck_s)
+    dt = dt if steering and dt <= _MAX_STEP_GAP_S else 0.0  # time guidance steered
+    if dist <= 2.0 * cfg.stall_progress_m:
+        return _near_goal(progress, dist, dt, d, cfg)
+    cells = progress.detour_cells
+    stuck_s = progress.stuck_s + dt
+    since_best_s = progress.since_best_s + dt
+    if d.mode is Mode.AVOID and dt > 0.0:
+        cell = tuple(math.floor(float(x) / cfg.detour_cell_m) for x in f.pos)
+        if cell not in cells:
+            cells = cells | {cell}
+            stuck_s = 0.0  # a detour still going somewhere new
+    timed_out = stuck_s >= cfg.stall_timeout_s or since_best_s >= cfg.max_detour_s
+    stalled = cfg.stall_timeout_s > 0.0 and timed_out
+    if stalled:
+        _hold(d, Reason.NO_PROGRESS)
+    return dataclasses.replace(
+        progress,
+        stuck_s=stuck_s,
+        stalled=stalled,
+        detour_cells=cells,
+        since_best_s=since_best_s,
+        near_best_m=math.inf,
+        near_stuck_s=0.0,
+    )
+
+
+def _near_goal(progress: Progress, dist: float, dt: float, d: _Decision, cfg) -> Progress:
+    """The near-goal rule of :func:`_watch_progress`."""
+    if dist <= cfg.stall_progress_m:  # arrived (the mission's tolerance): stands still
+        return dataclasses.replace(progress, near_best_m=min(dist, progress.near_best_m))
+    if dist <= progress.near_best_m - 0.2 * cfg.stall_progress_m:
+        return dataclasses.replace(progress, near_best_m=dist, near_stuck_s=0.0)
+    near_stuck_s = progress.near_stuck_s + dt
+    stalled = cfg.stall_timeout_s > 0.0 and near_stuck_s >= cfg.near_goal_stall_s
+    if stalled:
+        _hold(d, Reason.NO_PROGRESS)
+    return dataclasses.replace(progress, near_stuck_s=near_stuck_s, stalled=stalled)
+
+
+def _hold(d: _Decision, reason: Reason) -> None:
+    d.mode, d.reason = Mode.HOLD, reason
+    d.aim, d.aim_dir = None, None
 
 
 def _latch_hold(state, f: _Frame, d: _Decision) -> tuple[float, float, float] | None:
@@ -695,6 +753,7 @@ class Guidance:
         detections: Iterable[SphereLike] = (),
         yaw_rad: float | None = None,
         steering: bool = True,
+        goal_surely_blocked: bool = True,
     ) -> GuidanceOutput:
         """Run :func:`guidance_step` on the held state; returns the output."""
         self.state, output = guidance_step(
@@ -707,5 +766,6 @@ class Guidance:
             yaw_rad=yaw_rad,
             config=self.config,
             steering=steering,
+            goal_surely_blocked=goal_surely_blocked,
         )
         return output

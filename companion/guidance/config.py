@@ -105,6 +105,21 @@ class GuidanceConfig:
         Progress is the distance to the goal falling this far below its best so far [m];
         within twice this distance of the goal the count stands still (hovering at the
         goal is not a stall; circling past it without arriving still is).
+    near_goal_stall_s : float
+        Within ``2 · stall_progress_m`` of the goal but not within ``stall_progress_m`` of
+        it (arrived, the mission's default tolerance), this long without getting
+        ``0.2 · stall_progress_m`` nearer → the same latched ``NO_PROGRESS`` HOLD [s].
+        Hovering 0.9 m short of a goal the envelope cannot certify (straight above) is a
+        stall the pilot is told of, not a silent hover until the battery runs out.
+    detour_cell_m : float
+        While avoiding (``AVOID``), each step into a cube of this edge the vehicle has not
+        visited since it last got nearer the goal counts as progress along the detour [m]:
+        a detour along a long wall toward its end (going away from the goal) does not
+        stall, a detour that circles (revisits its cells) does.
+    max_detour_s : float
+        The longest a detour may go on without getting ``stall_progress_m`` nearer the goal,
+        new cells or not [s]; then the ``NO_PROGRESS`` HOLD. Every flight thus ends at the
+        goal or in a reported stop within a bound.
     """
 
     n_candidates: int = 72
@@ -131,6 +146,9 @@ class GuidanceConfig:
     vertical_weight: float = 3.0
     stall_timeout_s: float = 30.0
     stall_progress_m: float = 0.5
+    near_goal_stall_s: float = 10.0
+    detour_cell_m: float = 1.0
+    max_detour_s: float = 120.0
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
@@ -140,6 +158,8 @@ class GuidanceConfig:
                     raise ValueError(f"{field.name} must be an integer >= 1, got {value!r}")
                 continue
             check_numbers(self, (field.name,), as_float=True)
+        if self.detour_cell_m <= 0.0:
+            raise ValueError(f"detour_cell_m must be > 0, got {self.detour_cell_m!r}")
         if self.vertical_weight <= 0.0:
             raise ValueError(f"vertical_weight must be > 0, got {self.vertical_weight!r}")
         if not 0.0 < self.max_aim_elevation_rad <= 0.5 * math.pi:

@@ -30,6 +30,24 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    ``τ·v + v²/(2·accel_mps2) + margin_m ≤ F``, i.e.
    ``v = a·(−τ + √(τ² + 2(F − margin)/a))``, capped at ``max_speed_mps``; ``overspeed``
    is raised when the measured speed exceeds it by ``overspeed_tolerance_mps``.
+   **Braking** (issue 36): when the vehicle is faster than the limit along ``u`` (guidance
+   turned onto a path with less free space, a hold was entered at speed, or the space ahead
+   shrank), the carrot is the vehicle's own position (step 4 gives ``c = 0``) and the bound
+   stated is the one along the *velocity*, the way the vehicle actually moves while it
+   brakes: the known-free distance ``F_v`` along ``v/|v|`` and its limit. The stated
+   speed is then the flown speed: a turn at speed no longer states the slower bound of the
+   new direction the vehicle cannot take yet, and a hold entered at speed no longer
+   states 0 m/s. When ``F_v`` itself shrank below the stopping distance (something new
+   ahead), the limit is below the speed and ``overspeed`` reports it, as it must.
+7. **Vertical moves in stages** (issue 36): a setpoint steeper than
+   ``max_path_elevation_rad`` whose horizontal distance is below ``stage_horizontal_m``
+   (a goal straight above or below) is climbed to, or descended to, along the vehicle's
+   heading at the path limit, where the camera looks, so each stage is certified like any
+   other path and ends inside space seen free; a stage is never longer than ``|s − p|``,
+   so it climbs less than ``|s − p| · sin e < |Δz|`` and never passes the setpoint's
+   altitude. Once level with it the rest is a short level move, which guidance's yaw
+   looks at first. Without a heading the old rule holds: the horizontal part of ``s − p``
+   (a purely vertical ``u`` when there is none).
 6. **Look before moving**: the yaw guidance commands faces ``u`` (not the carrot, which
    may be at the vehicle), so a vehicle that must travel where it has not looked turns
    first; the carrot grows only as the view fills the map with free space.
@@ -60,6 +78,8 @@ FreeDistanceFn = Callable[..., float]
 → known-free metres (:meth:`companion.known_space.KnownSpace.free_distance_m`, with the
 pipeline's obstacle extents bound: :func:`companion.guidance.map_boundaries.solid_extent`)."""
 
+
+_BRAKE_MIN_SPEED_MPS = 0.1  # below this the vehicle has no direction of motion to state a bound for
 
 _BOUNDS = (  # (field, min, max) beyond "finite and >= 0"
     ("latency_window_s", 0.0, 60.0),  # and > 0
@@ -112,6 +132,9 @@ class EnvelopeConfig:
         Longest free-distance query [m] (the map's range is 8 m).
     overspeed_tolerance_mps : float
         Measured speed above the limit by more than this raises ``overspeed`` [m/s].
+    stage_horizontal_m : float
+        A setpoint steeper than the path limit and nearer than this horizontally is
+        climbed to (or descended to) along the vehicle's heading (step 7) [m].
     """
 
     latency_s: float = 0.15
@@ -126,6 +149,7 @@ class EnvelopeConfig:
     max_speed_mps: float = 10.0
     lookahead_m: float = 12.0
     overspeed_tolerance_mps: float = 0.3
+    stage_horizontal_m: float = 1.0
 
     def __post_init__(self) -> None:
         check_numbers(self, (f.name for f in dataclasses.fields(self)), as_float=True)
@@ -199,20 +223,26 @@ def speed_limit_mps(free_m: float, latency_s: float, accel_mps2: float, margin_m
     return a * (-latency_s + math.sqrt(latency_s * latency_s + 2.0 * room / a))
 
 
-def _path_direction(to_setpoint: np.ndarray, max_elev_rad: float) -> np.ndarray:
-    """Unit direction to the setpoint with its elevation clamped (see module docstring)."""
+def _path_direction(
+    to_setpoint: np.ndarray, max_elev_rad: float, heading_rad: float | None, stage_m: float
+) -> np.ndarray:
+    """Unit direction to the setpoint with its elevation clamped (module docstring, steps 1
+    and 7): a steep move whose horizontal part is shorter than ``stage_m`` climbs or
+    descends along the vehicle's heading (where the camera looks) when one is given."""
     dist = math.sqrt(float(to_setpoint @ to_setpoint))
     u = to_setpoint / dist
-    horiz = math.hypot(float(u[0]), float(u[1]))
-    if horiz < 1e-6:
-        return u
-    elev = math.atan2(-float(u[2]), horiz)  # NED: up is −z
+    horiz_m = math.hypot(float(to_setpoint[0]), float(to_setpoint[1]))
+    elev = math.atan2(-float(to_setpoint[2]), horiz_m)  # NED: up is −z
     if abs(elev) <= max_elev_rad:
         return u
+    if heading_rad is not None and horiz_m < stage_m:
+        h = (math.cos(heading_rad), math.sin(heading_rad))
+    elif horiz_m < 1e-6 * dist:
+        return u
+    else:
+        h = (float(to_setpoint[0]) / horiz_m, float(to_setpoint[1]) / horiz_m)
     e = math.copysign(max_elev_rad, elev)
-    return np.array(
-        [u[0] / horiz * math.cos(e), u[1] / horiz * math.cos(e), -math.sin(e)], dtype=float
-    )
+    return np.array([h[0] * math.cos(e), h[1] * math.cos(e), -math.sin(e)], dtype=float)
 
 
 def _budget_s(cfg: EnvelopeConfig, latency_s: float | None) -> float:
@@ -220,6 +250,30 @@ def _budget_s(cfg: EnvelopeConfig, latency_s: float | None) -> float:
     if latency_s is not None and math.isfinite(latency_s) and latency_s > cfg.latency_s:
         return float(latency_s)
     return cfg.latency_s
+
+
+def _free_m(free_distance: FreeDistanceFn, pos, unit, vehicle_radius_m: float, cfg) -> float:
+    """Known-free distance along ``unit`` for the vehicle's section [m]."""
+    section = (vehicle_radius_m, cfg.lookahead_m, cfg.vehicle_half_height_m)
+    return float(free_distance(pos, unit, *section, vehicle_radius_m, cfg.near_field_m))
+
+
+def _carrot(pos, target, direction, room_m: float, cfg) -> tuple[np.ndarray, bool]:
+    """Step 4: the carrot along ``direction`` with ``room_m`` of known-free space left
+    after stopping, and whether it falls short of ``target``."""
+    to_setpoint = target - pos
+    dist = math.sqrt(float(to_setpoint @ to_setpoint))
+    reach = min(dist, max(0.0, room_m))
+    if reach < min(cfg.min_advance_m, dist):
+        reach = 0.0
+    clamped = not np.allclose(direction * dist, to_setpoint, atol=1e-9)
+    limited = clamped or reach < dist - 1e-9
+    return (pos + direction * reach if limited else target.copy()), limited
+
+
+def _limit_mps(free_m: float, tau_s: float, cfg: EnvelopeConfig) -> float:
+    """The speed bound for ``free_m`` of known-free space, capped [m/s]."""
+    return min(speed_limit_mps(free_m, tau_s, cfg.accel_mps2, cfg.margin_m), cfg.max_speed_mps)
 
 
 def envelope_step(
@@ -232,6 +286,7 @@ def envelope_step(
     max_path_elevation_rad: float,
     config: EnvelopeConfig | None = None,
     latency_s: float | None = None,
+    heading_rad: float | None = None,
 ) -> EnvelopeOutput:
     """Bound guidance's setpoint by known-free space and the stopping distance.
 
@@ -269,22 +324,22 @@ def envelope_step(
     d_stop = stopping_distance_m(speed, tau, cfg.accel_mps2)
     to_setpoint = target - pos
     dist = math.sqrt(float(to_setpoint @ to_setpoint))
+
     if dist < 1e-6:
-        direction = np.zeros(3)
-        free = 0.0
-        carrot = target.copy()
-        limited = False
+        direction, free, carrot, limited = np.zeros(3), 0.0, target.copy(), False
     else:
-        direction = _path_direction(to_setpoint, max_path_elevation_rad)
-        section = (vehicle_radius_m, cfg.lookahead_m, cfg.vehicle_half_height_m)
-        free = float(free_distance(pos, direction, *section, vehicle_radius_m, cfg.near_field_m))
-        reach = min(dist, max(0.0, free - d_stop - cfg.margin_m))
-        if reach < min(cfg.min_advance_m, dist):
-            reach = 0.0
-        clamped = not np.allclose(direction * dist, to_setpoint, atol=1e-9)
-        limited = clamped or reach < dist - 1e-9
-        carrot = pos + direction * reach if limited else target.copy()
-    limit = min(speed_limit_mps(free, tau, cfg.accel_mps2, cfg.margin_m), cfg.max_speed_mps)
+        direction = _path_direction(
+            to_setpoint, max_path_elevation_rad, heading_rad, cfg.stage_horizontal_m
+        )
+        free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
+        carrot, limited = _carrot(pos, target, direction, free - d_stop - cfg.margin_m, cfg)
+    limit = _limit_mps(free, tau, cfg)
+    if speed > limit and speed >= _BRAKE_MIN_SPEED_MPS:
+        # Too fast to turn onto the path (or the path's free space shrank): the carrot is
+        # at the vehicle (reach 0), and the stated bound is the one for the way it moves.
+        direction = vel / speed
+        free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
+        limit = _limit_mps(free, tau, cfg)
     carrot.setflags(write=False)
     direction.setflags(write=False)
     return EnvelopeOutput(

@@ -41,6 +41,31 @@ its centroid than its voxels reach) keeps its full sphere: the goal counts as bl
 guidance stops short of it, reported. Guidance then sees a goal inside a sphere exactly
 when it is blocked (``Reason.GOAL_UNREACHABLE``).
 
+Gaps stay open
+--------------
+The enclosing sphere of a piece and its blind spot grows sideways by ``e / 2`` and by the
+piece's own extent: two pieces at the edges of a 3 m opening in a wall (or the two walls
+of a corridor) each reach ~1.5 m into it and the opening closes although the vehicle and
+its margins fit (issue 36: the vehicle detoured round a 30 m wall, or never entered a
+corridor). So every pair of boundary spheres that overlap while the real surfaces behind
+them leave a passable gap, ``|c_a − c_b| − r_a − r_b ≥ 2 · inflate_m`` (piece centroids
+``c``, piece radii ``r``: a lower bound on the voxels' distance) with no third piece
+between them (no piece's ``r + inflate_m`` reaching the part of the segment ``c_a c_b``
+between the two inflated pieces: the rest of the same wall), are *opened*: each becomes
+the piece's own inflated sphere ``(c, r + inflate_m)``, without the blind spot's growth.
+The inflated pieces are then at least ``|c_a − c_b| − r_a − r_b − 2 · inflate_m ≥ 0``
+apart: the opening the vehicle fits through stays open to the cone and the aiming point
+(§5 unchanged). Only pairs are opened: a single sphere across the straight path by its
+growth alone is kept whole (opening it let a goal-near Monte Carlo seed, 762, pass 0.247 m
+from a sphere whose unseen back the growth had covered), so an opening whose far side is
+not yet within the detection range still looks closed until it is. An opened
+piece's blind spot is no longer in its cone sphere, but it stays unknown space (the safety
+envelope never puts a carrot there) and the solid extent (:func:`solid_extent`) stays the
+whole sphere of piece and blind spot, so the envelope's near-field excuse never applies
+there.
+Pairs are tested in numpy, one vectorised pass (no per-pair Python loop): the corridor's
+two long walls give a few hundred pairs.
+
 Each boundary carries a stable ``track_key``: the global index of its cube (and its
 level), the same in every frame, so guidance's hysteresis and side commitment follow a
 piece from frame to frame; the obstacle memory replaces a keyed track's sphere each frame
@@ -51,6 +76,7 @@ Pure: the map is read, never written; no clock, no I/O.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -59,7 +85,14 @@ import numpy as np
 from companion.known_space import FREE, KnownSpace, Pieces
 from protocols.config import check_numbers
 
-__all__ = ["MapBoundary", "MapBoundaryConfig", "map_boundaries", "solid_extent", "track_key"]
+__all__ = [
+    "MapBoundary",
+    "MapBoundaryConfig",
+    "goal_surely_blocked",
+    "map_boundaries",
+    "solid_extent",
+    "track_key",
+]
 
 _KEY_FLAG = 1 << 62  # keyed tracks: ids far above the memory's own counter
 _KEY_OFFSET = 1 << 19  # cube indices within ±2^19 (±629 km at 1.2 m cubes)
@@ -127,6 +160,11 @@ class MapBoundary:
     nearest_m: float
     goal_gap_m: float
     trimmed: bool = False
+    piece_center_ned_m: tuple[float, float, float] | None = None
+    """Centroid of the piece's voxels [m, NED] (None: the sphere's centre)."""
+    solid_ned_m: tuple[float, float, float, float] | None = None
+    """An opened piece's solid extent ``(north, east, down, radius)`` [m]: the sphere of
+    the piece and its blind spot it had before opening (None: from this sphere)."""
 
 
 def _boundaries_of(
@@ -167,9 +205,63 @@ def _boundaries_of(
                 nearest_m=float(pieces.nearest_m[m]),
                 goal_gap_m=gap,
                 trimmed=trimmed,
+                piece_center_ned_m=tuple(float(x) for x in c),
             )
         )
     return out
+
+
+def _open_gaps(boundaries: list[MapBoundary], config: MapBoundaryConfig) -> list[MapBoundary]:
+    """Shrink the spheres that close a passable gap to their pieces (see "Gaps stay open")."""
+    if not boundaries:
+        return boundaries
+    centre = np.array([b.center_ned_m for b in boundaries])
+    radius = np.array([b.radius_m for b in boundaries])
+    piece = np.array([b.piece_center_ned_m or b.center_ned_m for b in boundaries])
+    piece_r = np.array([b.piece_radius_m for b in boundaries])
+    own_r = piece_r + config.inflate_m
+    overlap = np.linalg.norm(centre[:, None, :] - centre[None, :, :], axis=2)
+    overlap = overlap < radius[:, None] + radius[None, :]
+    ab = piece[None, :, :] - piece[:, None, :]  # (n, n, 3)
+    length = np.linalg.norm(ab, axis=2)
+    passable = np.triu(overlap & (length - own_r[:, None] - own_r[None, :] >= 0.0), k=1)
+    opened = np.zeros(len(boundaries), dtype=bool)
+    a, b = np.nonzero(passable)
+    if a.size:
+        # no third piece's inflated sphere reaches the opening between the two inflated
+        # pieces on the segment a → b (the rest of one wall fills it)
+        seg, seg_len = ab[a, b], length[a, b]  # (p, 3), (p,)
+        t = np.einsum("pnk,pk->pn", piece[None, :, :] - piece[a][:, None, :], seg)
+        t0, t1 = own_r[a] / seg_len, 1.0 - own_r[b] / seg_len
+        t = np.clip(t / (seg_len * seg_len)[:, None], t0[:, None], t1[:, None])
+        nearest = piece[a][:, None, :] + t[:, :, None] * seg[:, None, :]
+        blocked = np.linalg.norm(piece[None, :, :] - nearest, axis=2) < own_r[None, :]
+        blocked[np.arange(a.size), a] = False
+        blocked[np.arange(a.size), b] = False
+        open_pair = ~blocked.any(axis=1)
+        opened[a[open_pair]] = True
+        opened[b[open_pair]] = True
+    level0 = np.array([_decode_key(b.track_key)[0] == 0 for b in boundaries])
+    opened &= level0  # sub-pieces (near the goal) stay whole
+    return [_own_sphere(b, config) if o else b for b, o in zip(boundaries, opened, strict=True)]
+
+
+def _own_sphere(b: MapBoundary, config: MapBoundaryConfig) -> MapBoundary:
+    """The piece's own inflated sphere: centroid, ``r + inflate_m``; its solid extent
+    (:func:`solid_extent`) stays the whole piece and blind spot it was before."""
+    c = b.piece_center_ned_m or b.center_ned_m
+    solid = (*b.center_ned_m, b.piece_radius_m + 0.5 * b.blind_depth_m)
+    return dataclasses.replace(
+        b, center_ned_m=c, radius_m=b.piece_radius_m + config.inflate_m, solid_ned_m=solid
+    )
+
+
+def _decode_key(key: int) -> tuple[int, np.ndarray]:
+    """Inverse of :func:`track_key`: ``(level, cube)``."""
+    mask = (1 << 20) - 1
+    level = (key >> 60) & 3
+    cube = np.array([((key >> s) & mask) - _KEY_OFFSET for s in (40, 20, 0)], dtype=np.int64)
+    return level, cube
 
 
 def map_boundaries(
@@ -215,12 +307,27 @@ def map_boundaries(
         sub = Pieces(*(np.asarray(f)[keep] for f in _fields(sub)))
         boundaries = [b for b in boundaries if b.track_key not in split]
         boundaries += _boundaries_of(space, sub, 1, pos, goal, goal_free, cfg)
+    boundaries = _open_gaps(boundaries, cfg)
     return tuple(sorted(boundaries, key=lambda b: b.track_key))
+
+
+def goal_surely_blocked(boundaries, goal_ned_m, config: MapBoundaryConfig | None = None) -> bool:
+    """Whether a boundary holding the goal holds it for certain: the goal within
+    ``inflate_m`` of that piece's seen surface (``goal_gap_m``), not only in its blind spot
+    (which may turn out free once seen). False when no boundary holds the goal."""
+    cfg = MapBoundaryConfig() if config is None else config
+    goal = np.asarray(goal_ned_m, dtype=float)
+    return any(
+        b.goal_gap_m < cfg.inflate_m
+        for b in boundaries
+        if float(np.linalg.norm(goal - np.asarray(b.center_ned_m))) < b.radius_m
+    )
 
 
 def solid_extent(boundaries) -> np.ndarray:
     """Where each boundary's obstacle may be: ``(n, 4)`` rows ``(north, east, down,
-    radius)`` [m], the sphere without its inflation (the piece and its blind spot, Fig. 4).
+    radius)`` [m], the sphere without its inflation (the piece and its blind spot, Fig. 4;
+    an opened piece's row is the piece and blind spot it had before opening).
 
     The safety envelope's near-field excuse (unseen space beside the vehicle's path that
     no forward camera could have shown) never applies inside these spheres
@@ -228,6 +335,10 @@ def solid_extent(boundaries) -> np.ndarray:
     """
     out = np.empty((len(boundaries), 4))
     for n, b in enumerate(boundaries):
+        solid = getattr(b, "solid_ned_m", None)
+        if solid is not None:
+            out[n] = solid
+            continue
         out[n, :3] = b.center_ned_m
         out[n, 3] = b.piece_radius_m + 0.5 * b.blind_depth_m
     return out
