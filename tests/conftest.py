@@ -29,7 +29,7 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if any(mark.name in names for mark in item.iter_markers()):
             continue
-        path = Path(str(item.fspath))
+        path = Path(item.path)
         if path not in tiers:
             tiers[path] = classify_file(path)
         item.add_marker(getattr(pytest.mark, tiers[path].value))
