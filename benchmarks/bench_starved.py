@@ -4,7 +4,7 @@ scenes with the companion held to 100 %, 50 % and 25 % of one core.
 For each run: time to goal [s, autopilot time], top speed [m/s], least distance from the
 vehicle's centre to a surface [m], and the companion's mode requests. Against plant-sim at
 real time always; against ArduCopter SITL (at its real time) too when ``$ARDUCOPTER_SITL``
-names a binary. Prints progress, then the table (the README's) with the machine's load.
+names a binary. Prints progress, then the table (docs/results.md) with the machine's load.
 
 Run with ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_starved.py``
 (``--fractions 1 0.5 0.25 --speedup 1``; about a minute per plant-sim run).

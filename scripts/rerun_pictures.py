@@ -1,4 +1,4 @@
-"""README picture: the Rerun web view of the paper's scenario, mid-avoidance.
+"""Picture in docs/viewing.md: the Rerun web view of the paper's scenario, mid-avoidance.
 
 Flies the paper's §6 scene in lockstep with ``--rerun serve`` (the pipeline's view plus the
 true world; logged from ``--log-from-north-m`` on), stops ``--after-avoid-s`` seconds into

@@ -1,8 +1,15 @@
 #!/usr/bin/env bash
 # The project's test command (README): set up .venv, lint, then run the whole suite.
 # Extra arguments go to pytest, e.g. `bash scripts/test.sh -k frames`.
+# `bash scripts/test.sh --fast`: the fast loop, tiers `unit` and `contracts` only (no process,
+# SITL, Dask cluster or lockstep flight; tiers in tests/_tiers.py and docs/testing.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+select=()
+if [ "${1:-}" = "--fast" ]; then
+    shift
+    select=(-m "not processes and not lockstep")
+fi
 bash scripts/setup.sh
 export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 .venv/bin/ruff check .
@@ -10,4 +17,4 @@ export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 # Two workers by default (PYTEST_WORKERS=0, or `-n 0`: one process). --dist loadfile:
 # a module's tests share one worker, so module-scoped fixtures (a lockstep run, the SITL
 # binary) are built once and a file's flights never run beside each other.
-.venv/bin/python -m pytest -n "${PYTEST_WORKERS:-2}" --dist loadfile "$@"
+.venv/bin/python -m pytest -n "${PYTEST_WORKERS:-2}" --dist loadfile "${select[@]}" "$@"

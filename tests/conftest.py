@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from _plant_sim_proc import PlantProcess
+from _tiers import Tier, classify_file
 
 from protocols.threads import configure_threads
 
@@ -13,6 +16,23 @@ def pytest_configure(config):
     (:mod:`protocols.threads`: one by default): lockstep flights in the test workers then
     cost what they cost in ``stereo-avoid``, not a barrier's wait on a shared machine."""
     configure_threads()
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark every test with its module's tier (:mod:`_tiers`), unless the module states one.
+
+    ``bash scripts/test.sh --fast`` deselects ``processes`` by these marks; a module that
+    states ``pytestmark = pytest.mark.<tier>`` keeps its own.
+    """
+    tiers: dict[Path, Tier] = {}
+    names = {tier.value for tier in Tier}
+    for item in items:
+        if any(mark.name in names for mark in item.iter_markers()):
+            continue
+        path = Path(item.path)
+        if path not in tiers:
+            tiers[path] = classify_file(path)
+        item.add_marker(getattr(pytest.mark, tiers[path].value))
 
 
 @pytest.fixture

@@ -244,7 +244,7 @@ def test_without_sim_guid_shape_a_target_goes_straight_to_the_lq_loop_and_speed_
     assert out.result is MavResult.FAILED and "SIM_GUID_SHAPE" in out.text
 
 
-# ---- conformance with ArduCopter SITL's measured figures (README, issue notes) -----------
+# ---- conformance with ArduCopter SITL's measured figures (docs/autopilots.md) --------------
 def _fly_leg(profile_name: str, params: dict[str, float], seconds: float = 30.0):
     """The paper's 20 m leg from hover at 7 m, flown by the airframe through plant-sim's
     GUIDED (SIM_GUID_SHAPE 1) with the goal itself as the target (no companion, as SITL

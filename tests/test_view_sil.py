@@ -4,7 +4,7 @@ One flight toward the paper's obstacle with ``companion --record FILE.mcap --rer
 serve:PORT``, the live web view opened in headless Chromium:
 
 1. a screenshot must show the 3-D view and the depth image drawn (colourful, non-blank
-   regions); ``STEREO_AVOID_SCREENSHOT=PATH`` keeps it (README picture);
+   regions); ``STEREO_AVOID_SCREENSHOT=PATH`` keeps it (docs/viewing.md picture);
 2. ``stereo-avoid replay FILE.mcap`` must reproduce every MAVLink output of the flight,
    every setpoint included, bit for bit.
 
