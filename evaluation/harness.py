@@ -66,8 +66,10 @@ class RunConfig:
     camera_rate_hz: float = 30.0
     max_time_s: float = 90.0  # simulation time before the run is declared a timeout
     goal_tolerance_m: float = 0.5  # §6 test: goal reached within 0.5 m
-    # Collision: vehicle centre nearer the true surface than the arm length d (Table 2).
-    collision_distance_m: float = 0.25
+    # Collision: the body touching a surface, i.e. the vehicle centre nearer the true
+    # surface than its radius with propellers (arm d = 0.25 m of Table 2 plus a rotor:
+    # 0.35 m, the radius perception inflates boundaries by)
+    collision_distance_m: float = 0.35
     camera: CameraModel = field(default_factory=CameraModel)
     render: RenderParams = field(default_factory=RenderParams)
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)

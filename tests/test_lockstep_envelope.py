@@ -1,6 +1,6 @@
 """The safety envelope in closed loop: the companion dies (SIGKILL) at 20 evenly spaced
 times of the paper's flight, plain and fast profile; the autopilot holds the last setpoint
-and the vehicle must stop clear of the obstacle (surface distance ≥ 0.25 m)."""
+and the vehicle must stop clear of the obstacle (surface distance ≥ 0.35 m)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from evaluation.scenes import paper_scene
 from plant_sim.profiles import profile, terminal_speed_mps
 from plant_sim.world import paper_world
 
-COLLISION_M = 0.25  # vehicle centre to surface: the arm length d (Table 2)
+COLLISION_M = 0.35  # vehicle centre to surface: its radius with propellers
 N_KILLS = 20
 
 

@@ -50,7 +50,7 @@ def test_monte_carlo_sample_has_no_collision():
     summary = summarize(verdicts)
     assert summary["collision_rate"] == 0.0, summary["failed_seeds"]
     assert summary["safe_outcome_rate"] == 1.0, summary["failures_by_cause"]
-    assert all(v.min_surface_distance_m >= 0.25 for v in verdicts)
+    assert all(v.min_surface_distance_m >= 0.35 for v in verdicts)
     # at least half the scenes put an obstacle in the way
     assert np.mean([v.avoidance_time_s > 0 for v in verdicts]) >= 0.5
 
@@ -66,5 +66,6 @@ def test_the_nearest_passes_of_the_monte_carlo_keep_their_distance():
     verdicts = run_batch(NEAREST_PASSES, perception="truth")
     for v in verdicts:
         assert not v.collided and v.failure is None, v
-        # the collision distance (0.25 m) plus a voxel
-        assert v.min_surface_distance_m >= 0.25 + 0.2, v
+        # the collision distance (0.35 m) plus half a voxel: these are the sample's
+        # nearest passes, kept so that a change that brings them nearer shows
+        assert v.min_surface_distance_m >= 0.35 + 0.1, v

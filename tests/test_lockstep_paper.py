@@ -8,7 +8,6 @@ import pytest
 from companion.known_space import KnownSpaceConfig
 from evaluation.harness import RunConfig, run_scene
 from evaluation.scenes import paper_scene
-from plant_sim.params import QuadrotorParams
 from protocols.camera import CameraModel
 
 
@@ -22,9 +21,9 @@ def test_goal_reached_without_collision(paper_run):
     assert v.reached_goal, v
     assert v.final_goal_distance_m < 0.5
     assert not v.collided
-    # vehicle centre to the true obstacle surface: at least the arm length d = 0.25 m
-    # plus our 0.3 m safety margin (the boundary also carries a 0.35 m vehicle radius)
-    assert v.min_surface_distance_m >= QuadrotorParams().arm_length_m + 0.3, v
+    # vehicle centre to the true obstacle surface: at least the vehicle's radius with
+    # propellers (0.35 m, the collision distance) plus the 0.3 m safety margin
+    assert v.min_surface_distance_m >= RunConfig().collision_distance_m + 0.3, v
 
 
 def test_commanded_tilt_within_15_deg(paper_run):
