@@ -66,6 +66,8 @@ class DisturbanceConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ValueError(f"disturbance.seed must be an integer >= 0, got {self.seed!r}")
         w, e = self.wind, self.estimate
         checks = {
             "wind.gust_std_mps": w.gust_std_mps,

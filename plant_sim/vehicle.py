@@ -248,10 +248,11 @@ class Quadrotor:
     def set_wind_ned_mps(self, wind_ned_mps) -> None:
         """The air's velocity from now on, LOCAL_NED [m/s] (:mod:`plant_sim.disturbance`);
         the drag of Eq. (12) acts on the velocity relative to it."""
-        n, e, d = (float(v) for v in wind_ned_mps)
-        if not all(math.isfinite(v) for v in (n, e, d)):
+        wind_ned = np.asarray(wind_ned_mps, dtype=float).reshape(3)
+        if not np.all(np.isfinite(wind_ned)):
             raise ValueError(f"wind must be finite, got {wind_ned_mps!r}")
-        self._k = self._k._replace(wind_x=n, wind_y=-e, wind_z=-d)  # NED → paper frame
+        x, y, z = (float(v) for v in paper_frames.paper_from_ned(wind_ned))
+        self._k = self._k._replace(wind_x=x, wind_y=y, wind_z=z)
 
     def set_setpoint(self, sp: Setpoint) -> None:
         """Track ``sp`` from the next controller update on."""

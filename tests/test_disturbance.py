@@ -104,6 +104,7 @@ def test_the_same_seed_gives_the_same_flight():
         ({"estimate": EstimateConfig(wander_std_m=math.nan)}, "wander_std_m"),
         ({"estimate": EstimateConfig(jump_every_s=0.0)}, "jump_every_s"),
         ({"wind": WindConfig(mean_ned_mps=(1.0, math.inf, 0.0))}, "mean_ned_mps"),
+        ({"seed": -1}, "seed"),
     ],
 )
 def test_a_bad_disturbance_is_refused_by_name(kwargs, says):
