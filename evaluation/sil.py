@@ -20,6 +20,7 @@ import json
 import math
 import os
 import queue
+import random
 import re
 import signal
 import socket
@@ -53,11 +54,48 @@ __all__ = [
 REPO = Path(__file__).resolve().parents[2]
 
 
+#: where test and SIL ports are drawn from when the OS does not say its ephemeral range
+_FALLBACK_EPHEMERAL = (32768, 60999)
+_LOWEST_PORT = 20000
+
+
 def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    """A port the OS reports free on 127.0.0.1."""
+    """A port free on 127.0.0.1 for both TCP and UDP, drawn at random *below* the OS's
+    ephemeral range.
+
+    Asking the OS for port 0 hands out the next ephemeral port, which the kernel may give to
+    the very next outgoing socket (a child's ``udpout`` or Zenoh connection) or to a
+    parallel test run before our child binds it: the "address already in use" race seen
+    between xdist workers. Ports below the ephemeral range are never handed out
+    implicitly, and a random draw makes two concurrent runs collide only by chance
+    (~ one in ten thousand per pair of ports). ``kind`` is kept for callers; the port is
+    checked free for both kinds.
+    """
+    low, high = _LOWEST_PORT, _ephemeral_range()[0] - 1
+    rng = random.SystemRandom()
+    for _ in range(200):
+        port = rng.randint(low, high)
+        if _bindable(port, socket.SOCK_STREAM) and _bindable(port, socket.SOCK_DGRAM):
+            return port
+    raise RuntimeError(f"no free port on 127.0.0.1 in {low}-{high} after 200 draws")
+
+
+def _ephemeral_range() -> tuple[int, int]:
+    try:
+        text = Path("/proc/sys/net/ipv4/ip_local_port_range").read_text(encoding="ascii")
+        low, high = (int(v) for v in text.split())
+    except (OSError, ValueError):
+        return _FALLBACK_EPHEMERAL
+    return (low, high) if low > _LOWEST_PORT + 1000 else _FALLBACK_EPHEMERAL
+
+
+def _bindable(port: int, kind: int) -> bool:
     with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
 
 
 class ChildProcess:
