@@ -145,10 +145,17 @@ def test_hold_target_is_never_inside_a_boundary_and_is_told_once():
     assert hp.placement is HoldPlacement.ESCAPE
     assert hp.pos_ned_m[0] == pytest.approx(3.0 - 1.5 - 0.2)
     assert not inside_any(hp.pos_ned_m, wall)
-    # inside two overlapping balls whose way out leads into the other: where it is
+    # inside two overlapping balls whose way out leads into the other: the nearest point
+    # out of both (tests/test_hold_point.py checks the distance), never where it is
     pair = [Ball((0.0, 0.5, -7.0), 1.0), Ball((0.0, -0.5, -7.0), 1.0)]
     hp = hold_point((0.0, 0.1, -7.0), (0.0, 0.0, 0.0), pair, latency_s=0.15, accel_mps2=2.0)
-    assert hp.placement is HoldPlacement.CURRENT
+    assert hp.placement is HoldPlacement.NEAREST_OUT
+    assert not inside_any(hp.pos_ned_m, pair)
+    # inside two balls larger than the search reaches, each one's way out into the
+    # other: where it is, never deeper
+    huge = [Ball((0.0, 0.0, -7.0), 10.0), Ball((10.5, 0.0, -7.0), 10.0)]
+    hp = hold_point((0.5, 0.0, -7.0), (0.0, 0.0, 0.0), huge, latency_s=0.15, accel_mps2=2.0)
+    assert hp.placement is HoldPlacement.CURRENT and hp.pos_ned_m == (0.5, 0.0, -7.0)
     # bad velocity does not raise: hold where it is
     hp = hold_point((0.0, 0.0, -7.0), (np.nan, 0.0, 0.0), wall, latency_s=0.15, accel_mps2=2.0)
     assert hp.pos_ned_m == (0.0, 0.0, -7.0)

@@ -13,8 +13,11 @@ So, in order:
 1. The vehicle is inside a boundary (drift, a jump of the estimate, a late frame): the
    target is the way out of the deepest one, :func:`~companion.guidance.cone.escape_point`
    (radially out, ``clearance_m`` beyond its surface), as guidance's own escape
-   (:attr:`HoldPlacement.ESCAPE`). If that point lies in another boundary: the current
-   position (:attr:`HoldPlacement.CURRENT`), and never deeper.
+   (:attr:`HoldPlacement.ESCAPE`). If that point lies in another boundary (a wall is
+   many overlapping pieces), the nearest point outside all of them, searched along a
+   fixed set of directions (:attr:`HoldPlacement.NEAREST_OUT`, :func:`nearest_outside`).
+   Only when nothing within ``search_m`` is outside: the current position
+   (:attr:`HoldPlacement.CURRENT`), and never deeper.
 2. The braking point is inside a boundary: the farthest point of the segment from the
    vehicle to it that is outside every boundary, i.e. on the path the vehicle is flying
    through space the envelope let it into (:attr:`HoldPlacement.SHORTENED`).
@@ -35,7 +38,7 @@ import numpy as np
 from companion.guidance.cone import SphereLike, escape_point
 from companion.guidance.envelope import stopping_distance_m
 
-__all__ = ["HoldPlacement", "HoldPoint", "hold_point", "inside_any"]
+__all__ = ["HoldPlacement", "HoldPoint", "hold_point", "inside_any", "nearest_outside"]
 
 
 class HoldPlacement(enum.Enum):
@@ -44,6 +47,7 @@ class HoldPlacement(enum.Enum):
     BRAKING_POINT = "braking_point"
     SHORTENED = "shortened"  # braking point inside a boundary: short of it on the path
     ESCAPE = "escape"  # vehicle inside a boundary: out of it
+    NEAREST_OUT = "nearest_out"  # the way out of one leads into another: nearest point out
     CURRENT = "current"  # vehicle inside and no way out found: where it is
 
 
@@ -98,6 +102,7 @@ def hold_point(
     accel_mps2: float,
     clearance_m: float = 0.0,
     standoff_m: float = 0.05,
+    search_m: float = 4.0,
 ) -> HoldPoint:
     """The hold target for a vehicle at ``pos_ned_m`` flying ``vel_ned_mps`` (module doc).
 
@@ -116,6 +121,9 @@ def hold_point(
         ``escape_clearance_m``).
     standoff_m : float
         A shortened target stays this far before the boundary along the path [m].
+    search_m : float
+        How far :func:`nearest_outside` looks for a way out when the radial one is
+        blocked [m].
     """
     pos = np.asarray(pos_ned_m, dtype=float)
     vel = np.asarray(vel_ned_mps, dtype=float)
@@ -131,9 +139,14 @@ def hold_point(
             ),
         )
         out = escape_point(pos, deepest, clearance_m=clearance_m, reference_ned=vel)
-        if inside_any(out, boundaries):
+        if not inside_any(out, boundaries):
+            return HoldPoint(_tuple(out), HoldPlacement.ESCAPE)
+        nearest = nearest_outside(
+            pos, boundaries, clearance_m=clearance_m, search_m=search_m, prefer_ned=out - pos
+        )
+        if nearest is None:
             return HoldPoint(_tuple(pos), HoldPlacement.CURRENT)
-        return HoldPoint(_tuple(out), HoldPlacement.ESCAPE)
+        return HoldPoint(_tuple(nearest), HoldPlacement.NEAREST_OUT)
     speed = float(np.linalg.norm(vel))
     if speed < 1e-6:
         return HoldPoint(_tuple(pos), HoldPlacement.BRAKING_POINT)
@@ -144,6 +157,66 @@ def hold_point(
     length = float(np.linalg.norm(brake - pos))
     t = max(0.0, t - standoff_m / length)
     return HoldPoint(_tuple(pos + t * (brake - pos)), HoldPlacement.SHORTENED)
+
+
+def _fibonacci_directions(n: int) -> np.ndarray:
+    """``n`` unit vectors spread evenly over the sphere (golden-angle spiral), read-only."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    ring = np.sqrt(1.0 - z * z)
+    phi = k * math.pi * (3.0 - math.sqrt(5.0))
+    dirs = np.stack([ring * np.cos(phi), ring * np.sin(phi), z], axis=1)
+    dirs.flags.writeable = False
+    return dirs
+
+
+#: search directions of :func:`nearest_outside`: ~14° apart
+_DIRECTIONS = _fibonacci_directions(200)
+
+
+def nearest_outside(
+    pos_ned_m,
+    boundaries: Sequence[SphereLike],
+    *,
+    clearance_m: float = 0.0,
+    search_m: float = 4.0,
+    step_m: float = 0.05,
+    prefer_ned=None,
+) -> np.ndarray | None:
+    """The nearest point [m, NED] at least ``clearance_m`` outside every boundary.
+
+    Looked for along 200 directions spread over the sphere, in steps of ``step_m`` out to
+    ``search_m``: the first step at which a direction's point is clear, the shortest such
+    step over all directions (resolution ``step_m`` in distance, ~14° in direction). Among
+    points at the shortest distance, the one most along ``prefer_ned`` (e.g. the radial
+    escape from the deepest boundary); ties by the fixed direction order, so the answer is
+    deterministic. With ``clearance_m > 0`` and nothing found, the search is repeated for
+    a point merely outside (clearance 0). ``None`` when nothing within ``search_m`` is.
+    """
+    pos = np.asarray(pos_ned_m, dtype=float)
+    if not boundaries:
+        return pos.copy()
+    centres = np.array([np.asarray(b.center_ned_m, dtype=float) for b in boundaries])
+    radii = np.array([float(b.radius_m) for b in boundaries])
+    near = np.linalg.norm(centres - pos, axis=1) - radii < search_m + clearance_m
+    centres, radii = centres[near], radii[near]
+    steps_m = np.arange(1, int(search_m / step_m) + 1) * step_m
+    points = pos + _DIRECTIONS[:, None, :] * steps_m[None, :, None]  # (dirs, steps, 3)
+    dist = np.linalg.norm(points[:, :, None, :] - centres[None, None, :, :], axis=-1)
+    prefer = np.zeros(3) if prefer_ned is None else np.asarray(prefer_ned, dtype=float)
+    norm = float(np.linalg.norm(prefer))
+    along = _DIRECTIONS @ (prefer / norm) if norm > 1e-9 and math.isfinite(norm) else None
+    for clearance in (clearance_m, 0.0) if clearance_m > 0.0 else (0.0,):
+        clear = np.all(dist >= radii + clearance, axis=-1)  # (dirs, steps)
+        found = clear.any(axis=1)
+        if not found.any():
+            continue
+        first = np.where(found, clear.argmax(axis=1), steps_m.size)
+        best = first.min()
+        candidates = np.flatnonzero(first == best)
+        pick = candidates[0] if along is None else candidates[np.argmax(along[candidates])]
+        return points[pick, best].copy()
+    return None
 
 
 def _tuple(p: np.ndarray) -> tuple[float, float, float]:

@@ -1,0 +1,87 @@
+"""``companion.guidance.hold.nearest_outside``: the nearest point out of overlapping
+boundaries, against closed forms (a ball, two balls, a wall of pieces)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from companion.guidance.hold import (
+    HoldPlacement,
+    hold_point,
+    inside_any,
+    nearest_outside,
+)
+
+STEP_M = 0.05
+# 200 directions ~14° apart: a direction off the best by up to ~7° costs 1/cos(7°) ≈ 0.8 %
+ANGLE_SLACK = 1.0 / math.cos(math.radians(8.0))
+
+
+@dataclass(frozen=True)
+class Ball:
+    center_ned_m: tuple[float, float, float]
+    radius_m: float
+
+
+def test_one_ball_nearest_out_is_radial_within_the_search_resolution():
+    ball = Ball((0.0, 0.0, -7.0), 1.5)
+    pos = np.array([0.3, 0.2, -7.1])
+    out = nearest_outside(pos, [ball], step_m=STEP_M)
+    depth = 1.5 - float(np.linalg.norm(pos - ball.center_ned_m))  # closed form: straight out
+    moved = float(np.linalg.norm(out - pos))
+    assert depth <= moved <= depth * ANGLE_SLACK + STEP_M, (depth, moved)
+    assert not inside_any(out, [ball])
+
+
+def test_two_overlapping_balls_closed_form_distance():
+    # balls r = 1 at y = ±0.5 meet on the circle y = 0 of radius sqrt(1 - 0.5²); from
+    # (0, 0.1, 0) the nearest point out of both lies on it: sqrt(0.75 + 0.1²) = 0.872 m
+    pair = [Ball((0.0, 0.5, 0.0), 1.0), Ball((0.0, -0.5, 0.0), 1.0)]
+    pos = np.array([0.0, 0.1, 0.0])
+    out = nearest_outside(pos, pair, step_m=STEP_M)
+    moved = float(np.linalg.norm(out - pos))
+    best = math.sqrt(0.75 + 0.1**2)
+    assert best <= moved <= best * ANGLE_SLACK + STEP_M, moved
+    assert not inside_any(out, pair)
+
+
+def test_a_wall_of_pieces_is_left_through_its_nearer_face_with_clearance():
+    # a wall in the plane x = 0: balls r = 0.8 every 0.4 m along y and z (thickness
+    # ≈ 2 × 0.8 wherever the balls overlap); vehicle 0.3 m in front of the centre plane
+    grid = np.arange(-4.0, 4.01, 0.4)
+    wall = [Ball((0.0, y, z), 0.8) for y in grid for z in grid]
+    pos = np.array([0.3, 0.1, 0.05])
+    out = nearest_outside(pos, wall, clearance_m=0.2, step_m=STEP_M, prefer_ned=(1.0, 0.0, 0.0))
+    assert out[0] > 0.8  # out through the face it was nearer (clearance: checked below)
+    assert float(np.linalg.norm(out - pos)) <= (0.8 + 0.2 - 0.3) * ANGLE_SLACK + STEP_M
+    assert not inside_any(out, [Ball(b.center_ned_m, b.radius_m + 0.2 - 1e-9) for b in wall])
+
+
+def test_clearance_is_given_up_before_the_way_out_is():
+    # a ball whose way out with 0.5 m of clearance lies beyond a 1 m search, without it inside
+    ball = Ball((0.0, 0.0, 0.0), 1.0)
+    out = nearest_outside((0.2, 0.0, 0.0), [ball], clearance_m=0.5, search_m=1.0)
+    assert out is not None and not inside_any(out, [ball])
+    assert nearest_outside((0.0, 0.0, 0.0), [ball], search_m=0.5) is None
+
+
+def test_the_preferred_direction_breaks_ties():
+    ball = Ball((0.0, 0.0, 0.0), 1.0)
+    for prefer in ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0)):
+        out = nearest_outside((0.0, 0.0, 0.0), [ball], prefer_ned=prefer)
+        cos_off = float(np.dot(out / np.linalg.norm(out), prefer))
+        assert cos_off > math.cos(math.radians(15)), cos_off  # directions ~14° apart
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_hold_targets_from_inside_random_clusters_are_outside_or_where_it_is(seed):
+    rng = np.random.default_rng(seed)
+    balls = [Ball(tuple(rng.uniform(-1.5, 1.5, 3)), float(rng.uniform(0.4, 1.2))) for _ in range(8)]
+    pos = np.asarray(balls[0].center_ned_m) + rng.uniform(-0.2, 0.2, 3)
+    hp = hold_point(pos, (0.0, 0.0, 0.0), balls, latency_s=0.15, accel_mps2=2.0, clearance_m=0.2)
+    assert hp.placement in (HoldPlacement.ESCAPE, HoldPlacement.NEAREST_OUT)
+    assert not inside_any(hp.pos_ned_m, balls)
