@@ -218,7 +218,7 @@ def test_core_failsafe_holds_on_stale_frames_and_resumes():
     rig.run(1.5, frames=False)  # > frame_timeout_s (1 s)
     holds = rig.events("hold")
     assert [(h["reason"], h["command"]) for h in holds] == [("stale_frames", "hold position")]
-    assert rig.custom_mode == GUIDED and rig.core.counters["mode_requests"] == 0
+    assert rig.custom_mode == GUIDED and rig.core.counters.mode_requests == 0
     rig.run(1.0, frames=False)  # 2.5 s without frames > frame_loss_s (2 s)
     holds = rig.events("hold")
     assert [(h["reason"], h["command"]) for h in holds] == [
@@ -226,14 +226,14 @@ def test_core_failsafe_holds_on_stale_frames_and_resumes():
         ("frames_lost", "BRAKE"),
     ]
     assert rig.custom_mode == BRAKE
-    assert rig.core.counters["hold_commands"] == 1  # one hold, escalated
+    assert rig.core.counters.hold_commands == 1  # one hold, escalated
     n_setpoints = len(rig.setpoints())
     rig.run(0.5)
     assert not rig.events("resume")  # healthy for less than resume_after_s (1 s)
     rig.run(1.0)
     assert len(rig.events("resume")) == 1
     assert rig.custom_mode == GUIDED
-    assert rig.core.counters["mode_requests"] == 2  # BRAKE, then GUIDED
+    assert rig.core.counters.mode_requests == 2  # BRAKE, then GUIDED
     assert len(rig.setpoints()) > n_setpoints
 
 
@@ -243,13 +243,13 @@ def test_core_px4_failsafe_requests_hold_streams_through_it_and_resumes_offboard
     at > 2 Hz so that OFFBOARD can be re-entered; healthy for resume_after_s → OFFBOARD."""
     rig = _steering_rig(px4=True)
     rig.run(1.5, frames=False)  # > frame_timeout_s (1 s)
-    assert rig.custom_mode == OFFBOARD and rig.core.counters["mode_requests"] == 0
+    assert rig.custom_mode == OFFBOARD and rig.core.counters.mode_requests == 0
     rig.run(1.0, frames=False)  # > frame_loss_s (2 s)
     holds = [(h["reason"], h["command"]) for h in rig.events("hold")]
     assert holds == [("stale_frames", "hold position"), ("frames_lost", "AUTO_LOITER")]
     modes = [m for m in rig.sent("COMMAND_LONG") if m.command == mavlink.MAV_CMD_DO_SET_MODE]
     assert [(m.param2, m.param3) for m in modes] == [(4.0, 3.0)]
-    assert rig.custom_mode == PX4_HOLD and rig.core.counters["mode_holds"] == 1
+    assert rig.custom_mode == PX4_HOLD and rig.core.counters.mode_holds == 1
     n_setpoints = len(rig.setpoints())
     rig.run(1.0, frames=False)  # in the Hold: the stream goes on (20 Hz)
     assert len(rig.setpoints()) - n_setpoints >= 15
@@ -258,7 +258,7 @@ def test_core_px4_failsafe_requests_hold_streams_through_it_and_resumes_offboard
     rig.run(1.0)
     assert len(rig.events("resume")) == 1
     assert rig.custom_mode == OFFBOARD
-    assert rig.core.counters["mode_requests"] == 2  # Hold, then OFFBOARD
+    assert rig.core.counters.mode_requests == 2  # Hold, then OFFBOARD
 
 
 def test_time_in_a_failsafe_hold_is_not_counted_as_guidance_making_no_progress():
@@ -277,7 +277,7 @@ def test_time_in_a_failsafe_hold_is_not_counted_as_guidance_making_no_progress()
     rig.run(5.0)
     assert [h["reason"] for h in rig.events("hold")] == ["stale_frames"]
     assert rig.custom_mode == GUIDED
-    assert rig.core.counters["frames_processed"] > 100  # guidance stepped all along
+    assert rig.core.counters.frames_processed > 100  # guidance stepped all along
     rig.frame_lag_s = 0.0
     rig.run(5.0)  # 1 s to resume, then 3 s steering without moving
     assert rig.events("resume")
@@ -323,7 +323,7 @@ def test_core_refuses_to_steer_while_another_source_sends_setpoints():
     ]
     rig.run(1.0)
     assert len(rig.setpoints()) == before
-    assert rig.core.counters["takeover_refusals"] == 1
+    assert rig.core.counters.takeover_refusals == 1
     rig.run(rig.core.takeover.quiet_s + 1.0)  # quiet again: steering allowed
     assert rig.events("takeover")[-1]["blocked"] is False
     assert len(rig.setpoints()) > before
@@ -382,7 +382,7 @@ def test_core_clock_timesync_maps_and_implausible_frames_are_dropped():
         999, (rig.boot_ms - 10_000) * 1_000_000, SMALL.intrinsics, *_blank_pair(SMALL)
     )
     rig.feed(FrameReceived(stale, rig.now_ns, rig.now_ns))
-    assert rig.core.counters["frames_implausible_time"] == 1
+    assert rig.core.counters.frames_implausible_time == 1
 
 
 def test_core_obstacle_distance_is_on_the_wire_from_start_up_all_unknown_before_frames():
