@@ -167,7 +167,7 @@ class FailsafeConfig:
     # slows the vehicle instead (issue 32: a slow frame is not a reason to stop)
     frame_timeout_s: float = 1.0
     telemetry_timeout_s: float = 0.3  # newest pose older than this → hold position [s]
-    # the last resort: the autopilot's own hold (BRAKE/LOITER, PX4 hold) only when no frame
+    # the last resort: the autopilot's own hold (BRAKE; PX4: Hold) only when no frame
     # (no pose) arrived for this long [s, frame clock]; > the timeouts above
     frame_loss_s: float = 2.0
     telemetry_loss_s: float = 2.0
@@ -419,7 +419,7 @@ def _add_behaviour_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--frame-loss-s",
         type=float,
-        help="request BRAKE/LOITER (PX4: hold) if no frame came for this long [s]",
+        help="request BRAKE (PX4: Hold) if no frame came for this long [s]",
     )
     p.add_argument("--telemetry-timeout-s", type=float, help="hold if poses are older [s]")
     p.add_argument(

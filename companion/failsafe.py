@@ -10,8 +10,8 @@ as one at 1×. Two thresholds per input (issue 32: a slow companion must not fla
   braking point (:mod:`companion.guidance.hold`), no mode request.
 * **Lost** (``frame_loss_s``, ``telemetry_loss_s``, longer): nothing for that long, or the
   frame clock lost. :attr:`Response.HOLD_MODE`: the companion can no longer command
-  safely and asks the autopilot for its own hold (BRAKE on ArduPilot; PX4 streams the
-  hold in OFFBOARD). The last resort.
+  safely and asks the autopilot for its own hold (BRAKE on ArduPilot, Hold = AUTO_LOITER
+  on PX4). The last resort.
 
 Hysteresis: a hold starts, or escalates from position to mode, as soon as the inputs are
 that old, but ends only after they have been healthy for ``resume_after_s`` without a
@@ -59,7 +59,7 @@ class Response(enum.IntEnum):
 
     STEER = 0  # fly guidance's setpoints
     HOLD_POSITION = 1  # a position target at the braking point, in the control mode
-    HOLD_MODE = 2  # the autopilot's own hold (BRAKE / LOITER, PX4: hold setpoint stream)
+    HOLD_MODE = 2  # the autopilot's own hold (ArduPilot BRAKE, PX4 Hold = AUTO_LOITER)
 
 
 @dataclass(frozen=True)

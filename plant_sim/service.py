@@ -29,11 +29,10 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from plant_sim.autopilot import commands as cmds
-from plant_sim.autopilot.collision_prevention import CP_PARAM_SPECS
+from plant_sim.autopilot.flavours import FLAVOUR_NAMES, flavour_for, param_specs_for
 from plant_sim.autopilot.link import EndpointSpec, MavlinkLink
 from plant_sim.autopilot.modes import (
     FORCE_ARM_MAGIC,
-    FlightMode,
     FlightModeMachine,
     GuidedTarget,
     Kinematics,
@@ -41,12 +40,6 @@ from plant_sim.autopilot.modes import (
 )
 from plant_sim.autopilot.params import ParamTable, timings_from_params
 from plant_sim.autopilot.pilot_flight import PilotFlight
-from plant_sim.autopilot.px4 import (
-    PX4_PARAM_SPECS,
-    Px4Modes,
-    px4_custom_mode,
-    rules_from_params,
-)
 from plant_sim.autopilot.ratelimit import RequestLimiter
 from plant_sim.autopilot.setpoints import (
     SetpointError,
@@ -55,7 +48,6 @@ from plant_sim.autopilot.setpoints import (
     decode_global_target,
     decode_position_target,
 )
-from plant_sim.autopilot.simple_avoid import AVOID_PARAM_SPECS
 from plant_sim.autopilot.telemetry import (
     MESSAGE_IDS,
     StreamScheduler,
@@ -110,9 +102,9 @@ class PlantConfig:
     autopilot_flavour: str = "ardupilot"  # or "px4": PX4 heartbeat, modes, offboard rules
 
     def __post_init__(self) -> None:
-        if self.autopilot_flavour not in ("ardupilot", "px4"):
+        if self.autopilot_flavour not in FLAVOUR_NAMES:
             raise ValueError(
-                f"autopilot flavour must be ardupilot or px4, got {self.autopilot_flavour!r}"
+                f"autopilot flavour must be one of {FLAVOUR_NAMES}, got {self.autopilot_flavour!r}"
             )
         if not self.mavlink:
             raise ValueError("at least one --mavlink endpoint is needed")
@@ -156,9 +148,7 @@ def _param_table(config: PlantConfig) -> ParamTable:
             "SIM_SPEEDUP": config.speedup if math.isfinite(config.speedup) else 0.0,
             "SIM_CAM_RATE": sc.camera.rate_hz if sc.camera.enabled else 0.0,
         },
-        extra_specs=PX4_PARAM_SPECS + CP_PARAM_SPECS
-        if config.autopilot_flavour == "px4"
-        else AVOID_PARAM_SPECS,
+        extra_specs=param_specs_for(config.autopilot_flavour),
     )
 
 
@@ -194,11 +184,11 @@ class PlantService:
             kin=kin,
         )
         self._applied_setpoint = None
-        self.px4: Px4Modes | None = None
-        if config.autopilot_flavour == "px4":
-            self.machine.set_mode(FlightMode.LOITER, kin)  # PX4 starts in Hold
-            self.px4 = Px4Modes(self.machine, self._home_amsl_m(), rules_from_params(self.params))
-        self.pilot = PilotFlight(px4=self.px4 is not None)  # sticks + proximity avoidance
+        # ArduCopter or PX4: modes, heartbeat, commands, setpoints (plant_sim.autopilot.flavours)
+        self.flavour = flavour_for(
+            config.autopilot_flavour, self.machine, kin, self._home_amsl_m(), self.params
+        )
+        self.pilot = PilotFlight(px4=self.flavour.px4_pilot)  # sticks + proximity avoidance
         self._apply_machine()
         self.telemetry = TelemetryBuilder(
             VehicleIdentity(sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.alt_amsl_m)
@@ -373,12 +363,16 @@ class PlantService:
         notices = self.machine.update(kin)
         for notice in notices:
             self._statustext(notice, _SEVERITY_INFO)
-        if self.px4 is not None:
-            self.px4.home_amsl_m = self._home_amsl_m()
-            for notice in self.px4.update(kin, notices):
-                self._statustext(notice, _SEVERITY_WARNING)
-        px4_main = None if self.px4 is None else self.px4.main
-        self.pilot.step(kin, self.machine, px4_main, self.params, time.monotonic(), self._tick_dt_s)
+        for notice in self.flavour.update(kin, notices, self._home_amsl_m()):
+            self._statustext(notice, _SEVERITY_WARNING)
+        self.pilot.step(
+            kin,
+            self.machine,
+            self.flavour.pilot_main,
+            self.params,
+            time.monotonic(),
+            self._tick_dt_s,
+        )
         self._apply_machine()
         self._tilt_notice(snap)
         wall_unix = time.time()
@@ -388,27 +382,14 @@ class PlantService:
             self._truth.write(truth, self._mode_name())
 
     def _heartbeat(self):
-        if self.px4 is None:
-            return self.telemetry.heartbeat(self.machine)
-        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-        if self.machine.armed:
-            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-        state = mavlink.MAV_STATE_ACTIVE if self.machine.armed else mavlink.MAV_STATE_STANDBY
-        return mavlink.MAVLink_heartbeat_message(
-            mavlink.MAV_TYPE_QUADROTOR,
-            mavlink.MAV_AUTOPILOT_PX4,
-            base,
-            self.px4.custom_mode,
-            state,
-            3,
-        )
+        return self.flavour.heartbeat(self.telemetry)
 
     def _home_amsl_m(self) -> float:
         """AMSL altitude of home (PX4's takeoff altitudes are AMSL)."""
         return self.config.scenario.origin.alt_amsl_m - self.machine.home_ned_m[2]
 
     def _mode_name(self) -> str:
-        return self.machine.mode.name if self.px4 is None else self.px4.name
+        return self.flavour.mode_name()
 
     def _build(self, name: str, snap: VehicleState, wall_unix: float):
         return self.telemetry.build(
@@ -457,9 +438,7 @@ class PlantService:
         if m.armed != self.quad.armed:
             self.quad.set_armed(m.armed)
         setpoint = m.setpoint
-        if self.pilot.setpoint is not None and self.pilot.pilot_mode(
-            m, None if self.px4 is None else self.px4.main
-        ):
+        if self.pilot.setpoint is not None and self.pilot.pilot_mode(m, self.flavour.pilot_main):
             setpoint = self.pilot.setpoint  # the pilot flies (LOITER / Position mode)
         if self.disturbances is not None:
             # the controller closes its loop on the estimate: tracking a target with the
@@ -558,10 +537,7 @@ class PlantService:
         if mtype in ("COMMAND_LONG", "COMMAND_INT"):
             self._command(msg, kin, snap, src)
         elif mtype == "SET_MODE":
-            if self.px4 is not None:
-                outcome = self._px4_mode(msg.base_mode, msg.custom_mode, kin)
-            else:
-                outcome = cmds.handle_set_mode(msg.base_mode, msg.custom_mode, self.machine, kin)
+            outcome = self.flavour.set_mode(msg.base_mode, msg.custom_mode, kin)
             self._ack(mavlink.MAVLINK_MSG_ID_SET_MODE, outcome, src, snap)
         elif mtype in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
             self._position_target(msg, kin)
@@ -638,7 +614,7 @@ class PlantService:
                 msg.param6,
                 msg.param7,
             )
-        outcome = self._px4_command(msg.command, params, kin) if self.px4 is not None else None
+        outcome = self.flavour.command(msg.command, params, kin)
         if outcome is None:
             outcome = self._prearm(msg.command, params)
         if outcome is None:
@@ -671,39 +647,6 @@ class PlantService:
         if reason is None:
             return None
         return cmds.CommandOutcome(cmds.MavResult.FAILED, f"Arm: {reason}")
-
-    def _px4_command(self, command: int, params, kin: Kinematics) -> cmds.CommandOutcome | None:
-        """PX4's handling of the mode, takeoff, land and RTL commands (None: the common one)."""
-        px4 = self.px4
-        assert px4 is not None
-        result = cmds.MavResult
-        if command == cmds.MavCmd.DO_SET_MODE:
-            base, main, sub = params[0], params[1], params[2]
-            if not all(math.isfinite(x) for x in (base, main, sub)):
-                return cmds.CommandOutcome(result.DENIED, "DO_SET_MODE: bad parameters")
-            # PX4 (Commander) reads param2/param3 as uint8 main/sub mode
-            custom = px4_custom_mode(int(main) & 0xFF, int(sub) & 0xFF)
-            return self._px4_mode(int(base), custom, kin)
-        if command == cmds.MavCmd.NAV_TAKEOFF:
-            reason = px4.takeoff(params[6], kin)
-            return cmds.CommandOutcome(result.ACCEPTED if reason is None else result.DENIED, reason)
-        if command == cmds.MavCmd.NAV_LAND:
-            reason = px4.land(kin)
-            return cmds.CommandOutcome(result.ACCEPTED if reason is None else result.DENIED, reason)
-        if command == cmds.MavCmd.NAV_RETURN_TO_LAUNCH:
-            reason = px4.rtl(kin)
-            return cmds.CommandOutcome(result.ACCEPTED if reason is None else result.DENIED, reason)
-        return None
-
-    def _px4_mode(self, base_mode: int, custom_mode: int, kin: Kinematics) -> cmds.CommandOutcome:
-        assert self.px4 is not None
-        if not base_mode & cmds.CUSTOM_MODE_ENABLED:
-            return cmds.CommandOutcome(cmds.MavResult.DENIED, "Only custom modes are supported")
-        ok, text, temporary = self.px4.set_mode(custom_mode, kin)
-        if ok:
-            return cmds.CommandOutcome(cmds.MavResult.ACCEPTED, text)
-        result = cmds.MavResult.TEMPORARILY_REJECTED if temporary else cmds.MavResult.DENIED
-        return cmds.CommandOutcome(result, text)
 
     def _ack(self, command: int, outcome: cmds.CommandOutcome, src, snap: VehicleState) -> None:
         if outcome.text:
@@ -749,10 +692,7 @@ class PlantService:
             self.counters["setpoints_refused"] += 1
             self._refusal("decode", f"Target refused: {exc}", kin.time_s)
             return
-        if self.px4 is not None:
-            reason = self.px4.setpoint(target, kin)
-        else:
-            reason = self.machine.guided_target(target, kin)
+        reason = self.flavour.setpoint(target, kin)
         if reason is not None:
             self.counters["setpoints_refused"] += 1
             self._refusal("guided", reason, kin.time_s)
@@ -789,8 +729,7 @@ class PlantService:
             self._param_value(index)  # echo: the new value, or the unchanged one if refused
         if reason is None:
             self.machine.timings = timings_from_params(self._base_timings, self.params)
-            if self.px4 is not None:
-                self.px4.rules = rules_from_params(self.params)
+            self.flavour.params_changed(self.params)
             _log.info("param %s set to %g", name, self.params.value(name))
 
 

@@ -2,8 +2,9 @@
 
 Each profile is checked against the numbers its autopilot documents (DESIGN.md: ArduCopter
 GUIDED 4, BRAKE 17; PX4 OFFBOARD main mode 6 << 16, setpoints streamed > 2 Hz before and
-after the switch), and the companion's parts are checked to follow the profile: mode
-watch, setpoint policy and takeoff behave as the profile says, for every profile.
+after the switch, Hold = AUTO_LOITER 4 << 16 | 3 << 24 from PX4's ``px4_custom_mode.h``),
+and the companion's parts are checked to follow the profile: mode watch, setpoint policy
+and takeoff behave as the profile says, for every profile.
 """
 
 from __future__ import annotations
@@ -22,7 +23,11 @@ IDS = [p.flavour.value for p in ALL]
 # what each autopilot's documentation says (the contract the profiles must meet)
 EXPECTED = {
     Flavour.ARDUPILOT: {"control": (4, "GUIDED"), "hold": (17, "BRAKE"), "stream": False},
-    Flavour.PX4: {"control": (6 << 16, "OFFBOARD"), "hold": None, "stream": True},
+    Flavour.PX4: {
+        "control": (6 << 16, "OFFBOARD"),
+        "hold": (4 << 16 | 3 << 24, "AUTO_LOITER"),
+        "stream": True,
+    },
     Flavour.GENERIC: {"control": (4, "GUIDED"), "hold": (17, "BRAKE"), "stream": False},
 }
 
@@ -55,6 +60,10 @@ def test_mode_numbers_names_and_do_set_mode_parameters(profile):
     else:
         assert (hold.custom_mode, hold.name) == expected["hold"]
         assert profile.mode_name(hold.custom_mode) == hold.name
+        assert profile.same_mode(hold.custom_mode, hold)
+        assert not profile.same_mode(ctrl.custom_mode, hold)
+        if profile.packed_modes:
+            assert hold.command_params[1:] == (4.0, 3.0)  # main AUTO, sub AUTO_LOITER
 
 
 @pytest.mark.parametrize("profile", ALL, ids=IDS)
@@ -77,6 +86,11 @@ def test_mode_watch_enters_the_control_mode_as_the_profile_says(profile):
     hold_request = watch.set_hold(2.0, True)
     assert hold_request == profile.hold_mode
     assert watch.streaming_hold is streams
+    watch.on_heartbeat(2.5, profile.flavour, profile.hold_mode.custom_mode)
+    assert watch.phase is ControlPhase.HOLD  # the hold mode is ours, not a takeover
+    assert watch.set_hold(3.0, False) == profile.control_mode  # released: control mode
+    watch.on_heartbeat(3.5, profile.flavour, profile.control_mode.custom_mode)
+    assert watch.phase is ControlPhase.ACTIVE
 
 
 @pytest.mark.parametrize("profile", ALL, ids=IDS)

@@ -25,6 +25,7 @@ from companion.core import (
 from companion.pipeline import AvoidancePipeline, PoseAtCapture
 from protocols.camera import CameraModel
 from protocols.frames import rotation_321
+from protocols.mavlink_modes import px4_custom_mode
 from protocols.stereo_frame import StereoFrame
 
 CAMERA = CameraModel()
@@ -53,6 +54,8 @@ def test_pipeline_first_yaw_is_the_vehicles_own_when_no_direction_is_defined():
 # ---- the core, in process: a scripted ArduCopter on the other side of typed events ---
 
 GUIDED, BRAKE, LOITER = 4, 17, 5  # ArduCopter custom modes (DESIGN.md)
+OFFBOARD = px4_custom_mode(6)  # PX4 (px4_custom_mode.h): main mode OFFBOARD
+PX4_HOLD = px4_custom_mode(4, 3)  # main AUTO, sub AUTO_LOITER: PX4's Hold
 SMALL = CameraModel(width_px=160, height_px=120)  # fast matcher; same field of view
 
 
@@ -66,12 +69,15 @@ class Rig:
     (ACK, then the new mode in the heartbeat).
     """
 
-    def __init__(self, config: CompanionConfig | None = None, instance_id: int = 7) -> None:
+    def __init__(
+        self, config: CompanionConfig | None = None, instance_id: int = 7, *, px4: bool = False
+    ) -> None:
         self.core = CompanionCore(config or CompanionConfig(), instance_id)
         self.mav = {}
         self.now_ns = 1_000_000_000
         self.boot_offset_ns = 400_000_000
-        self.custom_mode = GUIDED
+        self.px4 = px4  # a PX4 heartbeat; DO_SET_MODE's param2/param3 are main/sub mode
+        self.custom_mode = OFFBOARD if px4 else GUIDED
         self.pos_ned_m = (0.0, 0.0, -7.0)
         self.yaw_rad = 0.0
         self.camera = SMALL
@@ -102,7 +108,10 @@ class Rig:
 
     def _obey(self, cmd) -> None:
         if cmd.command == mavlink.MAV_CMD_DO_SET_MODE:
-            self.custom_mode = int(cmd.param2)
+            if self.px4:
+                self.custom_mode = px4_custom_mode(int(cmd.param2), int(cmd.param3))
+            else:
+                self.custom_mode = int(cmd.param2)
         ack = mavlink.MAVLink_command_ack_message(cmd.command, mavlink.MAV_RESULT_ACCEPTED)
         self.feed(MavlinkReceived(self.message(ack), self.now_ns))
 
@@ -118,7 +127,7 @@ class Rig:
         self.receive(
             mavlink.MAVLink_heartbeat_message(
                 mavlink.MAV_TYPE_QUADROTOR,
-                mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                mavlink.MAV_AUTOPILOT_PX4 if self.px4 else mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
                 base,
                 self.custom_mode,
                 mavlink.MAV_STATE_ACTIVE,
@@ -176,8 +185,8 @@ class Rig:
         return [m.text for m in self.sent("STATUSTEXT")]
 
 
-def _steering_rig(config: CompanionConfig | None = None) -> Rig:
-    rig = Rig(config)
+def _steering_rig(config: CompanionConfig | None = None, *, px4: bool = False) -> Rig:
+    rig = Rig(config, px4=px4)
     rig.run(3.0)  # listen 2.5 s before steering
     assert rig.events("steering"), rig.outputs[-5:]
     return rig
@@ -209,7 +218,7 @@ def test_core_failsafe_holds_on_stale_frames_and_resumes():
     rig.run(1.5, frames=False)  # > frame_timeout_s (1 s)
     holds = rig.events("hold")
     assert [(h["reason"], h["command"]) for h in holds] == [("stale_frames", "hold position")]
-    assert rig.custom_mode == GUIDED and rig.core.counters["mode_requests"] == 0
+    assert rig.custom_mode == GUIDED and rig.core.counters.mode_requests == 0
     rig.run(1.0, frames=False)  # 2.5 s without frames > frame_loss_s (2 s)
     holds = rig.events("hold")
     assert [(h["reason"], h["command"]) for h in holds] == [
@@ -217,15 +226,39 @@ def test_core_failsafe_holds_on_stale_frames_and_resumes():
         ("frames_lost", "BRAKE"),
     ]
     assert rig.custom_mode == BRAKE
-    assert rig.core.counters["hold_commands"] == 1  # one hold, escalated
+    assert rig.core.counters.hold_commands == 1  # one hold, escalated
     n_setpoints = len(rig.setpoints())
     rig.run(0.5)
     assert not rig.events("resume")  # healthy for less than resume_after_s (1 s)
     rig.run(1.0)
     assert len(rig.events("resume")) == 1
     assert rig.custom_mode == GUIDED
-    assert rig.core.counters["mode_requests"] == 2  # BRAKE, then GUIDED
+    assert rig.core.counters.mode_requests == 2  # BRAKE, then GUIDED
     assert len(rig.setpoints()) > n_setpoints
+
+
+def test_core_px4_failsafe_requests_hold_streams_through_it_and_resumes_offboard():
+    """Issue 32 on PX4: late frames → a hold position in OFFBOARD; lost frames → PX4's
+    Hold (AUTO_LOITER, DO_SET_MODE param2 = 4, param3 = 3), the hold setpoint streaming on
+    at > 2 Hz so that OFFBOARD can be re-entered; healthy for resume_after_s → OFFBOARD."""
+    rig = _steering_rig(px4=True)
+    rig.run(1.5, frames=False)  # > frame_timeout_s (1 s)
+    assert rig.custom_mode == OFFBOARD and rig.core.counters.mode_requests == 0
+    rig.run(1.0, frames=False)  # > frame_loss_s (2 s)
+    holds = [(h["reason"], h["command"]) for h in rig.events("hold")]
+    assert holds == [("stale_frames", "hold position"), ("frames_lost", "AUTO_LOITER")]
+    modes = [m for m in rig.sent("COMMAND_LONG") if m.command == mavlink.MAV_CMD_DO_SET_MODE]
+    assert [(m.param2, m.param3) for m in modes] == [(4.0, 3.0)]
+    assert rig.custom_mode == PX4_HOLD and rig.core.counters.mode_holds == 1
+    n_setpoints = len(rig.setpoints())
+    rig.run(1.0, frames=False)  # in the Hold: the stream goes on (20 Hz)
+    assert len(rig.setpoints()) - n_setpoints >= 15
+    rig.run(0.5)
+    assert not rig.events("resume")  # healthy for less than resume_after_s (1 s)
+    rig.run(1.0)
+    assert len(rig.events("resume")) == 1
+    assert rig.custom_mode == OFFBOARD
+    assert rig.core.counters.mode_requests == 2  # Hold, then OFFBOARD
 
 
 def test_time_in_a_failsafe_hold_is_not_counted_as_guidance_making_no_progress():
@@ -244,7 +277,7 @@ def test_time_in_a_failsafe_hold_is_not_counted_as_guidance_making_no_progress()
     rig.run(5.0)
     assert [h["reason"] for h in rig.events("hold")] == ["stale_frames"]
     assert rig.custom_mode == GUIDED
-    assert rig.core.counters["frames_processed"] > 100  # guidance stepped all along
+    assert rig.core.counters.frames_processed > 100  # guidance stepped all along
     rig.frame_lag_s = 0.0
     rig.run(5.0)  # 1 s to resume, then 3 s steering without moving
     assert rig.events("resume")
@@ -290,7 +323,7 @@ def test_core_refuses_to_steer_while_another_source_sends_setpoints():
     ]
     rig.run(1.0)
     assert len(rig.setpoints()) == before
-    assert rig.core.counters["takeover_refusals"] == 1
+    assert rig.core.counters.takeover_refusals == 1
     rig.run(rig.core.takeover.quiet_s + 1.0)  # quiet again: steering allowed
     assert rig.events("takeover")[-1]["blocked"] is False
     assert len(rig.setpoints()) > before
@@ -349,7 +382,7 @@ def test_core_clock_timesync_maps_and_implausible_frames_are_dropped():
         999, (rig.boot_ms - 10_000) * 1_000_000, SMALL.intrinsics, *_blank_pair(SMALL)
     )
     rig.feed(FrameReceived(stale, rig.now_ns, rig.now_ns))
-    assert rig.core.counters["frames_implausible_time"] == 1
+    assert rig.core.counters.frames_implausible_time == 1
 
 
 def test_core_obstacle_distance_is_on_the_wire_from_start_up_all_unknown_before_frames():

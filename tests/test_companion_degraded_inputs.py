@@ -54,14 +54,14 @@ def test_late_but_present_frames_hold_position_in_guided_with_zero_mode_requests
     """A run of frames late by more than frame_timeout_s, for longer than frame_loss_s:
     position targets at the braking point, in GUIDED, not one DO_SET_MODE."""
     rig = _steering_rig()
-    assert rig.core.counters["mode_requests"] == 0  # the rig starts in GUIDED
+    assert rig.core.counters.mode_requests == 0  # the rig starts in GUIDED
     start = len(rig.outputs)
     rig.frame_lag_s = 1.2  # > frame_timeout_s (1.0), frames keep coming
     rig.run(6.0)  # > 2 × frame_loss_s
     holds = rig.events("hold")
     assert [(h["reason"], h["command"]) for h in holds] == [("stale_frames", "hold position")]
-    assert rig.core.counters["mode_requests"] == 0
-    assert rig.core.counters["mode_holds"] == 0
+    assert rig.core.counters.mode_requests == 0
+    assert rig.core.counters.mode_holds == 0
     assert not [m for m in rig.sent("COMMAND_LONG") if m.command == 176]  # no DO_SET_MODE
     assert rig.custom_mode == 4  # GUIDED all along
     targets = _hold_setpoints_after(rig, start)
@@ -78,18 +78,18 @@ def test_late_but_present_frames_hold_position_in_guided_with_zero_mode_requests
     assert not rig.events("resume")
     rig.run(0.5)
     assert len(rig.events("resume")) == 1
-    assert rig.core.counters["mode_requests"] == 0
+    assert rig.core.counters.mode_requests == 0
 
 
 def test_no_frames_for_the_last_resort_time_is_exactly_one_brake_then_a_settled_release():
     rig = _steering_rig()
     fs = rig.core.config.failsafe
     rig.run(fs.frame_loss_s - 0.2, frames=False)
-    assert rig.core.counters["mode_requests"] == 0  # late, not lost yet
+    assert rig.core.counters.mode_requests == 0  # late, not lost yet
     rig.run(0.5, frames=False)
-    assert rig.core.counters["mode_requests"] == 1 and rig.custom_mode == 17  # BRAKE
+    assert rig.core.counters.mode_requests == 1 and rig.custom_mode == 17  # BRAKE
     rig.run(3.0, frames=False)  # no more requests while lost
-    assert rig.core.counters["mode_requests"] == 1
+    assert rig.core.counters.mode_requests == 1
     requests = [m for m in rig.sent("COMMAND_LONG") if m.command == 176]
     assert [int(m.param2) for m in requests] == [17]
     # frames back: GUIDED only after the settle time, then nothing more
@@ -98,7 +98,7 @@ def test_no_frames_for_the_last_resort_time_is_exactly_one_brake_then_a_settled_
     rig.run(0.3)
     assert rig.custom_mode == 4 and len(rig.events("resume")) == 1
     rig.run(3.0)
-    assert rig.core.counters["mode_requests"] == 2
+    assert rig.core.counters.mode_requests == 2
 
 
 def test_frames_late_by_turns_do_not_flap_modes():
@@ -110,11 +110,11 @@ def test_frames_late_by_turns_do_not_flap_modes():
         rig.run(1.4)
         rig.frame_lag_s = 0.0
         rig.run(0.3)
-    assert rig.core.counters["mode_requests"] == 0
+    assert rig.core.counters.mode_requests == 0
     assert rig.custom_mode == 4
     # at most one hold per late burst (released after the settle time), never a hold and
     # release at the frame rate
-    assert 1 <= rig.core.counters["hold_commands"] <= 25
+    assert 1 <= rig.core.counters.hold_commands <= 25
 
 
 def test_hold_target_is_never_inside_a_boundary_and_is_told_once():
@@ -177,16 +177,16 @@ def test_core_hold_target_moves_out_of_a_boundary_once():
     # what the map would give after a drift: the vehicle 0.4 m inside a boundary (blank
     # frames see nothing, so the boundary is put where a frame step would put it)
     core._boundaries = (Ball(),)
-    core._out = []
+    core.out.begin(core._now_s)
     core._recheck_hold_target(np.array(rig.pos_ned_m))
     moved = core._hold_target.pos_ned_m
     assert moved[0] < 0.6 - 1.0  # out of the ball, to the south
-    sent = [o for o in core._out if type(o).__name__ == "SendSetpoint"]
+    sent = [o for o in core.out.items if type(o).__name__ == "SendSetpoint"]
     assert [o.target.pos_ned_m for o in sent] == [moved]
-    told = [o for o in core._out if getattr(o, "name", None) == "hold_target_moved"]
+    told = [o for o in core.out.items if getattr(o, "name", None) == "hold_target_moved"]
     assert len(told) == 1 and told[0].fields["placement"] == "escape"
-    core._out = []
+    core.out.begin(core._now_s)
     core._recheck_hold_target(np.array(rig.pos_ned_m))  # target outside now: nothing
     rig.run(1.0)
-    assert core.counters["hold_targets_moved"] == 1
+    assert core.counters.hold_targets_moved == 1
     assert not rig.events("hold_target_moved")  # said once, not every frame

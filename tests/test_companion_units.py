@@ -320,8 +320,11 @@ def test_flavour_detection_and_mode_encoding():
     assert control_mode(Flavour.PX4).custom_mode == 6 << 16 == px4_custom_mode(6)
     assert control_mode(Flavour.PX4).base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
     assert hold_mode(Flavour.ARDUPILOT).custom_mode == 17
-    assert hold_mode(Flavour.PX4) is None  # PX4: hold-position setpoint in OFFBOARD
-    assert mode_name(Flavour.PX4, px4_custom_mode(4, 3)) == "AUTO"
+    # PX4's Hold: AUTO_LOITER (px4_custom_mode.h: main AUTO 4, sub AUTO_LOITER 3)
+    assert hold_mode(Flavour.PX4).custom_mode == 4 << 16 | 3 << 24 == px4_custom_mode(4, 3)
+    assert mode_name(Flavour.PX4, px4_custom_mode(4, 3)) == "AUTO_LOITER"
+    assert mode_name(Flavour.PX4, px4_custom_mode(4)) == "AUTO"
+    assert mode_name(Flavour.PX4, px4_custom_mode(3)) == "POSCTL"
     assert mode_name(Flavour.ARDUPILOT, 5) == "LOITER"
 
 
@@ -385,8 +388,19 @@ def test_mode_watch_px4_streams_before_requesting_offboard():
     assert req.custom_mode == 6 << 16
     w.on_heartbeat(2.0, Flavour.PX4, px4_custom_mode(6))
     assert w.phase is ControlPhase.ACTIVE
-    assert w.set_hold(3.0, True) is None and w.streaming_hold  # hold setpoints, no mode
-    assert w.set_hold(4.0, False) is None and w.phase is ControlPhase.ACTIVE
+    hold = px4_custom_mode(4, 3)  # AUTO_LOITER, PX4's Hold
+    req = w.set_hold(3.0, True)
+    assert req.custom_mode == hold and req.command_params[1:] == (4.0, 3.0)
+    assert w.streaming_hold and not w.steering  # the hold setpoint streams through the Hold
+    w.on_heartbeat(3.2, Flavour.PX4, px4_custom_mode(6))  # stale
+    w.on_heartbeat(4.0, Flavour.PX4, hold)
+    assert w.phase is ControlPhase.HOLD and w.mode_text() == "AUTO_LOITER"
+    req = w.set_hold(5.0, False)  # the stream never stopped: OFFBOARD at once
+    assert req.custom_mode == 6 << 16 and w.phase is ControlPhase.REQUESTED and w.steering
+    w.on_heartbeat(5.5, Flavour.PX4, hold)  # stale
+    assert w.phase is ControlPhase.REQUESTED
+    w.on_heartbeat(6.0, Flavour.PX4, px4_custom_mode(6))
+    assert w.phase is ControlPhase.ACTIVE
 
 
 # ---- signing order ------------------------------------------------------------------

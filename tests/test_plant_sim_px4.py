@@ -82,6 +82,34 @@ def test_offboard_loss_after_com_of_loss_t_holds_and_says_so():
     assert px4.offboard_losses == 1
 
 
+def test_a_companions_hold_request_stops_the_vehicle_and_offboard_resumes_at_once():
+    """The companion's last resort on PX4 (issue 32): DO_SET_MODE AUTO_LOITER from
+    OFFBOARD (main 4, sub 3, as ``hold_mode(PX4)`` sends them). The vehicle brakes and
+    holds where it stopped; the setpoints that keep streaming are not flown in Hold and
+    count for the stream, so OFFBOARD is accepted again at once."""
+    from companion.link.flavour import hold_mode
+
+    request = hold_mode(Flavour.PX4)
+    assert tuple(int(x) for x in request.command_params[1:]) == (4, 3)
+    px4 = _hovering()
+    for k in range(20):
+        px4.setpoint(TARGET, _kin(0.05 * k))
+    assert px4.set_mode(OFFBOARD, _kin(0.95))[0]
+    moving = Kinematics(1.0, (2.0, 0.0, -7.0), (1.5, 0.0, 0.0), 0.0, False)
+    px4.setpoint(TARGET, moving)
+    ok, text, _ = px4.set_mode(px4_custom_mode(*request.command_params[1:]), moving)
+    assert ok and text is None and px4.custom_mode == HOLD and px4.name == "AUTO_LOITER"
+    assert px4.machine.mode is FlightMode.LOITER
+    away = GuidedTarget(pos_ned_m=(-30.0, 0.0, -7.0))
+    for k in range(1, 21):  # the companion's hold stream goes on at 20 Hz
+        kin = Kinematics(1.0 + 0.05 * k, (2.0, 0.0, -7.0), (0.0, 0.0, 0.0), 0.0, False)
+        px4.setpoint(away, kin)
+        assert px4.update(kin, []) == []  # no offboard loss: not in OFFBOARD
+    assert px4.machine.reported_target.pos_ned_m[0] > 1.9  # holds ahead, not at -30 m
+    ok, _, _ = px4.set_mode(OFFBOARD, _kin(2.0))
+    assert ok and px4.custom_mode == OFFBOARD  # the stream never stopped
+
+
 def test_takeoff_is_amsl_or_mis_takeoff_alt_and_holds_at_the_top():
     machine = FlightModeMachine(
         ModeTimings(),

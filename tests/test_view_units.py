@@ -337,7 +337,7 @@ class _Flight:
             if tick % 3 == 0:
                 self.step(FrameReceived(self._frame(), self.now_ns, self.now_ns))
             self.step(Tick(self.now_ns))
-        self.frames_processed = self.core.counters["frames_processed"]
+        self.frames_processed = self.core.counters.frames_processed
 
     def _frame(self) -> StereoFrame:
         capture_ns = self.boot_ms * 1_000_000

@@ -1,8 +1,9 @@
 """The companion's pure core: typed inputs in, typed outputs out (no sockets, no clock).
 
 :class:`CompanionCore` (the whole companion: link state machine, failsafe, takeover,
-takeoff, mission) and :class:`Mission` (waypoints around the avoidance pipeline, which the
-lockstep harness runs too); their inputs and outputs are in :mod:`companion.core.events`.
+takeoff, mission; one module per job behind it) and :class:`Mission` (waypoints around
+the avoidance pipeline, which the lockstep harness runs too); their inputs and outputs are
+in :mod:`companion.core.events`.
 """
 
 from companion.core.companion_core import STREAMS, CompanionCore

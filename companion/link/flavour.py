@@ -8,10 +8,13 @@ the flavour; they read the profile.
 
 ArduPilot (``MAV_AUTOPILOT_ARDUPILOTMEGA``): ArduCopter custom modes, GUIDED = 4 to
 steer, BRAKE = 17 to hold. PX4 (``MAV_AUTOPILOT_PX4``): ``custom_mode`` packs the main
-mode in bits 16–23 and the sub mode in bits 24–31; OFFBOARD is main mode 6 (``6 << 16``) and a
-hold is a hold-position setpoint streamed in OFFBOARD (PX4 leaves OFFBOARD if the stream
-stops for more than its COM_OF_LOSS_T). Anything else is treated like ArduPilot (the most
-common MAVLink "GUIDED" semantics) and reported as GENERIC.
+mode in bits 16–23 and the sub mode in bits 24–31 (PX4 ``src/modules/commander/
+px4_custom_mode.h``: ``PX4_CUSTOM_MAIN_MODE_AUTO`` = 4, ``PX4_CUSTOM_SUB_MODE_AUTO_LOITER``
+= 3); OFFBOARD is main mode 6 (``6 << 16``) and the failsafe hold is Hold, AUTO_LOITER
+(``4 << 16 | 3 << 24``). Setpoints keep streaming through a Hold, so that OFFBOARD can be
+re-entered at once when it ends (PX4 enters OFFBOARD only with a live stream). Anything
+else is treated like ArduPilot (the most common MAVLink "GUIDED" semantics) and reported
+as GENERIC.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from protocols.mavlink_modes import ArduCopterMode, Px4Main, px4_custom_mode, px4_split
+from protocols.mavlink_modes import ArduCopterMode, Px4Main, Px4Sub, px4_custom_mode, px4_split
 
 __all__ = [
     "ARDUCOPTER_BRAKE",
@@ -109,13 +112,14 @@ class AutopilotProfile:
     control_mode : ModeRequest
         The mode in which the companion steers (GUIDED, OFFBOARD).
     hold_mode : ModeRequest or None
-        What a failsafe hold asks for (BRAKE); None: stay in the control mode and stream
-        a hold-position setpoint.
+        What a failsafe hold for lost inputs asks for (BRAKE, PX4's Hold); None: stay in
+        the control mode and send a hold-position setpoint.
     streams_setpoints : bool
         Setpoints must flow continuously (> 2 Hz; PX4 leaves OFFBOARD when they stop):
         every frame's target is sent, they stream for a while *before* the control mode
-        is requested (pre-stream), and a hold is a streamed setpoint. Otherwise targets
-        persist in the autopilot: sent when they change, re-sent as a keep-alive.
+        is requested (pre-stream), and a hold-position setpoint streams through a hold.
+        Otherwise targets persist in the autopilot: sent when they change, re-sent as a
+        keep-alive.
     takeoff_mode : ModeRequest or None
         Mode to select before arming for ``--takeoff-alt`` (GUIDED); None: take off from
         the current mode (PX4 runs NAV_TAKEOFF in its own takeoff mode).
@@ -140,11 +144,16 @@ class AutopilotProfile:
 
     def mode_name(self, custom_mode: int) -> str:
         """Human name of a HEARTBEAT custom mode."""
-        table = Px4Main if self.packed_modes else ArduCopterMode
-        number = px4_split(custom_mode)[0] if self.packed_modes else custom_mode
-        if number in table.__members__.values():
-            return table(number).name
-        return f"PX4_MODE_{custom_mode:#x}" if self.packed_modes else f"MODE_{custom_mode}"
+        if self.packed_modes:
+            main, sub = px4_split(custom_mode)
+            if main not in Px4Main.__members__.values():
+                return f"PX4_MODE_{custom_mode:#x}"
+            if main == Px4Main.AUTO and sub in Px4Sub.__members__.values() and sub:
+                return f"AUTO_{Px4Sub(sub).name}"  # AUTO_LOITER is PX4's Hold
+            return Px4Main(main).name
+        if custom_mode in ArduCopterMode.__members__.values():
+            return ArduCopterMode(custom_mode).name
+        return f"MODE_{custom_mode}"
 
     def same_mode(self, custom_mode: int, wanted: ModeRequest) -> bool:
         """Whether a HEARTBEAT custom_mode is ``wanted`` (packed: main and sub mode)."""
@@ -173,7 +182,9 @@ PROFILES: dict[Flavour, AutopilotProfile] = {
         control_mode=ModeRequest(
             _CUSTOM, px4_custom_mode(PX4_MAIN_MODE_OFFBOARD), "OFFBOARD", px4=True
         ),
-        hold_mode=None,
+        hold_mode=ModeRequest(
+            _CUSTOM, px4_custom_mode(Px4Main.AUTO, Px4Sub.LOITER), "AUTO_LOITER", px4=True
+        ),
         streams_setpoints=True,
         takeoff_mode=None,
         takeoff_alt_amsl=True,
@@ -203,7 +214,8 @@ def control_mode(flavour: Flavour) -> ModeRequest:
 
 
 def hold_mode(flavour: Flavour) -> ModeRequest | None:
-    """The mode a failsafe asks for: BRAKE (ArduPilot); None = stream a hold setpoint."""
+    """The mode a failsafe for lost inputs asks for: BRAKE (ArduPilot), AUTO_LOITER (PX4's
+    Hold); None: a hold-position setpoint in the control mode."""
     return PROFILES[flavour].hold_mode
 
 

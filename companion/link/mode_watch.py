@@ -7,8 +7,10 @@ mode against what the companion asked for:
 * It engages the control mode (GUIDED on ArduPilot, OFFBOARD on PX4 after streaming
   setpoints for ``prestream_s``) when ``request_mode`` is set, or waits for the pilot to
   select it.
-* A failsafe hold on ArduPilot asks for BRAKE; on PX4 it stays in OFFBOARD and streams a
-  hold-position setpoint. Resuming asks for the control mode again.
+* A failsafe hold for lost inputs asks for the profile's hold mode (BRAKE on ArduPilot,
+  Hold = AUTO_LOITER on PX4); on PX4 the hold-position setpoint keeps streaming through
+  it, so that resuming can ask for OFFBOARD at once (PX4 refuses OFFBOARD without a live
+  stream). Resuming asks for the control mode again.
 * If the vehicle leaves the mode the companion expects and the companion did not ask for it
   (a pilot or ground station switched to LOITER, RTL ...), the phase becomes RELEASED at
   once: no more setpoints or mode requests until someone selects the control mode again.
@@ -93,7 +95,8 @@ class ModeWatch:
 
     @property
     def streaming_hold(self) -> bool:
-        """PX4 failsafe: stream a hold-position setpoint (OFFBOARD needs the stream)."""
+        """PX4 failsafe: keep streaming a hold-position setpoint through the Hold (OFFBOARD
+        can only be re-entered with a live stream)."""
         return self._streams() and self.phase is ControlPhase.HOLD
 
     def _streams(self) -> bool:
@@ -155,7 +158,7 @@ class ModeWatch:
             if not in_ctrl and not tolerated:
                 self._release(now_s, notices)
         elif phase is ControlPhase.HOLD:
-            # BRAKE, or still the control mode (stale heartbeat / BRAKE not executed yet)
+            # BRAKE / Hold, or still the control mode (stale heartbeat / not executed yet)
             ok = in_hold or in_ctrl
             if not ok and not tolerated:
                 self._release(now_s, notices)
@@ -219,7 +222,7 @@ class ModeWatch:
         if not hold and self.phase is ControlPhase.HOLD:
             self._hold_wanted = False
             wanted = hold_mode(self.flavour)
-            if wanted is None:  # PX4: still in OFFBOARD
+            if wanted is None:  # no hold mode: still in the control mode
                 self._enter(ControlPhase.ACTIVE, now_s)
                 return None
             self._tolerated = self.mode

@@ -1,0 +1,151 @@
+"""Setpoints and speed: what target goes out when, and the speed limit the autopilot is told.
+
+A mixin of :class:`~companion.core.CompanionCore`. Targets follow the profile's setpoint
+policy (:mod:`companion.link.setpoints`: persisting targets re-sent as a keep-alive, or a
+stream); the envelope's speed limit goes out as DO_CHANGE_SPEED below the autopilot's own
+WPNAV_SPEED (:mod:`companion.link.speed_limit`), and telemetry above it is reported.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.core.events import (
+    SendSetpoint,
+)
+from companion.core.outbox import SEV_WARNING
+from companion.failsafe import Response
+from companion.link.flavour import (
+    profile_for,
+)
+from companion.link.setpoints import PositionTarget, position_target_message
+from companion.link.speed_limit import change_speed_command
+
+_log = logging.getLogger("companion")
+
+_WPNAV_SPEED = "WPNAV_SPEED"  # ArduCopter's horizontal speed limit parameter [cm/s]
+
+__all__ = ["SetpointJob"]
+
+
+class SetpointJob:
+    """Setpoints on the wire and the speed limit stated to the autopilot.
+
+    Owns ``policy``, ``speed_policy``, ``_engaged``, ``_overspeed_notice_s``,
+    ``_wpnav_speed_mps``, ``_next_param_request_s``, ``_param_requests``.
+    """
+
+    def _send_target(self, target: PositionTarget, now_s: float, frame_ns: int | None) -> None:
+        cfg = self.config.link
+        ap_ns = None
+        if frame_ns is not None:
+            ap_ns = self.clock.frame_to_autopilot_ns(frame_ns)
+        if ap_ns is None:
+            ap_ns = (self._last_boot_ms or 0) * 1_000_000
+        msg = position_target_message(
+            target, ap_ns // 1_000_000, cfg.target_system, cfg.target_component
+        )
+        self.out.append(SendSetpoint(msg, target))
+        self.counters.mavlink_sent += 1
+        assert self.policy is not None
+        self.policy.sent(target, now_s)
+        self.counters.setpoints_sent += 1
+        if not self._engaged:
+            self._engaged = True
+            self.out.event(
+                "steering",
+                setpoint_ned_m=list(target.pos_ned_m),
+                autopilot_time_s=None if self._last_boot_ms is None else self._last_boot_ms / 1e3,
+            )
+
+    def _setpoint_timer(self, now_s: float) -> None:
+        """Keep-alive or stream: re-send when the policy says so."""
+        policy = self.policy
+        if policy is not None and (
+            policy.due(now_s) or (policy.last is None and self._must_stream())
+        ):
+            self._resend_now(now_s)
+
+    def _resend_now(self, now_s: float) -> None:
+        """Keep-alive / PX4 stream / hold: (re)send the appropriate target."""
+        if self.policy is None or not self._may_steer(now_s):
+            return
+        if self.modes.streaming_hold or (self.modes.steering and self._hold is not Response.STEER):
+            target = self._hold_target or self._current_hold()
+        elif self.modes.steering and not self.failsafe.status.health.ok and self._must_stream():
+            target = self._current_hold()
+        elif self.modes.steering and (self.failsafe.status.health.ok or self.policy.last is None):
+            target = self.policy.last
+            if target is None and self._must_stream():
+                target = self._current_hold()
+        else:
+            return
+        if target is not None:
+            self._send_target(target, now_s, None)
+
+    def _state_speed_limit(self, limit_mps: float, now_s: float) -> None:
+        """ArduPilot: the envelope's speed limit as MAV_CMD_DO_CHANGE_SPEED (see
+        :mod:`companion.link.speed_limit`); other autopilots: the carrot alone."""
+        flavour = self.modes.flavour
+        if flavour is None or not profile_for(flavour).states_speed_limit:
+            return
+        if self._wpnav_speed_mps is None:
+            # DO_CHANGE_SPEED overrides WPNAV_SPEED (no clip): never state a speed before we
+            # know the pilot's own limit, so that ours can only lower it (the carrot bounds
+            # the speed meanwhile)
+            if now_s >= self._next_param_request_s and self._param_requests < 5:
+                self._param_requests += 1
+                if self._param_requests == 5:
+                    _log.warning(
+                        "autopilot does not report %s: no speed limit stated, the carrot "
+                        "alone bounds the speed",
+                        _WPNAV_SPEED,
+                    )
+                self._next_param_request_s = now_s + 2.0
+                cfg = self.config.link
+                self.out.send(
+                    mavlink.MAVLink_param_request_read_message(
+                        cfg.target_system, cfg.target_component, _WPNAV_SPEED.encode(), -1
+                    )
+                )
+            return
+        speed = self.speed_policy.due(min(limit_mps, self._wpnav_speed_mps), now_s)
+        if speed is None:
+            return
+        cfg = self.config.link
+        self.out.send(change_speed_command(speed, cfg.target_system, cfg.target_component))
+        self.speed_policy.sent(speed, now_s)
+        self.counters.speed_limits_sent += 1
+
+    def _check_overspeed(self, out) -> None:
+        """Warn (log + STATUSTEXT, at most every 5 s) when telemetry exceeds the limit."""
+        env = out.envelope
+        if not env.overspeed:
+            return
+        self.counters.overspeed_frames += 1
+        now_s = self._now_s
+        if now_s - self._overspeed_notice_s >= 5.0:
+            self._overspeed_notice_s = now_s
+            self.out.notice(
+                f"Speed {env.speed_mps:.1f} m/s above limit {env.speed_limit_mps:.1f} m/s",
+                SEV_WARNING,
+            )
+
+    def _on_param_value(self, msg) -> None:
+        """WPNAV_SPEED [cm/s]: the ceiling of every speed limit we state (ArduPilot)."""
+        name = (
+            msg.param_id
+            if isinstance(msg.param_id, str)
+            else msg.param_id.decode("ascii", "replace")
+        )
+        value = float(msg.param_value)
+        if name.split("\x00", 1)[0] != _WPNAV_SPEED or not (math.isfinite(value) and value > 0):
+            return
+        if self._wpnav_speed_mps is None:
+            _log.info(
+                "autopilot WPNAV_SPEED %.2f m/s: stated speed limits stay below it", value / 100.0
+            )
+        self._wpnav_speed_mps = value / 100.0

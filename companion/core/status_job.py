@@ -1,0 +1,140 @@
+"""Status: the state in the heartbeat, the pipeline figures, the progress line and stats.
+
+A mixin of :class:`~companion.core.CompanionCore`; reads the other jobs' state, owns none.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from companion.failsafe import Response
+from companion.link.flavour import (
+    mode_name,
+)
+from companion.link.messages import (
+    CompanionState,
+)
+from companion.link.mode_watch import ControlPhase
+from companion.status import status_document
+
+_log = logging.getLogger("companion")
+
+__all__ = ["StatusJob"]
+
+
+class StatusJob:
+    """The companion's state, figures, progress line and exit statistics."""
+
+    def _state(self) -> CompanionState:
+        if not self._link_up:
+            return CompanionState.LINK_LOST if self.counters.link_losses else CompanionState.BOOT
+        if not self._may_steer(self._now_s):
+            return CompanionState.STANDBY
+        if self.modes.phase is ControlPhase.HOLD or self._hold is not Response.STEER:
+            return CompanionState.HOLD
+        if self.modes.steering and self.failsafe.status.health.ok:
+            return CompanionState.ACTIVE
+        if self._newest_frame_ns is None:
+            return CompanionState.BOOT
+        return CompanionState.STANDBY
+
+    def stats(self) -> dict[str, Any]:
+        """Counters and state for the exit statistics."""
+        return {
+            **self.counters.as_dict(),
+            "phase": self.modes.phase.value,
+            "flavour": None if self.policy is None else self.policy.flavour.value,
+            "clock_rate": round(self.clock.autopilot.rate, 3),
+            "waypoint": self.mission.waypoint,
+            "takeoff": None if self.takeoff is None else self.takeoff.step.value,
+            "obstacle_distance_sent": None if self.proximity is None else self.proximity.sent,
+        }
+
+    def progress_text(self) -> str:
+        """One line for the periodic progress log (time, position, phase, mode, health)."""
+        newest = self.poses.newest_ns
+        pos = "-"
+        if newest is not None:
+            lookup = self.poses.at(newest)
+            if lookup.pose is not None:
+                p = lookup.pose.pos_ned_m
+                pos = f"({p[0]:.1f}, {p[1]:.1f}, {p[2]:.1f})"
+        mode = self.modes.mode_text()
+        if self.takeoff is not None and self.takeoff.busy and self.takeoff.custom_mode is not None:
+            mode = mode_name(self.takeoff.flavour, self.takeoff.custom_mode)
+        phase = (
+            f"takeoff:{self.takeoff.step.value}"
+            if self.takeoff is not None and self.takeoff.busy
+            else self.modes.phase.value
+        )
+        return (
+            f"t={'-' if newest is None else f'{newest * 1e-9:.1f}s'} pos={pos} phase={phase} "
+            f"mode={mode} health={self.failsafe.status.health.value} "
+            f"frames {self.counters.frames_processed} setpoints "
+            f"{self.counters.setpoints_sent}; {self._pipeline_text()}"
+        )
+
+    def _pipeline_text(self) -> str:
+        """Rate, data age p50/p99, latency budget, speed limit and mode requests."""
+        f = self._pipeline_figures()
+
+        def num(value, fmt: str) -> str:
+            return "-" if value is None else format(value, fmt)
+
+        return (
+            f"processing {num(f['rate_hz'], '.1f')} Hz, data age p50 "
+            f"{num(f['data_age_p50_ms'], '.0f')} p99 {num(f['data_age_p99_ms'], '.0f')} ms, "
+            f"latency budget {f['latency_budget_s']:.2f} s, speed limit "
+            f"{num(f['speed_limit_mps'], '.1f')} m/s, mode requests "
+            f"{self.counters.mode_requests}{self._proximity_text()}"
+        )
+
+    def _proximity_text(self) -> str:
+        if self.proximity is None:
+            return ", OBSTACLE_DISTANCE off"
+        p = self.proximity.figures(self._now_s)
+        return (
+            f", OBSTACLE_DISTANCE {p['sent']} at {p['rate_hz']:.1f} Hz (sectors: "
+            f"{p['obstacle_sectors']} obstacle, {p['clear_sectors']} clear, "
+            f"{p['unknown_sectors']} unknown)"
+        )
+
+    def _frame_status(self, result, pose_status, pose, sent: bool) -> dict[str, Any]:
+        """The status document of a processed frame (:func:`companion.status.status_document`)."""
+        out = result.output
+        return status_document(
+            out,
+            state=self._state().value,
+            phase=self.modes.phase.value,
+            autopilot_mode=self.modes.mode_text(),
+            health=self.failsafe.status.health.value,
+            pose=pose_status.value,
+            pos_ned_m=[round(float(x), 4) for x in pose.pos_ned_m],
+            waypoint=result.waypoint,
+            setpoint_sent=sent,
+            pipeline=self._pipeline_figures(out.envelope.latency_s),
+            mode_requests=self.counters.mode_requests,
+            proximity=None if self.proximity is None else self.proximity.figures(self._now_s),
+        )
+
+    def _pipeline_figures(self, latency_s: float | None = None) -> dict[str, Any]:
+        """Processing rate, data age p50/p99, latency budget and speed limit (status)."""
+        stats = self.data_age.stats()
+
+        def ms(value: float | None) -> float | None:
+            return None if value is None else round(value * 1e3, 1)
+
+        return {
+            "rate_hz": None if stats.rate_hz is None else round(stats.rate_hz, 2),
+            "data_age_p50_ms": ms(stats.p50_s),
+            "data_age_p99_ms": ms(stats.p99_s),
+            "latency_budget_s": round(
+                self.data_age.budget_s() if latency_s is None else latency_s, 4
+            ),
+            "speed_limit_mps": None
+            if self._speed_limit_mps is None
+            else round(self._speed_limit_mps, 3),
+            "ages_rejected": self.data_age.rejected,
+            "ages_clamped": self.data_age.clamped,
+        }

@@ -1,0 +1,153 @@
+"""Streams and TIMESYNC: telemetry into the pose history, on one clock with the frames.
+
+A mixin of :class:`~companion.core.CompanionCore`. LOCAL_POSITION_NED and ATTITUDE go
+into the pose history at their ``time_boot_ms`` mapped onto the frame clock
+(:mod:`companion.clock_model`); a ``time_boot_ms`` that jumps back is a reboot once
+confirmed, an implausible one is dropped and counted. TIMESYNC both ways, and the
+telemetry streams requested with SET_MESSAGE_INTERVAL until each is acknowledged.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.clock_model import (
+    BootTime,
+    SyncResult,
+    SyncSample,
+)
+from companion.link.messages import (
+    set_message_interval,
+    timesync_reply,
+    timesync_request,
+)
+
+_log = logging.getLogger("companion")
+
+#: telemetry streams the core requests with SET_MESSAGE_INTERVAL
+STREAMS = (
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE,
+)
+REBOOT_BACKSTEP_MS = 500  # time_boot_ms going back this far: the autopilot restarted
+_MAX_TIMESYNC_PENDING = 32  # our outstanding TIMESYNC requests (replies must match one)
+MAX_POS_M = 1e5  # |LOCAL_NED| beyond this is not a position of a multirotor
+_MAX_SPEED_MPS = 300.0
+
+
+def in_range(values, bound: float) -> bool:
+    """Every value finite and within ±``bound``."""
+    return all(math.isfinite(v) and abs(v) <= bound for v in values)
+
+
+__all__ = ["MAX_POS_M", "REBOOT_BACKSTEP_MS", "STREAMS", "TelemetryJob", "in_range"]
+
+
+class TelemetryJob:
+    """Poses on the frame clock, the autopilot's boot time, TIMESYNC and stream requests.
+
+    Owns ``clock``, ``poses``, ``boot_time``, ``_timesync_pending``, ``_next_timesync_s``,
+    ``_streams_acked``, ``_next_stream_request_s``, ``_telemetry_newest_ns``,
+    ``_newest_seen_ns``, ``_last_boot_ms``.
+    """
+
+    def _telemetry_seen(self, t_ns: int) -> None:
+        """The newest autopilot telemetry stamp on the frame clock: the clock's "now"."""
+        if self._telemetry_newest_ns is None or t_ns > self._telemetry_newest_ns:
+            self._telemetry_newest_ns = t_ns
+
+    def _observe(self, t_ns: int) -> None:
+        if self._newest_seen_ns is None or t_ns > self._newest_seen_ns:
+            self._newest_seen_ns = t_ns
+
+    def _check_boot_time(self, time_boot_ms: int, now_s: float) -> bool:
+        """Plausible autopilot time (True), an implausible stamp (dropped, False), or a
+        confirmed reboot (state reset, then True: the stamp starts the new time base)."""
+        last = self.boot_time.last_ms
+        verdict = self.boot_time.check(time_boot_ms, now_s, self.clock.autopilot.rate)
+        if verdict is BootTime.DROP:
+            self.counters.telemetry_implausible_time += 1
+            self._log_drop(
+                "telemetry_implausible_time",
+                self.counters.telemetry_implausible_time,
+                "time_boot_ms",
+                (last, time_boot_ms),
+            )
+            return False
+        if verdict is BootTime.REBOOT:
+            self._autopilot_restarted(now_s, f"time_boot_ms {last} → {time_boot_ms}")
+            self.boot_time.check(time_boot_ms, now_s, self.clock.autopilot.rate)
+        self._last_boot_ms = self.boot_time.last_ms
+        return True
+
+    def _on_local_position(self, msg, now_s: float) -> None:
+        pos, vel = (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz)
+        if not in_range(pos, MAX_POS_M) or not in_range(vel, _MAX_SPEED_MPS):
+            self.counters.telemetry_out_of_range += 1
+            self._log_drop(
+                "telemetry_out_of_range",
+                self.counters.telemetry_out_of_range,
+                "LOCAL_POSITION_NED",
+                pos + vel,
+            )
+        elif self._check_boot_time(msg.time_boot_ms, now_s):
+            t = self.clock.frame_ns_from_boot_ms(msg.time_boot_ms)
+            if t is None:
+                self.counters.telemetry_unmapped += 1
+            elif self.poses.add_position(t, pos, vel):
+                self._observe(t)
+                self._telemetry_seen(t)
+
+    def _on_attitude(self, msg, now_s: float) -> None:
+        angles = (msg.roll, msg.pitch, msg.yaw)
+        if not in_range(angles, 2.0 * math.pi):
+            self.counters.telemetry_out_of_range += 1
+            self._log_drop(
+                "telemetry_out_of_range", self.counters.telemetry_out_of_range, "ATTITUDE", angles
+            )
+        elif self._check_boot_time(msg.time_boot_ms, now_s):
+            t = self.clock.frame_ns_from_boot_ms(msg.time_boot_ms)
+            if t is None:
+                self.counters.telemetry_unmapped += 1
+            elif self.poses.add_attitude(t, *angles):
+                self._observe(t)
+                self._telemetry_seen(t)
+
+    def _log_drop(self, kind: str, count: int, what: str, values) -> None:
+        """One warning per ``kind`` every 2 s for an input dropped ``count`` times."""
+        self.out.drop_log(kind, "%s: dropped %s %s (%d so far)", kind, what, values, count)
+
+    def _telemetry_timers(self, now_s: float) -> None:
+        """TIMESYNC requests and the stream requests, when due (the link is up)."""
+        cfg = self.config.link
+        if now_s >= self._next_timesync_s:
+            stamp = self._now_ns
+            self._timesync_pending.append(stamp)
+            del self._timesync_pending[:-_MAX_TIMESYNC_PENDING]
+            self.out.send(timesync_request(stamp))
+            self._next_timesync_s = now_s + cfg.timesync_period_s
+        if now_s >= self._next_stream_request_s and self._streams_acked < len(STREAMS):
+            self._streams_acked = 0
+            for msg_id in STREAMS:
+                self.out.send(
+                    set_message_interval(
+                        cfg.target_system, cfg.target_component, msg_id, cfg.telemetry_rate_hz
+                    )
+                )
+            self._next_stream_request_s = now_s + 1.0
+
+    def _on_timesync(self, msg, now_s: float) -> None:
+        now_ns = self._now_ns
+        if msg.tc1 == 0:  # the autopilot asks for our time
+            self.out.send(timesync_reply(now_ns, msg.ts1))
+            return
+        if msg.ts1 not in self._timesync_pending:
+            self.counters.timesync_unmatched += 1  # not an answer to a request of ours
+            return
+        self._timesync_pending.remove(msg.ts1)
+        result = self.clock.autopilot.add_sample(SyncSample(msg.ts1, msg.tc1, now_ns))
+        if result is SyncResult.REBOOT:
+            self._autopilot_restarted(now_s, "TIMESYNC went backwards")
