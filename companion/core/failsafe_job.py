@@ -13,7 +13,7 @@ import logging
 from companion.config import CompanionConfig
 from companion.core.outbox import SEV_WARNING
 from companion.failsafe import FailsafeMonitor, Health, Response
-from companion.guidance.hold import hold_point, inside_any
+from companion.guidance.hold import HoldPlacement, hold_point, inside_any
 from companion.link.setpoints import PositionTarget
 
 _log = logging.getLogger("companion")
@@ -117,7 +117,11 @@ class FailsafeJob:
         if point.moved and not self._hold_moved_told:
             self._hold_moved_told = True
             self.counters.hold_targets_moved += 1
-            self.out.notice(f"Hold target kept out of a boundary ({point.placement.value})")
+            self.out.notice(
+                "Hold target: no way out of a boundary within reach, holding where it is"
+                if point.placement is HoldPlacement.CURRENT
+                else f"Hold target kept out of a boundary ({point.placement.value})"
+            )
             self.out.event(
                 "hold_target_moved",
                 placement=point.placement.value,
