@@ -36,16 +36,11 @@ NOT_YET = {
     "companion.link.takeoff:TakeoffSettings": "built from LinkConfig's checked fields",
     "companion.camera.config:SourceConfig": "issue 35 works on the camera sources now",
     "companion.camera.config:CameraConfig": "issue 35 works on the camera sources now",
-    "plant_sim.params:QuadrotorParams": "Table 2: not yet converted",
-    "plant_sim.params:ControlParams": "not yet converted",
     "plant_sim.service:PlantConfig": "not yet converted",
     "plant_sim.stereo_camera:RenderParams": "not yet converted",
     "plant_sim.disturbance:WindConfig": "issue 31 works on disturbances now",
     "plant_sim.disturbance:EstimateConfig": "issue 31 works on disturbances now",
     "plant_sim.disturbance:DisturbanceConfig": "issue 31 works on disturbances now",
-    "plant_sim.scenario:StartConfig": "not yet converted",
-    "plant_sim.scenario:CameraConfig": "not yet converted",
-    "plant_sim.scenario:FailsafeConfig": "not yet converted",
     "plant_sim.depth_camera:DepthNoiseParams": "issue 35 (depth cameras): not yet converted",
     "plant_sim.camera_only:CameraOnlyConfig": "not yet converted",
     "plant_sim.autopilot.modes:ModeTimings": "issue 31 works on the autopilot now",
@@ -158,3 +153,20 @@ def test_bounds_read_as_words_and_refuse_what_they_say():
     assert Example(sigma_px=1).sigma_px == 1.0 and isinstance(Example(rate_hz=5).rate_hz, float)
     with pytest.raises(ValueError, match="outside its own bounds"):
         bounded(-1.0, "m", ge=0)
+
+
+def test_a_scenario_file_error_names_the_file_the_key_and_the_bound(tmp_path):
+    from plant_sim.scenario import load_scenario
+
+    path = tmp_path / "scene.toml"
+    for text, message in (
+        (
+            "[failsafe]\nland_speed_mps = 0\n",
+            r"failsafe\.land_speed_mps: must be a finite number > 0 m/s",
+        ),
+        ("[camera]\nrate_hz = -30\n", r"camera\.rate_hz: must be a finite number > 0 Hz"),
+        ("[start]\nyaw_deg = nan\n", r"start\.yaw_deg: must be a finite number \[deg\], got nan"),
+    ):
+        path.write_text(text, encoding="utf-8")
+        with pytest.raises(ConfigError, match=f"^{re.escape(str(path))}: {message}"):
+            load_scenario(path)
