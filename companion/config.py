@@ -74,7 +74,14 @@ from companion.guidance.envelope import EnvelopeConfig
 from companion.known_space import KnownSpaceConfig
 from companion.perception import PerceptionConfig
 from companion.proximity.sectors import ProximityConfig
-from protocols.config import ConfigError, check_keys, dataclass_from_mapping, vec3
+from protocols.config import (
+    ConfigError,
+    bounded,
+    check_fields,
+    check_keys,
+    dataclass_from_mapping,
+    vec3,
+)
 from protocols.keys import validate_vehicle_id
 from protocols.process import (
     DEFAULT_ENDPOINT,
@@ -105,58 +112,40 @@ class LinkConfig:
     """MAVLink link to the autopilot."""
 
     url: str = "udpout:127.0.0.1:14550"  # pymavlink connection string
-    baud: int = 921600  # serial only [bit/s]
-    system_id: int = 1  # our MAVLink system id (the vehicle's)
-    component_id: int = 196  # MAV_COMP_ID_OBSTACLE_AVOIDANCE
-    target_system: int = 1  # the autopilot
-    target_component: int = 1
+    baud: int = bounded(921600, "bit/s", integer=True, gt=0)  # serial only
+    system_id: int = bounded(1, integer=True, ge=1, le=255)  # ours (the vehicle's)
+    component_id: int = bounded(196, integer=True, ge=0, le=255)  # MAV_COMP_ID_OBSTACLE_AVOIDANCE
+    target_system: int = bounded(1, integer=True, ge=1, le=255)  # the autopilot
+    target_component: int = bounded(1, integer=True, ge=0, le=255)
     signing_key: SigningKey | None = None
-    takeoff_alt_m: float = 0.0  # > 0: on the ground → GUIDED, arm, take off to this [m]
-    takeoff_tolerance_m: float = 0.5  # climb done within this of takeoff_alt_m [m]
-    takeoff_timeout_s: float = 0.0  # climb limit [s autopilot time]; 0: alt / 0.5 m/s + 15 s
+    # > 0: on the ground → GUIDED, arm, take off to this
+    takeoff_alt_m: float = bounded(0.0, "m", ge=0)
+    takeoff_tolerance_m: float = bounded(0.5, "m", gt=0)  # climb done within this of the alt
+    # climb limit [s autopilot time]; 0: alt / 0.5 m/s + 15 s
+    takeoff_timeout_s: float = bounded(0.0, "s", ge=0)
     # on the ground: wait this long [s wall] for a local position (EKF origin, GPS), the
     # pre-arm checks and camera frames before giving up (ArduPilot SITL needs ~40 s)
-    takeoff_ready_timeout_s: float = 180.0
+    takeoff_ready_timeout_s: float = bounded(180.0, "s", gt=0)
     request_mode: bool = True  # request GUIDED / OFFBOARD ourselves at start
-    telemetry_rate_hz: float = 50.0  # LOCAL_POSITION_NED and ATTITUDE [Hz]
+    telemetry_rate_hz: float = bounded(50.0, "Hz", gt=0)  # LOCAL_POSITION_NED and ATTITUDE
     frame_clock: FrameClock = FrameClock.AUTOPILOT
-    heartbeat_period_s: float = 1.0  # wall time
-    timesync_period_s: float = 0.2  # wall time
-    ardupilot_setpoint_period_s: float = 0.5  # periodic re-send on ArduPilot [s wall]
-    px4_setpoint_rate_hz: float = 20.0  # continuous stream on PX4 [Hz wall], must be > 2
-    px4_prestream_s: float = 1.2  # stream this long before requesting OFFBOARD [s wall]
+    heartbeat_period_s: float = bounded(1.0, "s", gt=0)  # wall time
+    timesync_period_s: float = bounded(0.2, "s", gt=0)  # wall time
+    ardupilot_setpoint_period_s: float = bounded(0.5, "s", gt=0)  # re-send on ArduPilot [wall]
+    # continuous stream on PX4 [wall]: PX4 leaves OFFBOARD below 2 Hz
+    px4_setpoint_rate_hz: float = bounded(20.0, "Hz", gt=2)
+    px4_prestream_s: float = bounded(1.2, "s", gt=0)  # stream this long before OFFBOARD [wall]
 
     def __post_init__(self) -> None:
         if not self.url:
-            raise ConfigError("mavlink.url is empty")
-        for name in ("system_id", "target_system"):
-            if not 1 <= getattr(self, name) <= 255:
-                raise ConfigError(f"mavlink.{name} must be 1..255")
-        for name in ("component_id", "target_component"):
-            if not 0 <= getattr(self, name) <= 255:
-                raise ConfigError(f"mavlink.{name} must be 0..255")
-        if not (math.isfinite(self.takeoff_alt_m) and self.takeoff_alt_m >= 0):
-            raise ConfigError("mavlink.takeoff_alt_m must be >= 0")
-        if not (math.isfinite(self.takeoff_timeout_s) and self.takeoff_timeout_s >= 0):
-            raise ConfigError("mavlink.takeoff_timeout_s must be >= 0 (0: automatic)")
-        if self.takeoff_alt_m > 0 and not (0 < self.takeoff_tolerance_m < self.takeoff_alt_m):
+            raise ConfigError("is empty", key="url")
+        check_fields(self)
+        if self.takeoff_alt_m > 0 and not self.takeoff_tolerance_m < self.takeoff_alt_m:
             raise ConfigError(
-                "mavlink.takeoff_tolerance_m must be > 0 and below takeoff_alt_m, got "
-                f"{self.takeoff_tolerance_m!r}"
+                f"must be below takeoff_alt_m {self.takeoff_alt_m}, got "
+                f"{self.takeoff_tolerance_m!r}",
+                key="takeoff_tolerance_m",
             )
-        if not self.px4_setpoint_rate_hz > 2.0:
-            raise ConfigError("mavlink.px4_setpoint_rate_hz must be > 2 (PX4 offboard)")
-        for name in (
-            "telemetry_rate_hz",
-            "heartbeat_period_s",
-            "timesync_period_s",
-            "ardupilot_setpoint_period_s",
-            "px4_prestream_s",
-            "takeoff_ready_timeout_s",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"mavlink.{name} must be finite and > 0, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -165,31 +154,34 @@ class FailsafeConfig:
 
     # newest frame older than this → hold position [s]; below it the measured latency budget
     # slows the vehicle instead (issue 32: a slow frame is not a reason to stop)
-    frame_timeout_s: float = 1.0
-    telemetry_timeout_s: float = 0.3  # newest pose older than this → hold position [s]
+    frame_timeout_s: float = bounded(1.0, "s", gt=0)
+    # newest pose older than this → hold position
+    telemetry_timeout_s: float = bounded(0.3, "s", gt=0)
     # the last resort: the autopilot's own hold (BRAKE; PX4: Hold) only when no frame
     # (no pose) arrived for this long [s, frame clock]; > the timeouts above
-    frame_loss_s: float = 2.0
-    telemetry_loss_s: float = 2.0
-    resume_after_s: float = 1.0  # settle: after a hold, healthy this long before resuming [s]
-    link_timeout_s: float = 1.5  # wall time without any autopilot message → link lost
-    max_pose_extrapolation_s: float = 0.05  # frames newer than the newest pose by ≤ this
-    pose_history_s: float = 2.0  # how far back poses are kept
-    frame_time_window_s: float = 2.0  # frames stamped farther than this from now: refused
+    frame_loss_s: float = bounded(2.0, "s", gt=0)
+    telemetry_loss_s: float = bounded(2.0, "s", gt=0)
+    # settle: after a hold, healthy this long before resuming
+    resume_after_s: float = bounded(1.0, "s", gt=0)
+    # wall time without any autopilot message → link lost
+    link_timeout_s: float = bounded(1.5, "s", gt=0)
+    # frames newer than the newest pose by ≤ this
+    max_pose_extrapolation_s: float = bounded(0.05, "s", gt=0)
+    pose_history_s: float = bounded(2.0, "s", gt=0)  # how far back poses are kept
+    # frames stamped farther than this from now: refused
+    frame_time_window_s: float = bounded(2.0, "s", gt=0)
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"failsafe.{f.name} must be finite and > 0, got {value!r}")
+        check_fields(self)
         for loss, late in (
             ("frame_loss_s", "frame_timeout_s"),
             ("telemetry_loss_s", "telemetry_timeout_s"),
         ):
             if not getattr(self, loss) > getattr(self, late):
                 raise ConfigError(
-                    f"failsafe.{loss} ({getattr(self, loss)!r}) must be longer than "
-                    f"failsafe.{late} ({getattr(self, late)!r})"
+                    f"must be longer than {late} ({getattr(self, late)!r}), got "
+                    f"{getattr(self, loss)!r}",
+                    key=loss,
                 )
 
 
@@ -199,7 +191,8 @@ class CompanionConfig:
 
     vehicle_id: str = "sim1"
     waypoints_ned_m: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, -7.0),)
-    goal_tolerance_m: float = 0.5  # a waypoint is reached within this distance [m]
+    # a waypoint is reached within this distance
+    goal_tolerance_m: float = bounded(0.5, "m", gt=0)
     link: LinkConfig = field(default_factory=LinkConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
     failsafe: FailsafeConfig = field(default_factory=FailsafeConfig)
@@ -208,17 +201,16 @@ class CompanionConfig:
     known_space: KnownSpaceConfig = field(default_factory=KnownSpaceConfig)
     envelope: EnvelopeConfig = field(default_factory=EnvelopeConfig)
     proximity: ProximityConfig = field(default_factory=ProximityConfig)
-    status_log_period_s: float = 1.0  # progress log line period [s wall]
+    status_log_period_s: float = bounded(1.0, "s", gt=0)  # progress log line period [wall]
 
     def __post_init__(self) -> None:
         try:
             validate_vehicle_id(self.vehicle_id)
         except ValueError as exc:
-            raise ConfigError(str(exc)) from None
+            raise ConfigError(str(exc), key="vehicle_id") from None
         if not self.waypoints_ned_m:
             raise ConfigError("at least one waypoint (goal_ned_m) is needed")
-        if not self.goal_tolerance_m > 0:
-            raise ConfigError("goal_tolerance_m must be > 0")
+        check_fields(self)
         depth_range_m = self.perception.depth_camera.max_range_m
         if depth_range_m < self.known_space.max_range_m:
             raise ConfigError(
@@ -298,6 +290,8 @@ def config_from_dict(d: Mapping[str, Any]) -> CompanionConfig:
             kw["known_space"] = KnownSpaceConfig.from_dict(dict(d["known_space"]))
         if "envelope" in d:
             kw["envelope"] = EnvelopeConfig.from_dict(dict(d["envelope"]))
+    except ConfigError:
+        raise
     except (TypeError, ValueError) as exc:
         raise ConfigError(str(exc)) from None
     return CompanionConfig(**kw)
@@ -530,7 +524,10 @@ def config_from_args(
     _merge(
         d, "perception", {"threshold_m": args.threshold_m, "safety_margin_m": args.safety_margin_m}
     )
-    cfg = config_from_dict(d)
+    try:
+        cfg = config_from_dict(d)
+    except ConfigError as exc:  # name the file (its keys, perhaps overridden by a flag)
+        raise exc if args.config is None else exc.in_file(args.config) from None
     z = cfg.zenoh
     if not z.listen and not z.connect and z.config_file is None:
         # plant-sim's default listen endpoint

@@ -33,9 +33,9 @@ Pure: no clock, no I/O; one numba pass over the pixels.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,7 +44,7 @@ import numpy as np
 
 from companion.depth_source import DISP_SCALE, DepthMap, ValidityCounts, drop_small_far_blocks
 from protocols.camera import StereoIntrinsics
-from protocols.config import check_numbers
+from protocols.config import ConfigError, bounded, check_fields, dataclass_from_mapping
 from protocols.stereo_frame import DepthFrame, PixelEncoding
 
 __all__ = ["DepthCameraConfig", "DepthCameraSource", "depth_plane_m"]
@@ -77,40 +77,27 @@ class DepthCameraConfig:
         ``PerceptionConfig.min_far_fraction``). 0 disables.
     """
 
-    min_range_m: float = 0.3
-    max_range_m: float = 10.0
-    subpixel_rms_px: float = 0.08
-    max_rel_error: float = 0.05
-    min_far_fraction: float = 0.01
+    min_range_m: float = bounded(0.3, "m", gt=0)
+    max_range_m: float = bounded(10.0, "m", gt=0)
+    subpixel_rms_px: float = bounded(0.08, "px", gt=0)
+    max_rel_error: float = bounded(0.05, gt=0)
+    min_far_fraction: float = bounded(0.01, ge=0, lt=1)
 
     def __post_init__(self) -> None:
-        check_numbers(
-            self, ("min_range_m", "max_range_m", "subpixel_rms_px", "max_rel_error"), positive=True
-        )
-        check_numbers(self, ("min_far_fraction",))
+        check_fields(self)
         if self.max_range_m <= self.min_range_m:
-            raise ValueError(
-                f"max_range_m {self.max_range_m} must be above min_range_m {self.min_range_m}"
+            raise ConfigError(
+                f"must be above min_range_m {self.min_range_m}, got {self.max_range_m}",
+                key="max_range_m",
             )
-        if self.min_far_fraction >= 1.0:
-            raise ValueError(f"min_far_fraction must be in [0, 1), got {self.min_far_fraction!r}")
 
     @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> DepthCameraConfig:
-        """Build from a mapping (``[perception.depth_camera]``); unknown keys are an error.
-
-        Raises
-        ------
-        TypeError
-            Naming every key that is not a field.
-        """
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - names)
-        if unknown:
-            raise TypeError(
-                f"unknown depth_camera config key(s) {unknown}; valid keys: {sorted(names)}"
-            )
-        return cls(**values)
+    def from_dict(
+        cls, values: Mapping[str, Any], where: str = "perception.depth_camera"
+    ) -> DepthCameraConfig:
+        """Build from a mapping (``[perception.depth_camera]``); unknown keys and values
+        out of bounds raise :class:`~protocols.config.ConfigError` naming the key."""
+        return dataclass_from_mapping(cls, values, where)
 
     def range_m(self, intrinsics: StereoIntrinsics) -> float:
         """The farthest depth taken as a range for this camera [m] (module docstring)."""

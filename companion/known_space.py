@@ -85,7 +85,6 @@ budget is 2 ms.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 from collections.abc import Mapping
@@ -96,7 +95,7 @@ import numba
 import numpy as np
 
 from protocols.camera import R_FRD_FROM_CAM, StereoIntrinsics, eye_offset_frd_m
-from protocols.config import check_numbers
+from protocols.config import ConfigError, bounded, check_fields, dataclass_from_mapping
 
 __all__ = [
     "FREE",
@@ -169,59 +168,32 @@ class KnownSpaceConfig:
         it ends earlier where the map has seen the space free.
     """
 
-    voxel_m: float = 0.2
-    size_xy_vox: int = 128
-    size_z_vox: int = 64
-    max_range_m: float = 8.0
-    pixel_stride: int = 4
-    block_min_matched: float = 0.25
-    hit_clear_m: float = 0.2
-    clear_core_m: float = 0.06
-    free_core_m: float = 0.1
-    sky_min_elevation_deg: float = -5.0
-    ego_clear_radius_m: float = 0.25
-    start_free_radius_m: float = 1.2
-    piece_vox: int = 6
-    blind_depth_m: float = 1.2
+    voxel_m: float = bounded(0.2, "m", gt=0)
+    size_xy_vox: int = bounded(128, "voxel", integer=True, ge=8)
+    size_z_vox: int = bounded(64, "voxel", integer=True, ge=8)
+    max_range_m: float = bounded(8.0, "m", gt=0)
+    pixel_stride: int = bounded(4, "px", integer=True, ge=1)
+    block_min_matched: float = bounded(0.25, gt=0, le=1)
+    hit_clear_m: float = bounded(0.2, "m", ge=0)
+    clear_core_m: float = bounded(0.06, "m", ge=0)
+    # free_core_m = 0 would free nothing the camera sees: a vehicle that never moves
+    free_core_m: float = bounded(0.1, "m", gt=0)
+    sky_min_elevation_deg: float = bounded(-5.0, "deg", ge=-90, le=90)
+    ego_clear_radius_m: float = bounded(0.25, "m", ge=0)
+    start_free_radius_m: float = bounded(1.2, "m", ge=0)
+    piece_vox: int = bounded(6, "voxel", integer=True, ge=2)
+    blind_depth_m: float = bounded(1.2, "m", ge=0)
 
     def __post_init__(self) -> None:
-        for name in ("size_xy_vox", "size_z_vox", "pixel_stride", "piece_vox"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
-        if self.size_xy_vox < 8 or self.size_z_vox < 8 or self.pixel_stride < 1:
-            raise ValueError("grid sizes must be >= 8 voxels and pixel_stride >= 1")
-        if self.piece_vox < 2 or self.piece_vox % 2:
-            raise ValueError(f"piece_vox must be even and >= 2, got {self.piece_vox}")
-        # free_core_m = 0 would free nothing the camera sees: a vehicle that never moves
-        check_numbers(self, ("voxel_m", "max_range_m", "free_core_m"), positive=True)
-        check_numbers(
-            self,
-            (
-                "hit_clear_m",
-                "clear_core_m",
-                "ego_clear_radius_m",
-                "start_free_radius_m",
-                "blind_depth_m",
-            ),
-        )
-        if not 0.0 < self.block_min_matched <= 1.0:
-            raise ValueError(f"block_min_matched must be in (0, 1], got {self.block_min_matched}")
-        if not -90.0 <= self.sky_min_elevation_deg <= 90.0:
-            raise ValueError(
-                f"sky_min_elevation_deg must be in [-90, 90], got {self.sky_min_elevation_deg}"
-            )
+        check_fields(self)
+        if self.piece_vox % 2:
+            raise ConfigError(f"must be even, got {self.piece_vox}", key="piece_vox")
 
     @classmethod
-    def from_dict(cls, values: Mapping[str, Any]) -> KnownSpaceConfig:
-        """Build from a mapping; unknown keys raise ``TypeError`` naming them."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - names)
-        if unknown:
-            raise TypeError(
-                f"unknown known-space config key(s) {unknown}; valid keys: {sorted(names)}"
-            )
-        return cls(**dict(values))
+    def from_dict(cls, values: Mapping[str, Any], where: str = "known_space") -> KnownSpaceConfig:
+        """Build from a mapping; unknown keys and values out of bounds raise
+        :class:`~protocols.config.ConfigError` naming the key."""
+        return dataclass_from_mapping(cls, values, where)
 
 
 @dataclass(frozen=True, eq=False)

@@ -50,6 +50,7 @@ import dataclasses
 import enum
 import functools
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -62,7 +63,7 @@ from companion.depth_source import DISP_SCALE as _DISP_SCALE
 from companion.depth_source import DepthMap, DepthSource, ValidityCounts
 from companion.stereo_bm import PaddedStereoBM
 from protocols.camera import StereoIntrinsics, points_ned_from_cam
-from protocols.config import check_numbers
+from protocols.config import ConfigError, bounded, check_fields, dataclass_from_mapping
 from protocols.stereo_frame import Frame, PixelEncoding
 
 __all__ = [
@@ -82,23 +83,13 @@ _NO_EDGE = np.zeros((0, 2), np.int32)  # no contour samples (stride 1: the grid 
 _MAX_SPECKLE_RANGE_PX = 1024.0  # beyond any disparity search; keeps 16 x it a C int for OpenCV
 
 
-_C_INT_MAX = 2**31 - 1  # OpenCV takes these settings as C ints
-# a speckle larger than the whole reference image (320 × 240) means nothing
-_MATCHER_INTS = {
-    "speckle_window_px": (0, 320 * 240),
-    "texture_threshold": (0, _C_INT_MAX),
-    "uniqueness_ratio": (0, _C_INT_MAX),
-    "lr_max_diff_px": (-1, _C_INT_MAX),
-}
+_C_INT_MAX = 2**31 - 1  # OpenCV takes the matcher's integer settings as C ints
 
 
-def _check_matcher_ints(config: PerceptionConfig) -> None:
-    """The matcher's integer settings are integers within their range: a config value such
-    as 1e30 or 2.5 is an error here, not an OverflowError at every frame."""
-    for name, (low, high) in _MATCHER_INTS.items():
-        value = getattr(config, name)
-        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-            raise ValueError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
+def _depth_camera(values: Any, where: str) -> DepthCameraConfig:
+    if isinstance(values, DepthCameraConfig):
+        return values
+    return DepthCameraConfig.from_dict(values, where)
 
 
 class Matcher(enum.Enum):
@@ -209,30 +200,31 @@ class PerceptionConfig:
         settings above are then unused.
     """
 
-    threshold_m: float = 4.0
+    threshold_m: float = bounded(4.0, "m", gt=0)
     matcher: Matcher = Matcher.BM
-    min_range_m: float = 1.5
-    near_range_m: float = 0.4
-    max_range_m: float = 20.0
-    block_size_px: int | None = None
-    uniqueness_ratio: int = 10
-    texture_threshold: int = 10
-    speckle_window_px: int = 200
-    speckle_range_px: float = 0.1875
-    lr_max_diff_px: int = 1
-    prefilter_sigma_px: float | None = None
-    min_edge_ratio: float = 0.1
-    opening_px: int = 3
-    min_blob_fraction: float = 6e-4
-    min_obstacle_size_m: float = 0.15
-    continuity_rel: float = 0.1
-    extent_margin_m: float = 3.0
-    max_half_angle_deg: float = 64.0
-    vehicle_radius_m: float = 0.35
-    safety_margin_m: float = 0.3
-    max_points: int = 1500
-    cap_depth_m: float = 0.1
-    min_far_fraction: float = 0.01
+    min_range_m: float = bounded(1.5, "m", gt=0)
+    near_range_m: float = bounded(0.4, "m", ge=0)
+    max_range_m: float = bounded(20.0, "m", gt=0)
+    block_size_px: int | None = bounded(None, "px", integer=True, ge=5, le=255, optional=True)
+    uniqueness_ratio: int = bounded(10, "%", integer=True, ge=0, le=_C_INT_MAX)
+    texture_threshold: int = bounded(10, integer=True, ge=0, le=_C_INT_MAX)
+    # a speckle larger than the whole reference image (320 × 240) means nothing
+    speckle_window_px: int = bounded(200, "px", integer=True, ge=0, le=320 * 240)
+    speckle_range_px: float = bounded(0.1875, "px", ge=0, le=_MAX_SPECKLE_RANGE_PX)
+    lr_max_diff_px: int = bounded(1, "px", integer=True, ge=-1, le=_C_INT_MAX)
+    prefilter_sigma_px: float | None = bounded(None, "px", ge=0, optional=True)
+    min_edge_ratio: float = bounded(0.1, ge=0, lt=1)
+    opening_px: int = bounded(3, "px", integer=True, ge=1)
+    min_blob_fraction: float = bounded(6e-4, gt=0)
+    min_obstacle_size_m: float = bounded(0.15, "m", ge=0)
+    continuity_rel: float = bounded(0.1, gt=0)
+    extent_margin_m: float = bounded(3.0, "m", ge=0)
+    max_half_angle_deg: float = bounded(64.0, "deg", gt=0, lt=90)
+    vehicle_radius_m: float = bounded(0.35, "m", ge=0)
+    safety_margin_m: float = bounded(0.3, "m", ge=0)
+    max_points: int = bounded(1500, integer=True, ge=16)
+    cap_depth_m: float = bounded(0.1, "m", ge=0)
+    min_far_fraction: float = bounded(0.01, ge=0, lt=1)
     depth_camera: DepthCameraConfig = dataclasses.field(default_factory=DepthCameraConfig)
 
     def __post_init__(self) -> None:
@@ -241,81 +233,28 @@ class PerceptionConfig:
             raise TypeError(
                 f"depth_camera must be a DepthCameraConfig, got {type(self.depth_camera).__name__}"
             )
-        positive = ("threshold_m", "min_range_m", "min_blob_fraction", "continuity_rel")
-        check_numbers(self, positive, positive=True)
-        check_numbers(
-            self,
-            (
-                "extent_margin_m",
-                "vehicle_radius_m",
-                "safety_margin_m",
-                "cap_depth_m",
-                "min_obstacle_size_m",
-                "speckle_range_px",
-            ),
-        )
-        if not (math.isfinite(self.max_range_m) and self.max_range_m > self.threshold_m):
-            raise ValueError(
-                f"max_range_m {self.max_range_m!r} must be finite and above threshold_m "
-                f"{self.threshold_m}"
-            )
-        if not (math.isfinite(self.near_range_m) and 0.0 <= self.near_range_m < self.min_range_m):
-            raise ValueError(
-                f"near_range_m {self.near_range_m!r} must be in [0, min_range_m {self.min_range_m})"
-            )
-        if self.prefilter_sigma_px is not None and not (
-            math.isfinite(self.prefilter_sigma_px) and self.prefilter_sigma_px >= 0.0
+        check_fields(self)
+        for key, ok, bound in (
+            ("max_range_m", self.max_range_m > self.threshold_m, "above threshold_m"),
+            ("min_range_m", self.min_range_m < self.threshold_m, "below threshold_m"),
+            ("near_range_m", self.near_range_m < self.min_range_m, "below min_range_m"),
         ):
-            raise ValueError(f"prefilter_sigma_px must be >= 0, got {self.prefilter_sigma_px!r}")
-        if not (math.isfinite(self.min_edge_ratio) and 0.0 <= self.min_edge_ratio < 1.0):
-            raise ValueError(f"min_edge_ratio must be in [0, 1), got {self.min_edge_ratio!r}")
-        if self.speckle_range_px > _MAX_SPECKLE_RANGE_PX:
-            raise ValueError(
-                f"speckle_range_px must be <= {_MAX_SPECKLE_RANGE_PX} (wider than any "
-                f"disparity search), got {self.speckle_range_px!r}"
-            )
-        _check_matcher_ints(self)
-        if self.min_range_m >= self.threshold_m:
-            raise ValueError(
-                f"min_range_m {self.min_range_m} must be below threshold_m {self.threshold_m}"
-            )
-        if self.block_size_px is not None and not (
-            5 <= self.block_size_px <= 255 and self.block_size_px % 2 == 1
-        ):
-            raise ValueError(f"block_size_px must be odd in 5..255, got {self.block_size_px}")
-        if not (math.isfinite(self.min_far_fraction) and 0.0 <= self.min_far_fraction < 1.0):
-            raise ValueError(f"min_far_fraction must be in [0, 1), got {self.min_far_fraction!r}")
-        if self.max_points < 16:
-            raise ValueError(f"max_points must be >= 16, got {self.max_points}")
-        if self.opening_px < 1:
-            raise ValueError(f"opening_px must be >= 1, got {self.opening_px}")
-        if not 0.0 < self.max_half_angle_deg < 90.0:
-            raise ValueError(
-                f"max_half_angle_deg must be in (0, 90), got {self.max_half_angle_deg}"
-            )
+            if not ok:
+                raise ConfigError(f"must be {bound}, got {getattr(self, key)!r}", key=key)
+        if self.block_size_px is not None and self.block_size_px % 2 == 0:
+            raise ConfigError(f"must be odd, got {self.block_size_px}", key="block_size_px")
 
     @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> PerceptionConfig:
-        """Build from a mapping (e.g. a config file section); unknown keys are an error.
-
-        Raises
-        ------
-        TypeError
-            Naming every key that is not a field.
-        """
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - names)
-        if unknown:
-            raise TypeError(
-                f"unknown perception config key(s) {unknown}; valid keys: {sorted(names)}"
-            )
-        values = dict(values)
-        depth_camera = values.get("depth_camera")
-        if depth_camera is not None and not isinstance(depth_camera, DepthCameraConfig):
-            if not isinstance(depth_camera, dict):
-                raise TypeError(f"depth_camera must be a table, got {depth_camera!r}")
-            values["depth_camera"] = DepthCameraConfig.from_dict(depth_camera)
-        return cls(**values)
+    def from_dict(cls, values: Mapping[str, Any], where: str = "perception") -> PerceptionConfig:
+        """Build from a mapping (e.g. a config file section); unknown keys and values out
+        of bounds raise :class:`~protocols.config.ConfigError` naming the key."""
+        depth_where = f"{where}.depth_camera"
+        return dataclass_from_mapping(
+            cls,
+            values,
+            where,
+            {"depth_camera": lambda d: _depth_camera(d, depth_where)},
+        )
 
 
 @dataclass(frozen=True, eq=False)

@@ -165,7 +165,15 @@ def _record_sink(results, bar, code: str) -> Callable[[dict], None]:
 
 
 def _montecarlo(args: argparse.Namespace) -> int:
-    from evaluation.mc_cluster import dask_client, fly_on_cluster
+    try:
+        from evaluation.mc_cluster import dask_client, fly_on_cluster
+    except ModuleNotFoundError as exc:  # the [eval] extra is not installed
+        print(
+            f"stereo-avoid montecarlo: {exc.name or exc} is missing: Monte Carlo runs on Dask, in "
+            "the [eval] extra (pip install 'stereo-avoid[eval]', or bash scripts/setup.sh)",
+            file=sys.stderr,
+        )
+        return 2
     from evaluation.mc_progress import ProgressBar
     from evaluation.mc_provenance import code_counts, code_fingerprint
     from evaluation.mc_report import write_report

@@ -69,7 +69,7 @@ def compile_kernels(jobs: int = 2, log: Callable[[str], None] = print) -> float:
     ``jobs`` > 1 compiles the renderer and the companion's kernels in separate processes at
     once. ``log`` receives a line per step.
     """
-    from evaluation.mc_cluster import warm_up
+    from evaluation.mc_scene import warm_up
 
     start = time.monotonic()
     steps = {"stereo renderer": _renderer, "companion perception and known space": _companion}

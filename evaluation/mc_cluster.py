@@ -28,23 +28,12 @@ from distributed.diagnostics.plugin import WorkerPlugin
 
 from evaluation.mc_provenance import code_fingerprint
 from evaluation.mc_results import verdict_to_record
-from evaluation.mc_scene import error_verdict, fly_record, single_threaded
+from evaluation.mc_scene import error_verdict, fly_record, warm_up
 
-__all__ = ["WarmUp", "dask_client", "fly_on_cluster", "warm_up"]
+__all__ = ["WarmUp", "dask_client", "fly_on_cluster"]
 
 # The environment every local worker process starts with (before numpy is imported).
 _WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-
-
-def warm_up() -> None:
-    """Fly a fraction of a second of a scene with each perception in this process: imports,
-    numba's compiled kernels (from its cache) and OpenCV's matchers are ready afterwards."""
-    from evaluation.harness import RunConfig, run_scene
-    from evaluation.mc_scene import scene_of
-
-    single_threaded()
-    for truth in (False, True):
-        run_scene(scene_of(0), RunConfig(max_time_s=0.1, truth_perception=truth))
 
 
 class WarmUp(WorkerPlugin):

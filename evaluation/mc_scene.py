@@ -24,7 +24,15 @@ from evaluation.passage_scenes import PASSAGE_FAMILIES, passage_scene, passages_
 from evaluation.scenes import family_scene, mixed_scene
 from plant_sim.depth_camera import CameraEncoding, DepthNoiseParams
 
-__all__ = ["error_verdict", "fly_record", "fly_seed", "run_config", "scene_of", "single_threaded"]
+__all__ = [
+    "error_verdict",
+    "fly_record",
+    "fly_seed",
+    "run_config",
+    "scene_of",
+    "single_threaded",
+    "warm_up",
+]
 
 
 def scene_of(seed: int, family: str = "mixed"):
@@ -71,6 +79,15 @@ def single_threaded() -> None:
 
     cv2.setNumThreads(1)
     numba.set_num_threads(1)  # per calling thread in numba: call it in the task's thread
+
+
+def warm_up() -> None:
+    """Fly a fraction of a second of a scene with each perception in this process: imports,
+    numba's compiled kernels (from its cache) and OpenCV's matchers are ready afterwards
+    (``stereo-avoid compile``; each Monte Carlo worker as it joins)."""
+    single_threaded()
+    for truth in (False, True):
+        run_scene(scene_of(0), RunConfig(max_time_s=0.1, truth_perception=truth))
 
 
 def fly_seed(

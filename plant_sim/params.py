@@ -12,7 +12,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from protocols.config import UnknownKeyError, dataclass_from_mapping
+from protocols.config import (
+    ConfigError,
+    UnknownKeyError,
+    bounded,
+    check_fields,
+    dataclass_from_mapping,
+)
 
 __all__ = [
     "ControlParams",
@@ -33,29 +39,25 @@ class QuadrotorParams:
     """Rigid-body, aerodynamic and rotor parameters (paper Table 2 + stated assumptions)."""
 
     # --- Table 2 ---------------------------------------------------------------------
-    mass_kg: float = 0.65
+    mass_kg: float = bounded(0.65, "kg", gt=0)
     inertia_kgm2: tuple[float, float, float] = (7.5e-3, 7.5e-3, 1.3e-2)  # J = diag(Jx, Jy, Jz)
-    arm_length_m: float = 0.25  # d: centre of mass to rotor axis
+    arm_length_m: float = bounded(0.25, "m", gt=0)  # d: centre of mass to rotor axis
     drag_force_kgps: tuple[float, float, float] = (2.0, 2.0, 4.0)  # K_t = diag(ktx, kty, ktz)
     drag_torque_kgm2ps: tuple[float, float, float] = (0.15, 0.15, 0.15)  # K_r
-    gravity_mps2: float = _G_MPS2  # |G|
+    gravity_mps2: float = bounded(_G_MPS2, "m/s²", gt=0)  # |G|
 
     # --- Assumptions (not in the paper) ------------------------------------------------
     # T_i = c·F_i in Eq. (14). 0.016 m is typical of 8–10" props (k_m/k_f ≈ 0.01–0.02 m).
-    rotor_torque_coeff_m: float = 0.016
+    rotor_torque_coeff_m: float = bounded(0.016, "m", gt=0)
     # Per-rotor thrust ceiling: thrust-to-weight 2.0, the usual minimum for a camera quad.
-    rotor_thrust_max_n: float = 2.0 * 0.65 * _G_MPS2 / 4.0
+    rotor_thrust_max_n: float = bounded(2.0 * 0.65 * _G_MPS2 / 4.0, "N", gt=0)
     # Rotors cannot pull: fixed-pitch props produce no negative thrust.
-    rotor_thrust_min_n: float = 0.0
+    rotor_thrust_min_n: float = bounded(0.0, "N", ge=0)
     # Vehicle sphere used by collision checks: arm length plus a propeller radius of 0.1 m.
-    body_radius_m: float = 0.35
+    body_radius_m: float = bounded(0.35, "m", gt=0)
 
     def __post_init__(self) -> None:
-        _require_positive("mass_kg", self.mass_kg)
-        _require_positive("arm_length_m", self.arm_length_m)
-        _require_positive("gravity_mps2", self.gravity_mps2)
-        _require_positive("rotor_torque_coeff_m", self.rotor_torque_coeff_m)
-        _require_positive("body_radius_m", self.body_radius_m)
+        check_fields(self)
         for name in ("inertia_kgm2", "drag_force_kgps", "drag_torque_kgm2ps"):
             value = getattr(self, name)
             if len(value) != 3:
@@ -63,13 +65,17 @@ class QuadrotorParams:
             object.__setattr__(self, name, tuple(float(v) for v in value))
             for v in getattr(self, name):
                 _require_positive(name, v, allow_zero=name != "inertia_kgm2")
-        if not 0.0 <= self.rotor_thrust_min_n < self.rotor_thrust_max_n:
-            raise ValueError(
-                "need 0 <= rotor_thrust_min_n < rotor_thrust_max_n, got "
-                f"{self.rotor_thrust_min_n} and {self.rotor_thrust_max_n}"
+        if not self.rotor_thrust_min_n < self.rotor_thrust_max_n:
+            raise ConfigError(
+                f"must be below rotor_thrust_max_n {self.rotor_thrust_max_n}, got "
+                f"{self.rotor_thrust_min_n}",
+                key="rotor_thrust_min_n",
             )
         if 4.0 * self.rotor_thrust_max_n <= self.mass_kg * self.gravity_mps2:
-            raise ValueError("4 × rotor_thrust_max_n must exceed the weight m·g to fly")
+            raise ConfigError(
+                "4 × rotor_thrust_max_n must exceed the weight m·g to fly",
+                key="rotor_thrust_max_n",
+            )
 
     @property
     def hover_thrust_n(self) -> float:
@@ -89,19 +95,20 @@ class ControlParams:
     q_position: tuple[float, ...] = (2.0, 9.0, 2.0, 9.0, 2.0, 9.0)
     r_position: tuple[float, float, float] = (1.0, 1.0, 1.0)
     # §6.1: desired roll and pitch within ±15°.
-    max_tilt_deg: float = 15.0
+    max_tilt_deg: float = bounded(15.0, "deg", gt=0, lt=90)
 
     # --- Assumptions (not in the paper) ------------------------------------------------
     # RK4 step rate. 400 Hz is ArduCopter's main-loop rate; the attitude poles
     # (−1.3, −7.6 rad/s) are two orders below its Nyquist rate.
-    physics_rate_hz: float = 400.0
+    physics_rate_hz: float = bounded(400.0, "Hz", gt=0)
     # Controller update rate (zero-order hold between updates); must divide physics_rate_hz.
-    control_rate_hz: float = 400.0
+    control_rate_hz: float = bounded(400.0, "Hz", gt=0)
     # Lowest vertical specific force the position loop may ask of the rotors [m/s²]
     # (a fraction of g): keeps φ_d, θ_d defined when a steep descent is commanded.
-    min_vertical_accel_mps2: float = 0.2 * _G_MPS2
+    min_vertical_accel_mps2: float = bounded(0.2 * _G_MPS2, "m/s²", gt=0)
 
     def __post_init__(self) -> None:
+        check_fields(self)
         for name, n in (
             ("q_attitude", 6),
             ("r_attitude", 3),
@@ -116,16 +123,11 @@ class ControlParams:
             object.__setattr__(self, name, value)
         if any(v <= 0.0 for v in self.r_attitude + self.r_position):
             raise ValueError("LQ input weights R must be positive definite")
-        if not 0.0 < self.max_tilt_deg < 90.0:
-            raise ValueError(f"max_tilt_deg must be in (0, 90), got {self.max_tilt_deg}")
-        _require_positive("physics_rate_hz", self.physics_rate_hz)
-        _require_positive("control_rate_hz", self.control_rate_hz)
-        _require_positive("min_vertical_accel_mps2", self.min_vertical_accel_mps2)
         ratio = self.physics_rate_hz / self.control_rate_hz
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ValueError(
-                f"control_rate_hz ({self.control_rate_hz}) must divide "
-                f"physics_rate_hz ({self.physics_rate_hz})"
+            raise ConfigError(
+                f"must divide physics_rate_hz ({self.physics_rate_hz}), got {self.control_rate_hz}",
+                key="control_rate_hz",
             )
 
     @property

@@ -100,7 +100,14 @@ from plant_sim.profiles import profile
 from plant_sim.stereo_camera import RenderParams
 from plant_sim.world import Box, Cylinder, GroundPlane, Material, Sphere, World, paper_world
 from protocols.camera import CameraModel
-from protocols.config import ConfigError, check_keys, vec3
+from protocols.config import (
+    Checked,
+    ConfigError,
+    bounded,
+    check_keys,
+    dataclass_from_mapping,
+    vec3,
+)
 from protocols.keys import validate_vehicle_id
 
 __all__ = [
@@ -137,11 +144,12 @@ ScenarioError = ConfigError
 
 
 @dataclass(frozen=True)
-class StartConfig:
+class StartConfig(Checked):
     """Initial state of the vehicle."""
 
     pos_ned_m: tuple[float, float, float] = (20.0, 0.0, -7.0)  # LOCAL_NED [m]
-    yaw_deg: float = 180.0  # heading [deg], 180 = facing south, towards the paper's goal
+    # heading, 180 = facing south, towards the paper's goal
+    yaw_deg: float = bounded(180.0, "deg")
     airborne: bool = True  # True: armed, hovering at pos; False: disarmed on the ground below
     mode: FlightMode = FlightMode.GUIDED
 
@@ -156,13 +164,13 @@ class GeoOrigin:
 
 
 @dataclass(frozen=True)
-class CameraConfig:
+class CameraConfig(Checked):
     """Camera: model (Table 1), frame rate, rendering, and what it publishes: a stereo pair
     (``mono8``) or, as a RealSense-like depth camera, depth frames (``depth16``,
     ``depth32f``) with the errors of ``depth`` (plant_sim.depth_camera)."""
 
     enabled: bool = True
-    rate_hz: float = 30.0  # frames per second of simulation time
+    rate_hz: float = bounded(30.0, "Hz", gt=0)  # frames per second of simulation time
     model: CameraModel = field(default_factory=CameraModel)
     render: RenderParams = field(default_factory=RenderParams)
     encoding: CameraEncoding = CameraEncoding.MONO8
@@ -170,15 +178,18 @@ class CameraConfig:
 
 
 @dataclass(frozen=True)
-class FailsafeConfig:
+class FailsafeConfig(Checked):
     """Autopilot timeouts and speeds (defaults: ArduCopter's parameter defaults)."""
 
-    guided_velocity_timeout_s: float = 3.0  # GUID_TIMEOUT: velocity targets expire [s sim]
-    disarm_delay_s: float = 10.0  # DISARM_DELAY: auto-disarm when landed and idle [s sim]
-    land_speed_mps: float = 0.5  # LAND_SPEED 50 cm/s
-    takeoff_climb_mps: float = 1.5  # climb rate of NAV_TAKEOFF [m/s]
-    rtl_alt_m: float = 15.0  # RTL_ALT 1500 cm: minimum return altitude above home [m]
-    land_detect_s: float = 1.0  # on the ground this long → landed [s sim]
+    # GUID_TIMEOUT: velocity targets expire [s sim]
+    guided_velocity_timeout_s: float = bounded(3.0, "s", gt=0)
+    # DISARM_DELAY: auto-disarm when landed and idle [s sim]
+    disarm_delay_s: float = bounded(10.0, "s", gt=0)
+    land_speed_mps: float = bounded(0.5, "m/s", gt=0)  # LAND_SPEED 50 cm/s
+    takeoff_climb_mps: float = bounded(1.5, "m/s", gt=0)  # climb rate of NAV_TAKEOFF
+    # RTL_ALT 1500 cm: minimum return altitude above home
+    rtl_alt_m: float = bounded(15.0, "m", gt=0)
+    land_detect_s: float = bounded(1.0, "s", gt=0)  # on the ground this long → landed [s sim]
 
 
 @dataclass(frozen=True)
@@ -237,7 +248,7 @@ def _start(d: Any) -> StartConfig:
     if "pos_ned_m" in d:
         kw["pos_ned_m"] = vec3(d["pos_ned_m"], "start.pos_ned_m")
     if "yaw_deg" in d:
-        kw["yaw_deg"] = _number(d["yaw_deg"], "start.yaw_deg")
+        kw["yaw_deg"] = d["yaw_deg"]  # checked by StartConfig's declaration
     if "airborne" in d:
         kw["airborne"] = _bool(d["airborne"], "start.airborne")
     if "mode" in d:
@@ -247,7 +258,7 @@ def _start(d: Any) -> StartConfig:
             raise ScenarioError(
                 f"start.mode {d['mode']!r} is not one of {[m.name for m in FlightMode]}"
             ) from None
-    return StartConfig(**kw)
+    return dataclass_from_mapping(StartConfig, kw, "start")
 
 
 def _origin(d: Any) -> GeoOrigin:
@@ -347,14 +358,15 @@ def _camera(d: Any) -> CameraConfig:
         depth = DepthNoiseParams(**depth_kw)
     except (TypeError, ValueError) as exc:
         raise ScenarioError(f"camera: {exc}") from None
-    return CameraConfig(
-        enabled=_bool(d.get("enabled", True), "camera.enabled"),
-        rate_hz=_number(d.get("rate_hz", 30.0), "camera.rate_hz", positive=True),
-        model=model,
-        render=render,
-        encoding=_camera_encoding(d.get("encoding", "mono8")),
-        depth=depth,
-    )
+    fields = {
+        "enabled": _bool(d.get("enabled", True), "camera.enabled"),
+        "rate_hz": d.get("rate_hz", 30.0),  # checked by CameraConfig's declaration
+        "model": model,
+        "render": render,
+        "encoding": _camera_encoding(d.get("encoding", "mono8")),
+        "depth": depth,
+    }
+    return dataclass_from_mapping(CameraConfig, fields, "camera")
 
 
 def _streams(d: Any) -> tuple[tuple[str, float], ...]:
@@ -367,7 +379,7 @@ def _streams(d: Any) -> tuple[tuple[str, float], ...]:
 
 def _failsafe(d: Any) -> FailsafeConfig:
     d = check_keys(d, _dataclass_fields(FailsafeConfig), "failsafe")
-    return FailsafeConfig(**{k: _number(v, f"failsafe.{k}", positive=True) for k, v in d.items()})
+    return dataclass_from_mapping(FailsafeConfig, d, "failsafe")
 
 
 def _disturbance(d: Any) -> DisturbanceConfig:
@@ -512,4 +524,4 @@ def load_scenario(path: str | Path) -> Scenario:
     try:
         return scenario_from_dict(data)
     except ScenarioError as exc:
-        raise ScenarioError(f"{path}: {exc}") from None
+        raise exc.in_file(path) from None

@@ -8,7 +8,8 @@ if [ ! -x .venv/bin/python ]; then
     "$PYTHON" -m venv .venv
 fi
 .venv/bin/python -m pip install --quiet --disable-pip-version-check --upgrade pip
-# .[dev] = tests + the optional [view] extra (Rerun, MCAP, rosbags: issue 15's tests)
+# .[dev] = tests + the optional extras: [view] (Rerun, MCAP, rosbags: issue 15's tests),
+# [realsense] and [eval] (figures, Monte Carlo on Dask)
 .venv/bin/python -m pip install --quiet --disable-pip-version-check -e '.[dev]'
 # A real ground station for the integration tests. --no-deps: MAVProxy's requirements
 # would replace opencv-python-headless with the GUI opencv-python 5.x (see pyproject).

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 
 import numpy as np
 import pytest
@@ -223,6 +224,27 @@ def test_statustext_longer_than_50_characters_goes_out_in_mavlink2_chunks():
 
 
 # ---- config -------------------------------------------------------------------------
+
+
+def test_config_errors_name_the_file_the_key_and_the_bound(tmp_path):
+    """Issue 33: each field is declared once with its unit and bounds; an error names the
+    file, the dotted key and the bound, and the reason is the declaration's."""
+    path = tmp_path / "companion.toml"
+    cases = [
+        ("[mavlink]\nsystem_id = 0\n", r"mavlink\.system_id: must be an integer in \[1, 255\]"),
+        ("[failsafe]\nframe_loss_s = 0.5\n", r"failsafe\.frame_loss_s: must be longer than"),
+        ("[known_space]\npiece_vox = 5\n", r"known_space\.piece_vox: must be even"),
+        (
+            "[perception]\nmin_edge_ratio = 1.0\n",
+            r"perception\.min_edge_ratio: must be a finite number in \[0, 1\), got 1\.0",
+        ),
+        ("[envelope]\naccel_mps2 = 0\n", r"envelope\.accel_mps2: must be a finite number > 0 m/s²"),
+        ("[proximity]\nn_sectors = 73\n", r"proximity\.n_sectors: must be an integer in \[1, 72\]"),
+    ]
+    for text, message in cases:
+        path.write_text(text, encoding="utf-8")
+        with pytest.raises(ConfigError, match=f"^{re.escape(str(path))}: {message}"):
+            config_from_args(build_parser().parse_args(["--config", str(path)]), environ={})
 
 
 def test_config_unknown_keys_are_named():

@@ -173,10 +173,15 @@ def test_holes_at_depth_edges_beyond_range_and_in_the_left_band():
 def test_config_section_and_its_errors():
     cfg = config_from_dict({"perception": {"depth_camera": {"min_range_m": 0.5}}})
     assert cfg.perception.depth_camera == DepthCameraConfig(min_range_m=0.5)
-    with pytest.raises(ConfigError, match="unknown depth_camera config key"):
+    with pytest.raises(ConfigError, match=r"unknown key 'perception\.depth_camera\.min_range'"):
         config_from_dict({"perception": {"depth_camera": {"min_range": 0.5}}})
-    with pytest.raises(ConfigError, match="min_range_m"):
+    # the key and the bound, declared once with the field
+    with pytest.raises(
+        ConfigError, match=r"^perception\.depth_camera\.min_range_m: must be a finite number > 0 m"
+    ):
         config_from_dict({"perception": {"depth_camera": {"min_range_m": -1.0}}})
+    with pytest.raises(ConfigError, match=r"^perception\.depth_camera\.max_range_m: must be above"):
+        config_from_dict({"perception": {"depth_camera": {"max_range_m": 0.2}}})
     recorded = json.loads(json.dumps(config_to_dict(cfg)))  # as a recording keeps it
     assert config_from_dict(recorded).perception == cfg.perception
     with pytest.raises(ConfigError, match="free space it does not vouch for"):

@@ -55,7 +55,6 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -63,7 +62,7 @@ from typing import Any
 
 import numpy as np
 
-from protocols.config import check_numbers, dataclass_from_mapping
+from protocols.config import Checked, bounded, dataclass_from_mapping
 
 __all__ = [
     "EnvelopeConfig",
@@ -81,15 +80,9 @@ pipeline's obstacle extents bound: :func:`companion.guidance.map_boundaries.soli
 
 _BRAKE_MIN_SPEED_MPS = 0.1  # below this the vehicle has no direction of motion to state a bound for
 
-_BOUNDS = (  # (field, min, max) beyond "finite and >= 0"
-    ("latency_window_s", 0.0, 60.0),  # and > 0
-    ("latency_percentile", 50.0, 100.0),
-    ("unmeasured_latency_s", 0.0, 1.0),
-)
-
 
 @dataclass(frozen=True)
-class EnvelopeConfig:
+class EnvelopeConfig(Checked):
     """Parameters of the safety envelope (named assumptions, SI units).
 
     Attributes
@@ -137,28 +130,19 @@ class EnvelopeConfig:
         climbed to (or descended to) along the vehicle's heading (step 7) [m].
     """
 
-    latency_s: float = 0.15
-    latency_window_s: float = 2.5
-    latency_percentile: float = 95.0
-    unmeasured_latency_s: float = 0.1
-    accel_mps2: float = 2.0
-    margin_m: float = 0.3
-    vehicle_half_height_m: float = 0.2
-    near_field_m: float = 1.05
-    min_advance_m: float = 0.15
-    max_speed_mps: float = 10.0
-    lookahead_m: float = 12.0
-    overspeed_tolerance_mps: float = 0.3
-    stage_horizontal_m: float = 1.0
-
-    def __post_init__(self) -> None:
-        check_numbers(self, (f.name for f in dataclasses.fields(self)), as_float=True)
-        if self.accel_mps2 <= 0.0:
-            raise ValueError(f"accel_mps2 must be > 0, got {self.accel_mps2!r}")
-        for name, low, high in _BOUNDS:
-            value = getattr(self, name)
-            if not low <= value <= high or (name == "latency_window_s" and value == 0.0):
-                raise ValueError(f"{name} must be in [{low}, {high}], got {value!r}")
+    latency_s: float = bounded(0.15, "s", ge=0)
+    latency_window_s: float = bounded(2.5, "s", gt=0, le=60)
+    latency_percentile: float = bounded(95.0, "%", ge=50, le=100)
+    unmeasured_latency_s: float = bounded(0.1, "s", ge=0, le=1)
+    accel_mps2: float = bounded(2.0, "m/s²", gt=0)
+    margin_m: float = bounded(0.3, "m", ge=0)
+    vehicle_half_height_m: float = bounded(0.2, "m", ge=0)
+    near_field_m: float = bounded(1.05, "m", ge=0)
+    min_advance_m: float = bounded(0.15, "m", ge=0)
+    max_speed_mps: float = bounded(10.0, "m/s", ge=0)
+    lookahead_m: float = bounded(12.0, "m", ge=0)
+    overspeed_tolerance_mps: float = bounded(0.3, "m/s", ge=0)
+    stage_horizontal_m: float = bounded(1.0, "m", ge=0)
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> EnvelopeConfig:

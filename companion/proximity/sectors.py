@@ -53,7 +53,7 @@ import numba
 import numpy as np
 
 from companion.known_space import KnownSpace
-from protocols.config import check_numbers
+from protocols.config import ConfigError, bounded, check_fields
 
 __all__ = [
     "MAX_SECTORS",
@@ -96,30 +96,25 @@ class ProximityConfig:
     """
 
     enabled: bool = True
-    rate_hz: float = 20.0
-    n_sectors: int = 72
-    increment_deg: float = 5.0
-    angle_offset_deg: float = 0.0
-    band_half_height_m: float = 0.3
-    ignore_within_m: float = 0.3
-    min_distance_m: float = 0.2
+    rate_hz: float = bounded(20.0, "Hz", gt=0)
+    n_sectors: int = bounded(72, integer=True, ge=1, le=MAX_SECTORS)
+    increment_deg: float = bounded(5.0, "deg", gt=0)
+    angle_offset_deg: float = bounded(0.0, "deg")
+    band_half_height_m: float = bounded(0.3, "m", gt=0)
+    ignore_within_m: float = bounded(0.3, "m", ge=0)
+    # 0 cm is "invalid" on the wire
+    min_distance_m: float = bounded(0.2, "m", ge=0.01)
 
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, bool):
-            raise ValueError(f"enabled must be true or false, got {self.enabled!r}")
-        n = self.n_sectors
-        if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_SECTORS:
-            raise ValueError(f"n_sectors must be an integer in 1..{MAX_SECTORS}, got {n!r}")
-        check_numbers(self, ("rate_hz", "increment_deg", "band_half_height_m"), positive=True)
-        check_numbers(self, ("ignore_within_m", "min_distance_m"))
-        if not math.isfinite(self.angle_offset_deg):
-            raise ValueError(f"angle_offset_deg must be finite, got {self.angle_offset_deg!r}")
-        if n * self.increment_deg > 360.0 + 1e-9:
-            raise ValueError(
-                f"n_sectors × increment_deg must be <= 360, got {n} × {self.increment_deg}"
+            raise ConfigError(f"must be true or false, got {self.enabled!r}", key="enabled")
+        check_fields(self)
+        if self.n_sectors * self.increment_deg > 360.0 + 1e-9:
+            raise ConfigError(
+                f"n_sectors × increment_deg must be <= 360, got {self.n_sectors} × "
+                f"{self.increment_deg}",
+                key="increment_deg",
             )
-        if self.min_distance_m < 0.01:
-            raise ValueError("min_distance_m must be >= 0.01 (0 cm is 'invalid' on the wire)")
 
 
 @dataclass(frozen=True, eq=False)
