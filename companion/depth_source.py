@@ -152,7 +152,8 @@ def depth_from_disparity(
     d_far = max(1, math.ceil(DISP_SCALE * focal_baseline_m_px / max_range_m))
     near = disparity_fixed >= d_far
     depth = np.full(disparity_fixed.shape, np.nan, np.float32)
-    depth[near] = np.float32(DISP_SCALE * focal_baseline_m_px) / disparity_fixed[near]
+    # Eq. 27 in float64, rounded once to float32 (as the matcher's compiled merge does)
+    depth[near] = (DISP_SCALE * focal_baseline_m_px) / disparity_fixed[near]
     far = (disparity_fixed >= 0) & ~near
     far[:, :blind_band_px] = False
     depth[far] = np.inf
