@@ -2,9 +2,9 @@
 
 A depth source turns one rectified stereo pair into a depth map with its validity. It is the
 seam between the matcher and everything after it (obstacles, the known-space map): a new
-matcher is one module with one class that satisfies :class:`DepthSource`, added to
-``tests/test_depth_source.py``'s list, where the conformance suite runs against every
-implementation.
+matcher is one module with one class that satisfies :class:`DepthSource`;
+``tests/test_depth_source.py`` finds every class with ``compute(...) -> DepthMap`` and runs
+the conformance suite against each (it fails on one it has no entry for).
 
 Contract of ``compute(frame) -> DepthMap``
 ------------------------------------------
@@ -50,7 +50,8 @@ StereoBM, gates, a quarter-resolution near pass), :class:`companion.bare_bm.Bare
 (OpenCV StereoBM as it comes; the benchmarks' baseline) and, for depth frames (no
 matcher), :class:`companion.depth_camera.DepthCameraSource`; the frame's pixel encoding
 picks between the matcher and the depth camera (:class:`companion.perception.StereoPerception`).
-"""
+The lockstep bench's ground truth (``evaluation.truth_perception.TruthDepthSource``) is a
+source too, handed to the mission in the matcher's place."""
 
 from __future__ import annotations
 
