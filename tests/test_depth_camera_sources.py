@@ -12,22 +12,29 @@ layout (``_realsense_ros1.py``) and read by pyrealsense2's own playback. The com
 Both RealSense formats, that ``.bag`` and the ``.db3`` pyrealsense2 2.59 records (made by
 its software device under its own recorder), are read back through pyrealsense2 frame for
 frame: after ``RealSenseSource`` the two take the same path into the companion.
+
+Conformance: every public class of ours with ``read() -> RawDepth`` is discovered
+(``_contracts.implementations``) and run against the ``DepthFrameSource`` contract; one
+without a case in ``CASES`` fails.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 
 import numpy as np
 import pytest
 from _companion_rig import VEHICLE_ID, companion_rig
+from _contracts import implementations
 from _realsense_ros1 import write_realsense_ros1_bag
 from rosbags.rosbag2 import StoragePlugin, Writer
 from test_rosbag_source import OBSTACLE, START_NED_M, TS, Image, _image, _info
 
 from companion.camera.__main__ import build_parser, config_from_args
 from companion.camera.depth_sources import (
+    DepthFrameSource,
     Ros2DepthBagReplay,
     depth_from_image_msg,
     intrinsics_from_depth_info,
@@ -325,6 +332,73 @@ def test_realsense_bag_drives_the_companion(tmp_path):
              "--vehicle-id", VEHICLE_ID],
         )  # fmt: skip
         _drives_the_companion(rig, camera, n, rate_hz)
+
+
+# ---- the DepthFrameSource contract, for every implementation -------------------------------
+
+
+def _ros2_depth_case(tmp_path):
+    write_depth_bag(tmp_path / "bag", n=5)
+    return Ros2DepthBagReplay(tmp_path / "bag", DEPTH, 0.2, image_topic=PICTURE)
+
+
+def _realsense_bag_case(tmp_path):
+    from companion.camera.realsense_source import RealSenseSource
+
+    pytest.importorskip("pyrealsense2")
+    write_realsense_bag(tmp_path / "rec.bag", n=5)
+    return RealSenseSource(tmp_path / "rec.bag")
+
+
+CASES = {
+    "companion.camera.depth_sources.Ros2DepthBagReplay": _ros2_depth_case,
+    "companion.camera.realsense_source.RealSenseSource": _realsense_bag_case,
+}
+DISCOVERED = implementations("read", "RawDepth")
+
+
+def test_every_depth_frame_source_has_a_conformance_case():
+    assert len(DISCOVERED) >= 2, DISCOVERED
+    missing = sorted(set(DISCOVERED) - set(CASES))
+    assert not missing, f"depth frame sources without a conformance case in CASES: {missing}"
+    stale = sorted(set(CASES) - set(DISCOVERED))
+    assert not stale, f"CASES entries that are not depth frame sources: {stale}"
+
+
+@pytest.mark.parametrize("name", DISCOVERED, ids=lambda n: n.rsplit(".", 1)[1])
+def test_depth_frame_source_contract(tmp_path, name):
+    """Sizes and intrinsics only after open(), each of the 5 recorded frames once (depth
+    planes as recorded, the left picture beside them), capture times strictly increasing,
+    then None for good; close() twice is fine."""
+    if name not in CASES:
+        pytest.fail(f"{name} implements read() -> RawDepth but has no case in CASES")
+    source = CASES[name](tmp_path)
+    assert f"{type(source).__module__}.{type(source).__qualname__}" == name
+    assert isinstance(source, DepthFrameSource)
+    assert isinstance(source.description, str) and source.description
+    assert source.size_px is None and source.intrinsics is None
+    source.open()
+    try:
+        assert source.size_px == (K.width_px, K.height_px)
+        assert source.intrinsics.baseline_m == pytest.approx(K.baseline_m)
+        frames = []
+        while (item := source.read()) is not None:
+            frames.append(item)
+            assert len(frames) <= 5, "a frame delivered twice"
+        assert source.read() is None and source.read() is None, "stays at the end"
+    finally:
+        source.close()
+    source.close()
+    assert len(frames) == 5
+    for frame, (plane, left) in zip(frames, _views(5), strict=True):
+        assert frame.encoding is PixelEncoding.DEPTH16 and frame.depth_scale_m == pytest.approx(
+            0.001, rel=1e-6
+        )
+        np.testing.assert_array_equal(frame.depth, plane)
+        np.testing.assert_array_equal(frame.left, left)
+    stamps = [f.capture_ns for f in frames]
+    assert all(isinstance(t, int) for t in stamps)
+    assert all(b > a for a, b in itertools.pairwise(stamps)), stamps
 
 
 def test_live_device_time_is_mapped_by_the_smallest_offset():

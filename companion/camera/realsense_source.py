@@ -121,6 +121,7 @@ class RealSenseSource:
         self._pipeline = None
         self._has_ir1 = False
         self._last_frame_number: int | None = None
+        self._ended = False  # a recording that has ended stays ended (no more waits)
         self.depth_scale_m = 0.001
         self.intrinsics: StereoIntrinsics | None = None
         self.description = "realsense"
@@ -186,14 +187,15 @@ class RealSenseSource:
         )
 
     def read(self) -> RawDepth | None:
-        if self._pipeline is None:
+        if self._pipeline is None or self._ended:
             return None
         deadline = time.monotonic() + _LIVE_TIMEOUT_S
         while True:
             ok, frames = self._pipeline.try_wait_for_frames(_WAIT_MS)
             if not ok:
                 if self.bag is not None:
-                    return None  # the recording has ended
+                    self._ended = True  # the recording has ended
+                    return None
                 if time.monotonic() >= deadline:
                     raise SourceError(f"RealSense: no frames for {_LIVE_TIMEOUT_S:g} s")
                 continue
