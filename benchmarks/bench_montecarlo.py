@@ -119,6 +119,7 @@ def instrumented(clock: StageClock) -> Iterator[None]:
         (PaddedStereoBM, "disparity_fixed", "matcher"),
         (PaddedStereoBM, "coarse_pass_fixed", "matcher"),
         (TruthDepthSource, "disparity_fixed", "matcher"),  # ground truth: depth → disparity
+        (TruthDepthSource, "compute", "depth map (rest)"),
         (PaddedStereoBM, "compute", "depth map (rest)"),  # prefilter, merge, depth
         (StereoPerception, "process", "perception (rest)"),
         (KnownSpace, "integrate", "known space"),

@@ -2,9 +2,9 @@
 
 A depth source turns one rectified stereo pair into a depth map with its validity. It is the
 seam between the matcher and everything after it (obstacles, the known-space map): a new
-matcher is one module with one class that satisfies :class:`DepthSource`, added to
-``tests/test_depth_source.py``'s list, where the conformance suite runs against every
-implementation.
+matcher is one module with one class that satisfies :class:`DepthSource`;
+``tests/test_depth_source.py`` finds every class with ``compute(...) -> DepthMap`` and runs
+the conformance suite against each (it fails on one it has no entry for).
 
 Contract of ``compute(frame) -> DepthMap``
 ------------------------------------------
@@ -50,7 +50,8 @@ StereoBM, gates, a quarter-resolution near pass), :class:`companion.bare_bm.Bare
 (OpenCV StereoBM as it comes; the benchmarks' baseline) and, for depth frames (no
 matcher), :class:`companion.depth_camera.DepthCameraSource`; the frame's pixel encoding
 picks between the matcher and the depth camera (:class:`companion.perception.StereoPerception`).
-"""
+The lockstep bench's ground truth (``evaluation.truth_perception.TruthDepthSource``) is a
+source too, handed to the mission in the matcher's place."""
 
 from __future__ import annotations
 
@@ -152,7 +153,8 @@ def depth_from_disparity(
     d_far = max(1, math.ceil(DISP_SCALE * focal_baseline_m_px / max_range_m))
     near = disparity_fixed >= d_far
     depth = np.full(disparity_fixed.shape, np.nan, np.float32)
-    depth[near] = np.float32(DISP_SCALE * focal_baseline_m_px) / disparity_fixed[near]
+    # Eq. 27 in float64, rounded once to float32 (as the matcher's compiled merge does)
+    depth[near] = (DISP_SCALE * focal_baseline_m_px) / disparity_fixed[near]
     far = (disparity_fixed >= 0) & ~near
     far[:, :blind_band_px] = False
     depth[far] = np.inf

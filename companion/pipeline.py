@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.depth_source import DepthSource
 from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput, Mode
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
 from companion.guidance.hold import hold_point, inside_any
@@ -89,6 +90,9 @@ class AvoidancePipeline:
         Where to go, LOCAL_NED [m].
     perception, guidance, known_space, envelope : configs (defaults: the paper's 4 m
         threshold etc.).
+    depth_source : DepthSource, optional
+        The stereo pairs' depth source (:mod:`companion.depth_source` contract); by default
+        perception's matcher with ``perception``'s settings.
     """
 
     def __init__(
@@ -98,9 +102,11 @@ class AvoidancePipeline:
         guidance: GuidanceConfig | None = None,
         known_space: KnownSpaceConfig | None = None,
         envelope: EnvelopeConfig | None = None,
+        *,
+        depth_source: DepthSource | None = None,
     ) -> None:
         self.goal_ned_m = np.array(vec3(goal_ned_m, "goal_ned_m"))
-        self.perception = StereoPerception(perception)
+        self.perception = StereoPerception(perception, source=depth_source)
         self.guidance = Guidance(guidance)
         self.known_space = KnownSpace(known_space)
         p = self.perception.config

@@ -460,8 +460,7 @@ class PaddedStereoBM:
         disp = self.disparity_fixed(frame)
         coarse = self.coarse_pass_fixed(frame)
         n_disp = self.num_disparities(k)
-        # columns the right camera cannot see at the nearest range of the main pass
-        band_px = n_disp + self.block_size(k) // 2
+        band_px = self.blind_band_px(k)
         depth_m, counts = self._merge(disp, coarse, k.focal_baseline_m_px, n_disp, band_px)
         return DepthMap(disp, depth_m, counts, band_px)
 
@@ -473,6 +472,11 @@ class PaddedStereoBM:
     def block_size(self, intrinsics: StereoIntrinsics) -> int:
         """Matching block size [px] for this image width."""
         return self.config.block_size_px or _auto_block_size(intrinsics.width_px)
+
+    def blind_band_px(self, intrinsics: StereoIntrinsics) -> int:
+        """Left columns the right camera cannot see at the main pass's nearest range [px]
+        (the search range plus half a block): no far claim is trusted there."""
+        return self.num_disparities(intrinsics) + self.block_size(intrinsics) // 2
 
     def unsearched_columns(self, intrinsics: StereoIntrinsics) -> int:
         """How many leftmost columns the main pass leaves unsearched (unknown): those that

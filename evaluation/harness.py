@@ -30,7 +30,7 @@ from companion.pipeline import PoseAtCapture
 from companion.proximity.sectors import ProximityConfig, sectors_from_map
 from evaluation.history import History
 from evaluation.scenes import Scene
-from evaluation.truth_perception import TruthPerception
+from evaluation.truth_perception import TruthDepthSource
 from plant_sim.depth_camera import CameraEncoding, DepthNoiseParams, depth_frame
 from plant_sim.disturbance import Disturbances
 from plant_sim.params import ControlParams, QuadrotorParams
@@ -286,6 +286,7 @@ def _start(scene: Scene, cfg: RunConfig) -> tuple[Quadrotor, Mission]:
         cfg.guidance,
         cfg.known_space,
         cfg.envelope,
+        depth_source=TruthDepthSource(cfg.perception) if cfg.truth_perception else None,
     )
     return quad, mission
 
@@ -294,7 +295,8 @@ def _camera(
     scene: Scene, cfg: RunConfig, mission: Mission
 ) -> Callable[[VehicleState, int], StereoFrame]:
     """What the companion is shown at a state: the rendered stereo pair, or with ground-truth
-    perception blank images whose true depth the mission's perception is handed."""
+    perception blank images whose true depth the mission's depth source (the
+    :class:`TruthDepthSource` of :func:`_start`) is handed."""
     renderer = StereoCameraRenderer(cfg.camera, cfg.render)
     intrinsics = cfg.camera.intrinsics
     if cfg.camera_encoding is not CameraEncoding.MONO8 and not cfg.truth_perception:
@@ -319,7 +321,9 @@ def _camera(
         return lambda state, seq: _render_frame(
             renderer, scene.world, state, state.R_ned_from_frd, seq, intrinsics
         )
-    truth = mission.pipeline.perception = TruthPerception(cfg.perception)
+    truth = mission.pipeline.perception.source
+    if not isinstance(truth, TruthDepthSource):
+        raise TypeError(f"ground truth needs a TruthDepthSource, the mission has {truth!r}")
     blank = np.zeros((intrinsics.height_px, intrinsics.width_px), np.uint8)
     blank.flags.writeable = False
 

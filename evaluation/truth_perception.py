@@ -1,34 +1,40 @@
-"""Ground-truth perception for lockstep runs: the renderer's exact depth instead of a matcher.
+"""Ground-truth depth for lockstep runs: the renderer's exact depth instead of a matcher.
 
 Monte Carlo flies every scene two ways (issue 13): with the stereo matcher, as the
 companion flies, and with *ground-truth* perception, which separates what guidance and the
-safety envelope do from what the matcher misses. :class:`TruthPerception` is the
-companion's :class:`~companion.perception.StereoPerception` with one part replaced: the
-disparity map comes from the left eye's true depth (:meth:`StereoCameraRenderer.render_depth
+safety envelope do from what the matcher misses. :class:`TruthDepthSource` is a depth
+source (:mod:`companion.depth_source`'s contract) whose disparity comes from the left eye's
+true depth (:meth:`StereoCameraRenderer.render_depth
 <plant_sim.stereo_camera.StereoCameraRenderer.render_depth>`, the exact ray-cast geometry)
-as ``round(16 · f·b / depth)`` instead of OpenCV's block matchers. Everything downstream —
-obstacle pixels, blobs, boundary spheres, the depth map the known-space model folds in —
-is the companion's own code, unchanged.
+as ``round(16 · f·b / depth)`` instead of OpenCV's block matchers. The harness hands it to
+the mission (``Mission(..., depth_source=...)``), so everything downstream — obstacle
+pixels, blobs, boundary spheres, the depth map the known-space model folds in — is the
+companion's own code, unchanged.
 
-What a perfect stereo matcher still cannot do, this does not do either: a pixel whose
-match would lie left of the right image (``x − d < 0``: outside the right camera's view)
-is unmatched. The sky is matched at infinity (disparity 0), so beyond the blind band it
-certifies free space up to the known-space range, as a perfect matcher would.
+It stands in for the companion's matcher (:class:`~companion.stereo_bm.PaddedStereoBM`
+with the same :class:`~companion.perception.PerceptionConfig`) and keeps what that matcher
+cannot do: a pixel whose match would lie left of the right image (``x − d < 0``: outside
+the right camera's view) is unmatched, and no far claim is trusted in the matcher's blind
+band. The sky is matched at infinity (disparity 0), so beyond the blind band it certifies
+free space up to the known-space range, as a perfect matcher would.
 
-The truth for a frame is handed over with :meth:`TruthPerception.provide` before the
+The truth for a frame is handed over with :meth:`TruthDepthSource.provide` before the
 pipeline processes that frame; a frame without its truth is an error, never stale depth.
 """
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
-from companion.perception import PerceptionConfig, StereoPerception
+from companion.depth_source import DepthMap, depth_from_disparity
+from companion.perception import PerceptionConfig
 from companion.stereo_bm import PaddedStereoBM
-from protocols.stereo_frame import StereoFrame
+from protocols.stereo_frame import PixelEncoding, StereoFrame
 
-__all__ = ["TruthDepthSource", "TruthPerception", "truth_disparity_fixed"]
+__all__ = ["TruthDepthSource", "truth_disparity_fixed"]
 
 _DISP_SCALE = 16  # OpenCV's fixed-point disparity: 1/16 px
 _INT16_MAX = float(np.iinfo(np.int16).max)
@@ -76,34 +82,39 @@ def _truth_disparity(depth, fb16, out):
             out[y, x] = d
 
 
-class TruthDepthSource(PaddedStereoBM):
-    """The companion's default depth source on true disparities (module docstring).
+class TruthDepthSource:
+    """A depth source on true disparities (module docstring).
 
-    :class:`~companion.stereo_bm.PaddedStereoBM` with its two matcher passes replaced:
-    the disparity is :func:`truth_disparity_fixed` of the depth handed over with
-    :meth:`provide`, and there is no coarse pass. The depth map, its validity counts and
-    the blind band are made by the companion's own code (``PaddedStereoBM.compute``).
+    ``compute(frame)`` is :func:`~companion.depth_source.depth_from_disparity` of
+    :func:`truth_disparity_fixed` of the depth handed over with :meth:`provide` for that
+    frame: Eq. 27 within the configured ``max_range_m``, +inf for a match beyond it right of
+    the matcher's blind band in a far region of at least ``min_far_fraction`` of the image,
+    NaN elsewhere. The frame's pixels are not read (the harness sends blank images).
 
     Parameters
     ----------
     config : PerceptionConfig
-        The companion's perception settings (range and far-island gates).
+        The companion's perception settings: range, far-region gate and the matcher whose
+        blind band the truth keeps.
     """
 
     def __init__(self, config: PerceptionConfig) -> None:
-        super().__init__(config)
+        self.config = config
+        self._stands_in_for = PaddedStereoBM(config)  # for its blind band only
         self._truth: tuple[int, np.ndarray] | None = None
 
     def provide(self, sequence: int, depth_left_m: np.ndarray) -> None:
-        """The true depth of the left image of frame ``sequence`` (next to be processed)."""
+        """The true depth [m] of the left image of frame ``sequence`` (next to be processed)."""
         self._truth = (int(sequence), depth_left_m)
 
     def disparity_fixed(self, frame: StereoFrame) -> np.ndarray:
         """True disparity of ``frame`` (int16, 1/16 px, -16 where a perfect matcher fails)."""
+        if frame.encoding is not PixelEncoding.MONO8:
+            raise ValueError(f"unsupported pixel encoding {frame.encoding!r} (stereo pairs only)")
         if self._truth is None or self._truth[0] != frame.sequence:
             have = None if self._truth is None else self._truth[0]
             raise RuntimeError(
-                f"TruthPerception: no true depth for frame {frame.sequence} "
+                f"TruthDepthSource: no true depth for frame {frame.sequence} "
                 f"(provide() was last given frame {have})"
             )
         depth = self._truth[1]
@@ -112,27 +123,14 @@ class TruthDepthSource(PaddedStereoBM):
             raise ValueError(f"true depth shape {depth.shape} != frame {(k.height_px, k.width_px)}")
         return truth_disparity_fixed(depth, k.focal_baseline_m_px)
 
-    def coarse_pass_fixed(self, frame: StereoFrame) -> None:
-        """No coarse pass: the true disparity ranges every distance already."""
-        return None
-
-
-class TruthPerception(StereoPerception):
-    """:class:`~companion.perception.StereoPerception` on true disparities (module docstring):
-    its depth source is a :class:`TruthDepthSource`.
-
-    Parameters
-    ----------
-    config : PerceptionConfig, optional
-        The companion's detector settings (threshold, blob and sphere parameters); the
-        matcher's settings are unused.
-    """
-
-    def __init__(self, config: PerceptionConfig | None = None) -> None:
-        config = config if config is not None else PerceptionConfig()
-        self._truth_source = TruthDepthSource(config)
-        super().__init__(config, source=self._truth_source)
-
-    def provide(self, sequence: int, depth_left_m: np.ndarray) -> None:
-        """The true depth of the left image of frame ``sequence`` (next to be processed)."""
-        self._truth_source.provide(sequence, depth_left_m)
+    def compute(self, frame: StereoFrame) -> DepthMap:
+        """The frame's depth map (:mod:`companion.depth_source` contract) from its truth."""
+        disp = self.disparity_fixed(frame)
+        k = frame.intrinsics
+        return depth_from_disparity(
+            disp,
+            k.focal_baseline_m_px,
+            self.config.max_range_m,
+            self._stands_in_for.blind_band_px(k),
+            math.ceil(self.config.min_far_fraction * disp.size),
+        )

@@ -6,24 +6,35 @@ intrinsics, the CLI's flags. Integration, as tests/test_rosbag_source.py does fo
 plant-sim as the autopilot only (hovering at the paper's start, facing south), the companion
 with ``--frame-clock host``, and ``stereo-camera`` publishing depth frames of an obstacle
 3 m ahead from (a) a ROS 2 bag with a depth topic written by rosbags and (b) a RealSense
-recording made by pyrealsense2's software device under its own recorder and read back by
-pyrealsense2's playback. The companion (which runs no matcher on them) must place the
-obstacle where it is and start avoiding it.
+ROS 1 ``.bag`` as SDKs before 2.59 recorded them, written by rosbags in librealsense's
+layout (``_realsense_ros1.py``) and read by pyrealsense2's own playback. The companion
+(which runs no matcher on them) must place the obstacle where it is and start avoiding it.
+Both RealSense formats, that ``.bag`` and the ``.db3`` pyrealsense2 2.59 records (made by
+its software device under its own recorder), are read back through pyrealsense2 frame for
+frame: after ``RealSenseSource`` the two take the same path into the companion.
+
+Conformance: every public class of ours with ``read() -> RawDepth`` is discovered
+(``_contracts.implementations``) and run against the ``DepthFrameSource`` contract; one
+without a case in ``CASES`` fails.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 
 import numpy as np
 import pytest
 from _companion_rig import VEHICLE_ID, companion_rig
+from _contracts import implementations
+from _realsense_ros1 import write_realsense_ros1_bag
 from rosbags.rosbag2 import StoragePlugin, Writer
 from test_rosbag_source import OBSTACLE, START_NED_M, TS, Image, _image, _info
 
 from companion.camera.__main__ import build_parser, config_from_args
 from companion.camera.depth_sources import (
+    DepthFrameSource,
     Ros2DepthBagReplay,
     depth_from_image_msg,
     intrinsics_from_depth_info,
@@ -231,34 +242,88 @@ def write_realsense_recording(path, n=60, rate_hz=10.0):
     del recorder  # closes the file
 
 
-def test_realsense_recording_is_read_back_by_pyrealsense2(tmp_path):
+def write_realsense_bag(path, n=60, rate_hz=10.0, **kwargs):
+    """A RealSense ROS 1 ``.bag`` (older SDKs' format) of ``n`` frames of the obstacle scene."""
+    write_realsense_ros1_bag(path, K, _views(n), rate_hz=rate_hz, **kwargs)
+
+
+@pytest.mark.parametrize("suffix", [".db3", ".bag"])
+def test_realsense_recording_is_read_back_by_pyrealsense2(tmp_path, suffix):
+    """pyrealsense2's playback gives back each recorded plane bit for bit, the intrinsics
+    (float32 in the file), depth scale and baseline, and the device stamps 100 ms apart."""
+    pytest.importorskip("pyrealsense2")
     from companion.camera.realsense_source import RealSenseSource
 
-    path = tmp_path / "rec.db3"  # pyrealsense2 2.59 records ROS 2 (sqlite3) bags
-    write_realsense_recording(path, n=5)
+    path = tmp_path / f"rec{suffix}"
+    if suffix == ".db3":  # pyrealsense2 2.59 records ROS 2 (sqlite3) bags
+        write_realsense_recording(path, n=5)
+    else:
+        write_realsense_bag(path, n=5)
     now = iter(range(10**9, 10**10, 10**6))
     source = RealSenseSource(path, clock=lambda: next(now))
     source.open()
     assert source.intrinsics.width_px == 320 and source.intrinsics.baseline_m == pytest.approx(0.2)
     assert source.intrinsics.fx_px == pytest.approx(K.fx_px, rel=1e-6)
+    assert source.intrinsics.cy_px == pytest.approx(K.cy_px, rel=1e-6)
     assert source.depth_scale_m == pytest.approx(0.001, rel=1e-6)
     frames = []
     while (item := source.read()) is not None:
         frames.append(item)
     source.close()
     assert len(frames) == 5
-    expected = [plane for plane, _ in _views(5)]
-    for frame, plane in zip(frames, expected, strict=True):
+    for frame, (plane, left) in zip(frames, _views(5), strict=True):
         np.testing.assert_array_equal(frame.depth, plane)
-    assert frames[0].left is not None
+        np.testing.assert_array_equal(frame.left, left)
+        assert frame.depth_scale_m == pytest.approx(0.001, rel=1e-6)
     np.testing.assert_array_equal(np.diff([f.capture_ns for f in frames]), 100_000_000)
 
 
+@pytest.mark.parametrize("image_units_m", [0.0005, None])
+def test_ros1_bag_depth_units_come_from_the_frame_else_the_option(tmp_path, image_units_m):
+    """SDKs since 2.49 append each depth image's units after its data (their Header's
+    third field, "version", says "1"); older bags have none and playback takes the "Depth
+    Units" option. The frame's units, not the sensor's, scale what is published."""
+    pytest.importorskip("pyrealsense2")
+    from companion.camera.realsense_source import RealSenseSource
+
+    path = tmp_path / "rec.bag"
+    write_realsense_bag(path, n=2, depth_scale_m=0.001, image_depth_units_m=image_units_m)
+    source = RealSenseSource(path, clock=iter(range(10**9, 10**10, 10**6)).__next__)
+    source.open()
+    frame = source.read()
+    source.close()
+    assert source.depth_scale_m == pytest.approx(0.001, rel=1e-6)
+    expected = 0.001 if image_units_m is None else image_units_m
+    assert frame.depth_scale_m == pytest.approx(expected, rel=1e-6)
+
+
+def test_realsense_bag_errors_name_the_file_and_the_reason(tmp_path):
+    """A ``.bag`` that is not a RealSense recording is refused with librealsense's reason."""
+    pytest.importorskip("pyrealsense2")
+    from rosbags.rosbag1 import Writer as Ros1Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from companion.camera.realsense_source import RealSenseSource
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    path = tmp_path / "not_realsense.bag"
+    with Ros1Writer(path) as bag:
+        conn = bag.add_connection("/chatter", "std_msgs/msg/String", typestore=ts)
+        msg = ts.types["std_msgs/msg/String"](data="hello")
+        bag.write(conn, 1_000_000, ts.serialize_ros1(msg, msg.__msgtype__))
+    with pytest.raises(SourceError, match=r"not_realsense\.bag.*file_version"):
+        RealSenseSource(path).open()
+
+
 @pytest.mark.slow
-def test_realsense_recording_drives_the_companion(tmp_path):
+def test_realsense_bag_drives_the_companion(tmp_path):
+    """The issue's Done-when: a ``.bag`` made without a camera, read by pyrealsense2's
+    playback, replays through ``stereo-camera realsense --bag`` into the companion (the
+    ``.db3`` takes the same path after the source: read back above, frame for frame)."""
+    pytest.importorskip("pyrealsense2")
     n, rate_hz = 60, 10.0
-    path = tmp_path / "rec.db3"
-    write_realsense_recording(path, n=n, rate_hz=rate_hz)
+    path = tmp_path / "rec.bag"
+    write_realsense_bag(path, n=n, rate_hz=rate_hz)
     with companion_rig() as rig:
         camera = rig.start(
             "stereo-camera",
@@ -267,6 +332,73 @@ def test_realsense_recording_drives_the_companion(tmp_path):
              "--vehicle-id", VEHICLE_ID],
         )  # fmt: skip
         _drives_the_companion(rig, camera, n, rate_hz)
+
+
+# ---- the DepthFrameSource contract, for every implementation -------------------------------
+
+
+def _ros2_depth_case(tmp_path):
+    write_depth_bag(tmp_path / "bag", n=5)
+    return Ros2DepthBagReplay(tmp_path / "bag", DEPTH, 0.2, image_topic=PICTURE)
+
+
+def _realsense_bag_case(tmp_path):
+    from companion.camera.realsense_source import RealSenseSource
+
+    pytest.importorskip("pyrealsense2")
+    write_realsense_bag(tmp_path / "rec.bag", n=5)
+    return RealSenseSource(tmp_path / "rec.bag")
+
+
+CASES = {
+    "companion.camera.depth_sources.Ros2DepthBagReplay": _ros2_depth_case,
+    "companion.camera.realsense_source.RealSenseSource": _realsense_bag_case,
+}
+DISCOVERED = implementations("read", "RawDepth")
+
+
+def test_every_depth_frame_source_has_a_conformance_case():
+    assert len(DISCOVERED) >= 2, DISCOVERED
+    missing = sorted(set(DISCOVERED) - set(CASES))
+    assert not missing, f"depth frame sources without a conformance case in CASES: {missing}"
+    stale = sorted(set(CASES) - set(DISCOVERED))
+    assert not stale, f"CASES entries that are not depth frame sources: {stale}"
+
+
+@pytest.mark.parametrize("name", DISCOVERED, ids=lambda n: n.rsplit(".", 1)[1])
+def test_depth_frame_source_contract(tmp_path, name):
+    """Sizes and intrinsics only after open(), each of the 5 recorded frames once (depth
+    planes as recorded, the left picture beside them), capture times strictly increasing,
+    then None for good; close() twice is fine."""
+    if name not in CASES:
+        pytest.fail(f"{name} implements read() -> RawDepth but has no case in CASES")
+    source = CASES[name](tmp_path)
+    assert f"{type(source).__module__}.{type(source).__qualname__}" == name
+    assert isinstance(source, DepthFrameSource)
+    assert isinstance(source.description, str) and source.description
+    assert source.size_px is None and source.intrinsics is None
+    source.open()
+    try:
+        assert source.size_px == (K.width_px, K.height_px)
+        assert source.intrinsics.baseline_m == pytest.approx(K.baseline_m)
+        frames = []
+        while (item := source.read()) is not None:
+            frames.append(item)
+            assert len(frames) <= 5, "a frame delivered twice"
+        assert source.read() is None and source.read() is None, "stays at the end"
+    finally:
+        source.close()
+    source.close()
+    assert len(frames) == 5
+    for frame, (plane, left) in zip(frames, _views(5), strict=True):
+        assert frame.encoding is PixelEncoding.DEPTH16 and frame.depth_scale_m == pytest.approx(
+            0.001, rel=1e-6
+        )
+        np.testing.assert_array_equal(frame.depth, plane)
+        np.testing.assert_array_equal(frame.left, left)
+    stamps = [f.capture_ns for f in frames]
+    assert all(isinstance(t, int) for t in stamps)
+    assert all(b > a for a, b in itertools.pairwise(stamps)), stamps
 
 
 def test_live_device_time_is_mapped_by_the_smallest_offset():

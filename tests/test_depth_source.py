@@ -1,23 +1,33 @@
 """Conformance of every depth source to companion.depth_source's contract (issue 11 item 5).
 
-A new matcher is added to ``SOURCES``; every test here then runs against it. A depth camera
-(issue 35) is a source too: its frames are depth frames made from the renderer's true depth
-by plant-sim's RealSense-like camera model; the matcher-only physics (textureless surfaces)
-has its depth-camera counterpart below.
+The implementations are discovered, not listed (issue 33): every class of ours with
+``compute(...) -> DepthMap`` (``_contracts.implementations``) runs through every test
+here, and ``test_every_depth_source_has_a_conformance_entry`` fails for one that has no
+entry in ``SOURCES`` (how to build it and what frames it reads). A depth camera (issue 35)
+is a source too: its frames are depth frames made from the renderer's true depth by
+plant-sim's RealSense-like camera model; ground truth (the lockstep bench's) reads blank
+pairs and is handed the renderer's true depth. The matcher-only physics (textureless
+surfaces) is checked on the matchers; the depth camera has its counterpart in
+``test_depth_camera.py``.
 """
 
 from __future__ import annotations
 
+import enum
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from _contracts import implementations
 
 from companion.bare_bm import BareStereoBM
 from companion.depth_camera import DepthCameraConfig, DepthCameraSource
 from companion.depth_source import DISP_SCALE, DepthMap, DepthSource
 from companion.perception import PerceptionConfig, StereoPerception
 from companion.stereo_bm import PaddedStereoBM
+from evaluation.truth_perception import TruthDepthSource
 from plant_sim.depth_camera import DepthNoiseParams, depth16_from_truth
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.world import Box, GroundPlane, Material, Sphere, World
@@ -28,23 +38,56 @@ CAMERA = CameraModel()
 LEVEL = np.eye(3)
 POS = np.array([0.0, 0.0, -7.0])
 
+
+class Feed(enum.Enum):
+    """What frames a source reads."""
+
+    PAIR = "rectified stereo pair"
+    DEPTH_FRAME = "depth camera frame"
+    TRUTH = "blank pair, the true depth handed over with provide()"
+
+
+@dataclass(frozen=True)
+class Entry:
+    build: Callable[[], DepthSource]
+    feed: Feed
+
+
 DEPTH_CAMERA = DepthCameraConfig(min_range_m=1.0)  # plant-sim's camera (DepthNoiseParams)
 SOURCES = {
-    "padded_bm": lambda: PaddedStereoBM(PerceptionConfig()),
-    "bare_bm": lambda: BareStereoBM(PerceptionConfig()),
-    "depth_camera": lambda: DepthCameraSource(DEPTH_CAMERA),
+    "companion.stereo_bm.PaddedStereoBM": Entry(
+        lambda: PaddedStereoBM(PerceptionConfig()), Feed.PAIR
+    ),
+    "companion.bare_bm.BareStereoBM": Entry(lambda: BareStereoBM(PerceptionConfig()), Feed.PAIR),
+    "companion.depth_camera.DepthCameraSource": Entry(
+        lambda: DepthCameraSource(DEPTH_CAMERA), Feed.DEPTH_FRAME
+    ),
+    "evaluation.truth_perception.TruthDepthSource": Entry(
+        lambda: TruthDepthSource(PerceptionConfig()), Feed.TRUTH
+    ),
 }
-STEREO_SOURCES = sorted(name for name in SOURCES if name != "depth_camera")
+DISCOVERED = implementations("compute", "DepthMap")
+MATCHERS = [name for name in DISCOVERED if name in SOURCES and SOURCES[name].feed is Feed.PAIR]
 
 
-@pytest.fixture(scope="module", params=sorted(SOURCES))
+def _qualname(cls: type) -> str:
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
+def _build(name: str) -> DepthSource:
+    if name not in SOURCES:
+        pytest.fail(f"{name} implements compute() -> DepthMap but has no entry in SOURCES")
+    return SOURCES[name].build()
+
+
+@pytest.fixture(scope="module", params=DISCOVERED)
 def source(request) -> DepthSource:
-    return SOURCES[request.param]()
+    return _build(request.param)
 
 
-@pytest.fixture(scope="module", params=STEREO_SOURCES)
+@pytest.fixture(scope="module", params=MATCHERS)
 def stereo_source(request) -> DepthSource:
-    return SOURCES[request.param]()
+    return _build(request.param)
 
 
 @pytest.fixture(scope="module")
@@ -52,24 +95,61 @@ def renderer() -> StereoCameraRenderer:
     return StereoCameraRenderer(CAMERA)
 
 
-def _is_depth_camera(source) -> bool:
-    return isinstance(source, DepthCameraSource)
+def _feed(source) -> Feed:
+    return SOURCES[_qualname(type(source))].feed
+
+
+def test_every_depth_source_has_a_conformance_entry():
+    """Discovery finds the four we know, and every one it finds has an entry (and no entry
+    names a class that is no longer a depth source)."""
+    assert len(DISCOVERED) >= 4, DISCOVERED
+    missing = sorted(set(DISCOVERED) - set(SOURCES))
+    assert not missing, f"depth sources without a SOURCES entry (build, feed): {missing}"
+    stale = sorted(set(SOURCES) - set(DISCOVERED))
+    assert not stale, f"SOURCES entries that are not depth sources: {stale}"
+    for name, entry in SOURCES.items():
+        assert _qualname(type(entry.build())) == name
+
+
+def test_discovery_finds_implementations_and_their_subclasses(tmp_path):
+    """On a tree made for the purpose: the contract (a Protocol), an implementation, its
+    subclass in another module, a string annotation; not a look-alike returning else."""
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "contract.py").write_text(
+        "class Source(Protocol):\n    def compute(self, frame) -> DepthMap: ...\n"
+    )
+    (pkg / "a.py").write_text(
+        "class A:\n    def compute(self, frame) -> DepthMap: ...\n"
+        "class Other:\n    def compute(self, frame) -> float: ...\n"
+        "class Quoted:\n    def compute(self, frame) -> 'x.DepthMap | None': ...\n"
+    )
+    (pkg / "b.py").write_text("from pkg.a import A\nclass B(A):\n    pass\n")
+    found = implementations("compute", "DepthMap", root=tmp_path, searched=("pkg",))
+    assert found == ["pkg.a.A", "pkg.a.Quoted", "pkg.b.B"]
 
 
 def _frame(renderer, world, pos=POS, R=LEVEL, seed=0, source=None):
-    """The frame ``source`` reads (a pair, or a depth frame from plant-sim's depth camera)
-    of the view from ``pos``, and the true depth."""
+    """The frame ``source`` reads (a pair, a depth frame from plant-sim's depth camera, or
+    a blank pair whose true depth the source is handed) of the view from ``pos``, and the
+    true depth."""
     out = renderer.render(world, pos, R, noise_seed=seed)
-    if _is_depth_camera(source):
+    feed = _feed(source) if source is not None else Feed.PAIR
+    if feed is Feed.DEPTH_FRAME:
         plane = depth16_from_truth(out.depth_left_m, CAMERA.intrinsics, DepthNoiseParams(), seed)
         frame = DepthFrame(seed, seed, CAMERA.intrinsics, plane, PixelEncoding.DEPTH16, 0.001)
         return frame, out.depth_left_m
+    if feed is Feed.TRUTH:
+        source.provide(seed, out.depth_left_m)
+        blank = np.zeros_like(out.left)
+        return StereoFrame(seed, seed, CAMERA.intrinsics, blank, blank), out.depth_left_m
     return StereoFrame(seed, seed, CAMERA.intrinsics, out.left, out.right), out.depth_left_m
 
 
 def _range_m(source, frame) -> float:
     """The source's farthest range for this frame (the contract's ``max_range_m``)."""
-    if _is_depth_camera(source):
+    if _feed(source) is Feed.DEPTH_FRAME:
         return source.config.range_m(frame.intrinsics)
     return PerceptionConfig().max_range_m
 
@@ -190,7 +270,12 @@ def test_any_frame_size_gives_a_depth_map(source, size):
     rng = np.random.default_rng(width * 1000 + height)
     image = rng.integers(0, 256, (height, width), dtype=np.uint8)
     frame = StereoFrame(0, 0, k, image, image)
-    if _is_depth_camera(source):
+    if _feed(source) is Feed.DEPTH_FRAME:
         depth = rng.integers(0, 40_000, (height, width), dtype=np.uint16)
         frame = DepthFrame(0, 0, k, depth, PixelEncoding.DEPTH16, 0.001, image)
+    elif _feed(source) is Feed.TRUTH:  # sky, unknown and surfaces from 0.1 m to 100 m
+        depth_m = np.exp(rng.uniform(math.log(0.1), math.log(100.0), (height, width)))
+        depth_m[rng.random((height, width)) < 0.1] = np.inf
+        depth_m[rng.random((height, width)) < 0.05] = np.nan
+        source.provide(0, depth_m)
     check_contract(frame, source.compute(frame), _range_m(source, frame))

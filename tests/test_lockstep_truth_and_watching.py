@@ -1,7 +1,8 @@
 """The lockstep harness's compiled bookkeeping and its ground-truth perception (issue 17/13):
 ``Quadrotor.step_watching`` equals stepping one step at a time and reading tilt and
-clearance in Python; true disparity follows Eq. 27 exactly; TruthPerception sees the
-paper's sphere where it is; the progress bar's rate and ETA."""
+clearance in Python; true disparity follows Eq. 27 exactly; perception on the ground-truth
+depth source sees the paper's sphere where it is, and the harness hands that source to the
+mission (no swap after construction); the progress bar's rate and ETA."""
 
 from __future__ import annotations
 
@@ -11,11 +12,11 @@ import math
 import numpy as np
 import pytest
 
-from companion.perception import StereoPerception
-from evaluation.harness import RunConfig, nearest_surface_m
+from companion.perception import PerceptionConfig, StereoPerception
+from evaluation.harness import RunConfig, _start, nearest_surface_m
 from evaluation.mc_progress import ProgressBar, format_duration
 from evaluation.scenes import paper_scene
-from evaluation.truth_perception import TruthPerception, truth_disparity_fixed
+from evaluation.truth_perception import TruthDepthSource, truth_disparity_fixed
 from plant_sim.stereo_camera import StereoCameraRenderer
 from plant_sim.vehicle import Quadrotor, Setpoint
 from protocols.camera import CameraModel
@@ -88,10 +89,11 @@ def test_truth_perception_places_the_paper_sphere_where_it_is():
     R = np.diag([-1.0, -1.0, 1.0])
     depth = renderer.render_depth(scene.world, pos, R)
     frame = StereoFrame(7, 0, cam.intrinsics, *(np.zeros_like(depth, np.uint8),) * 2)
-    truth = TruthPerception()
+    source = TruthDepthSource(PerceptionConfig())
+    truth = StereoPerception(source=source)
     with pytest.raises(RuntimeError, match="no true depth for frame 7"):
         truth.process(frame, pos, R)
-    truth.provide(7, depth)
+    source.provide(7, depth)
     seen = truth.process(frame, pos, R)
     assert len(seen.obstacles) == 1
     obstacle = seen.obstacles[0]
@@ -107,6 +109,17 @@ def test_truth_perception_places_the_paper_sphere_where_it_is():
     )
     assert stereo.obstacles[0].nearest_range_m == pytest.approx(3.5, abs=0.3)
     assert RunConfig(truth_perception=True).truth_perception
+
+
+@pytest.mark.parametrize("truth", [False, True])
+def test_the_harness_hands_the_mission_its_depth_source(truth):
+    """Ground truth is the mission's depth source from construction, with the run's
+    perception settings; without it the mission keeps the companion's matcher."""
+    cfg = RunConfig(truth_perception=truth, perception=PerceptionConfig(max_range_m=9.0))
+    _, mission = _start(paper_scene(), cfg)
+    source = mission.pipeline.perception.source
+    assert isinstance(source, TruthDepthSource) is truth
+    assert source.config is cfg.perception
 
 
 def test_progress_bar_rate_eta_and_log_lines():

@@ -1,5 +1,11 @@
-"""Frame sources: the StereoSource contract for every implementation that runs here, replay
-layouts and timing, and the clear errors for missing devices, size mismatches and bad folders."""
+"""Frame sources: the StereoSource contract for every implementation, replay layouts and
+timing, and the clear errors for missing devices, size mismatches and bad folders.
+
+The implementations are discovered (``_contracts.implementations``: every public class of
+ours with ``read() -> RawPair``), and ``test_every_stereo_source_has_a_conformance_case``
+fails for one that has no case here; each runs without hardware (the camera classes read
+video files through the same VideoCapture path they use for /dev/videoN, a ROS 2 bag is
+written by rosbags)."""
 
 from __future__ import annotations
 
@@ -10,7 +16,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import pytest
+from _contracts import implementations
+from rosbags.rosbag2 import Writer
+from rosbags.typesys import Stores, get_typestore
 
+from companion.camera.rosbag_source import Ros2BagReplay
 from companion.camera.sources import (
     FolderReplay,
     MemorySource,
@@ -108,12 +118,60 @@ def _side_by_side_on_file(tmp_path):
     return Case(SideBySideCamera(_write_video(tmp_path / "sbs.avi", frames)), False, first=1)
 
 
+def _ros2_bag(tmp_path):
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    Image, Header = ts.types["sensor_msgs/msg/Image"], ts.types["std_msgs/msg/Header"]
+    Time = ts.types["builtin_interfaces/msg/Time"]
+    with Writer(tmp_path / "bag", version=9) as bag:
+        conns = [bag.add_connection(f"/{eye}", Image.__msgtype__, typestore=ts) for eye in "lr"]
+        for i in range(N):
+            stamp = BASE_NS + RECORDED_STEPS_NS[i]
+            header = Header(stamp=Time(sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id="")
+            for conn, image in zip(conns, _pair(i), strict=True):
+                msg = Image(
+                    header=header,
+                    height=H,
+                    width=W,
+                    encoding="mono8",
+                    is_bigendian=0,
+                    step=W,
+                    data=image.reshape(-1),
+                )
+                bag.write(conn, stamp, ts.serialize_cdr(msg, msg.__msgtype__))
+    return Case(Ros2BagReplay(tmp_path / "bag", "/l", "/r"), True)
+
+
+# Every public implementation, by its qualified name: how to make one that runs here.
+CASES = {
+    "companion.camera.sources.MemorySource": [_memory],
+    "companion.camera.sources.FolderReplay": [_replay_names, _replay_manifest],
+    "companion.camera.sources.V4L2PairCamera": [_v4l2_pair_on_files],
+    "companion.camera.sources.SideBySideCamera": [_side_by_side_on_file],
+    "companion.camera.rosbag_source.Ros2BagReplay": [_ros2_bag],
+}
+# (private bases such as ``_LiveCamera`` are not sources of their own)
+DISCOVERED = [n for n in implementations("read", "RawPair") if n.rsplit(".", 1)[1][0] != "_"]
+
+
+def test_every_stereo_source_has_a_conformance_case():
+    assert len(DISCOVERED) >= 5, DISCOVERED
+    missing = sorted(set(DISCOVERED) - set(CASES))
+    assert not missing, f"stereo sources without a conformance case in CASES: {missing}"
+    stale = sorted(set(CASES) - set(DISCOVERED))
+    assert not stale, f"CASES entries that are not stereo sources: {stale}"
+
+
 @pytest.fixture(
-    params=[_memory, _replay_names, _replay_manifest, _v4l2_pair_on_files, _side_by_side_on_file],
-    ids=["memory", "replay_names", "replay_manifest", "v4l2_pair_files", "side_by_side_file"],
+    params=[(name, make) for name in DISCOVERED for make in CASES.get(name, [None])],
+    ids=lambda p: f"{p[0].rsplit('.', 1)[1]}-{getattr(p[1], '__name__', 'no case')}",
 )
 def case(request, tmp_path) -> Case:
-    return request.param(tmp_path)
+    name, make = request.param
+    if make is None:
+        pytest.fail(f"{name} implements read() -> RawPair but has no case in CASES")
+    made = make(tmp_path)
+    assert f"{type(made.source).__module__}.{type(made.source).__qualname__}" == name
+    return made
 
 
 def test_source_contract(case):

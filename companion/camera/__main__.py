@@ -307,7 +307,8 @@ def config_from_args(args: argparse.Namespace) -> CameraConfig:
 
 
 def make_source(config: SourceConfig):
-    """The :class:`~companion.camera.sources.StereoSource` for ``config`` (not yet open)."""
+    """The :class:`~companion.camera.sources.StereoSource` (or, for a depth camera, the
+    :class:`~companion.camera.depth_sources.DepthFrameSource`) for ``config`` (not yet open)."""
     from companion.camera import sources
 
     if config.kind is SourceKind.V4L2_PAIR:

@@ -37,6 +37,7 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -46,6 +47,7 @@ from protocols.camera import StereoIntrinsics
 from protocols.stereo_frame import PixelEncoding
 
 __all__ = [
+    "DepthFrameSource",
     "RawDepth",
     "Ros2DepthBagReplay",
     "depth_from_image_msg",
@@ -80,6 +82,30 @@ class RawDepth:
     depth_scale_m: float
     left: np.ndarray | None
     capture_ns: int
+
+
+@runtime_checkable
+class DepthFrameSource(Protocol):
+    """What the publisher needs from a depth camera source, as
+    :class:`~companion.camera.sources.StereoSource` for pairs: ``size_px`` and
+    ``intrinsics`` (with the stereo baseline the depth is equivalent to) are None until
+    :meth:`open`; :meth:`read` gives each frame once, capture times strictly increasing,
+    then None for good (end of a recording); :meth:`close` may be called more than once.
+    ``tests/test_depth_camera_sources.py`` runs every implementation it finds against it."""
+
+    description: str
+    intrinsics: StereoIntrinsics | None
+
+    @property
+    def size_px(self) -> tuple[int, int] | None:
+        """``(width, height)`` of the depth image; None before :meth:`open`."""
+        ...
+
+    def open(self) -> None: ...
+
+    def read(self) -> RawDepth | None: ...
+
+    def close(self) -> None: ...
 
 
 def depth_from_image_msg(msg) -> tuple[np.ndarray, PixelEncoding, float]:

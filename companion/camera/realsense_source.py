@@ -7,8 +7,13 @@ the depth stream's intrinsics and the depth sensor's depth scale from the device
 baseline from the infrared 1 → infrared 2 extrinsics, else the depth sensor's
 ``stereo_baseline`` option [mm], else ``--baseline``.
 
+Depth units: each depth frame's own (``depth_frame.get_units()``; a recording made before
+SDK 2.49 has none in its frames and playback gives the depth sensor's "Depth Units"
+option), else the depth sensor's depth scale.
+
 Time: a recording (``--bag FILE``: whatever pyrealsense2's playback opens; version 2.59
-records ROS 2 ``.db3``, older SDKs wrote ROS 1 ``.bag``) is read as fast as it is
+records only ROS 2 ``.db3`` and still plays the ROS 1 ``.bag`` of older SDKs, which is
+what existing recordings are) is read as fast as it is
 consumed and its frame timestamps are mapped like a replay's (the first lands on the
 host's monotonic clock at the first read). A live device's timestamps (hardware clock or
 global time, in ms) are mapped onto the host's monotonic clock by the smallest
@@ -17,8 +22,9 @@ clock's position plus the transport's minimum latency, so a frame never looks yo
 it is, and the window follows the two clocks' drift.
 
 What could not be tested here (no device on CI): live streaming, USB behaviour, the
-extrinsics of a real module. The recorded path is tested with a recording made by
-pyrealsense2's software device under its own recorder (tests/test_realsense_source.py).
+extrinsics of a real module. The recorded path is tested with a ``.db3`` made by
+pyrealsense2's software device under its own recorder and a ROS 1 ``.bag`` written in
+librealsense's layout without the SDK (tests/test_depth_camera_sources.py).
 """
 
 from __future__ import annotations
@@ -115,6 +121,7 @@ class RealSenseSource:
         self._pipeline = None
         self._has_ir1 = False
         self._last_frame_number: int | None = None
+        self._ended = False  # a recording that has ended stays ended (no more waits)
         self.depth_scale_m = 0.001
         self.intrinsics: StereoIntrinsics | None = None
         self.description = "realsense"
@@ -180,14 +187,15 @@ class RealSenseSource:
         )
 
     def read(self) -> RawDepth | None:
-        if self._pipeline is None:
+        if self._pipeline is None or self._ended:
             return None
         deadline = time.monotonic() + _LIVE_TIMEOUT_S
         while True:
             ok, frames = self._pipeline.try_wait_for_frames(_WAIT_MS)
             if not ok:
                 if self.bag is not None:
-                    return None  # the recording has ended
+                    self._ended = True  # the recording has ended
+                    return None
                 if time.monotonic() >= deadline:
                     raise SourceError(f"RealSense: no frames for {_LIVE_TIMEOUT_S:g} s")
                 continue
@@ -205,10 +213,11 @@ class RealSenseSource:
                 if picture.shape != plane.shape:
                     picture = None
         stamp_ns = round(depth.get_timestamp() * 1e6)
+        units_m = float(depth.get_units())  # the frame's own units (the option may change)
         return RawDepth(
             plane,
             PixelEncoding.DEPTH16,
-            self.depth_scale_m,
+            units_m if math.isfinite(units_m) and units_m > 0 else self.depth_scale_m,
             picture,
             self._capture_ns(stamp_ns, arrival_ns),
         )

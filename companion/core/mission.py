@@ -15,6 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from companion.core.events import Event, MissionStep, Notice
+from companion.depth_source import DepthSource
 from companion.guidance import GuidanceConfig, Mode, Reason
 from companion.guidance.envelope import EnvelopeConfig
 from companion.guidance.tracking import TrackingMonitor
@@ -36,6 +37,8 @@ class Mission:
     goal_tolerance_m : float
         A waypoint counts as reached within this distance [m].
     perception, guidance, known_space, envelope : configs of the pipeline.
+    depth_source : DepthSource, optional
+        The pipeline's depth source for stereo pairs (default: the matcher).
     """
 
     def __init__(
@@ -46,6 +49,8 @@ class Mission:
         guidance: GuidanceConfig | None = None,
         known_space: KnownSpaceConfig | None = None,
         envelope: EnvelopeConfig | None = None,
+        *,
+        depth_source: DepthSource | None = None,
     ) -> None:
         if not waypoints_ned_m:
             raise ValueError("a mission needs at least one waypoint")
@@ -54,7 +59,12 @@ class Mission:
         self.waypoints_ned_m = tuple(tuple(float(x) for x in wp) for wp in waypoints_ned_m)
         self.goal_tolerance_m = float(goal_tolerance_m)
         self.pipeline = AvoidancePipeline(
-            self.waypoints_ned_m[0], perception, guidance, known_space, envelope
+            self.waypoints_ned_m[0],
+            perception,
+            guidance,
+            known_space,
+            envelope,
+            depth_source=depth_source,
         )
         self.waypoint = 0
         self.goal_reached = False
