@@ -159,6 +159,12 @@ def hold_point(
     return HoldPoint(_tuple(pos + t * (brake - pos)), HoldPlacement.SHORTENED)
 
 
+@dataclass(frozen=True)
+class _Ball:
+    center_ned_m: tuple[float, float, float]
+    radius_m: float
+
+
 def _fibonacci_directions(n: int) -> np.ndarray:
     """``n`` unit vectors spread evenly over the sphere (golden-angle spiral), read-only."""
     k = np.arange(n) + 0.5
@@ -194,28 +200,25 @@ def nearest_outside(
     a point merely outside (clearance 0). ``None`` when nothing within ``search_m`` is.
     """
     pos = np.asarray(pos_ned_m, dtype=float)
-    if not boundaries:
+    if not inside_any(pos, [_Ball(b.center_ned_m, b.radius_m + clearance_m) for b in boundaries]):
         return pos.copy()
     centres = np.array([np.asarray(b.center_ned_m, dtype=float) for b in boundaries])
     radii = np.array([float(b.radius_m) for b in boundaries])
     near = np.linalg.norm(centres - pos, axis=1) - radii < search_m + clearance_m
     centres, radii = centres[near], radii[near]
-    steps_m = np.arange(1, int(search_m / step_m) + 1) * step_m
-    points = pos + _DIRECTIONS[:, None, :] * steps_m[None, :, None]  # (dirs, steps, 3)
-    dist = np.linalg.norm(points[:, :, None, :] - centres[None, None, :, :], axis=-1)
     prefer = np.zeros(3) if prefer_ned is None else np.asarray(prefer_ned, dtype=float)
     norm = float(np.linalg.norm(prefer))
     along = _DIRECTIONS @ (prefer / norm) if norm > 1e-9 and math.isfinite(norm) else None
+    n_steps = int(search_m / step_m)
     for clearance in (clearance_m, 0.0) if clearance_m > 0.0 else (0.0,):
-        clear = np.all(dist >= radii + clearance, axis=-1)  # (dirs, steps)
-        found = clear.any(axis=1)
-        if not found.any():
-            continue
-        first = np.where(found, clear.argmax(axis=1), steps_m.size)
-        best = first.min()
-        candidates = np.flatnonzero(first == best)
-        pick = candidates[0] if along is None else candidates[np.argmax(along[candidates])]
-        return points[pick, best].copy()
+        reach = radii + clearance
+        for k in range(1, n_steps + 1):  # outward, so the first clear step is the nearest
+            points = pos + _DIRECTIONS * (k * step_m)  # (dirs, 3)
+            dist = np.linalg.norm(points[:, None, :] - centres[None, :, :], axis=-1)
+            clear = np.flatnonzero(np.all(dist >= reach, axis=1))
+            if clear.size:
+                pick = clear[0] if along is None else clear[np.argmax(along[clear])]
+                return points[pick].copy()
     return None
 
 
