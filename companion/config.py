@@ -451,6 +451,15 @@ def _merge(base: dict[str, Any], section: str, values: dict[str, Any]) -> None:
         base[section] = sub
 
 
+def _from_dict_of_file(d: Mapping[str, Any], path: Path | None) -> CompanionConfig:
+    """:func:`config_from_dict`; an error names the file (its keys, perhaps overridden by
+    a flag) when there is one."""
+    try:
+        return config_from_dict(d)
+    except ConfigError as exc:
+        raise exc if path is None else exc.in_file(path) from None
+
+
 def config_from_args(
     args: argparse.Namespace, environ: Mapping[str, str] | None = None
 ) -> CompanionConfig:
@@ -524,10 +533,7 @@ def config_from_args(
     _merge(
         d, "perception", {"threshold_m": args.threshold_m, "safety_margin_m": args.safety_margin_m}
     )
-    try:
-        cfg = config_from_dict(d)
-    except ConfigError as exc:  # name the file (its keys, perhaps overridden by a flag)
-        raise exc if args.config is None else exc.in_file(args.config) from None
+    cfg = _from_dict_of_file(d, args.config)
     z = cfg.zenoh
     if not z.listen and not z.connect and z.config_file is None:
         # plant-sim's default listen endpoint

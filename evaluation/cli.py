@@ -164,16 +164,24 @@ def _record_sink(results, bar, code: str) -> Callable[[dict], None]:
     return on_record
 
 
-def _montecarlo(args: argparse.Namespace) -> int:
+def _have_dask() -> bool:
+    """Whether the [eval] extra (Dask) is installed; if not, says which module is missing."""
     try:
-        from evaluation.mc_cluster import dask_client, fly_on_cluster
-    except ModuleNotFoundError as exc:  # the [eval] extra is not installed
+        import evaluation.mc_cluster  # noqa: F401
+    except ModuleNotFoundError as exc:
         print(
-            f"stereo-avoid montecarlo: {exc.name or exc} is missing: Monte Carlo runs on Dask, in "
-            "the [eval] extra (pip install 'stereo-avoid[eval]', or bash scripts/setup.sh)",
+            f"stereo-avoid montecarlo: {exc.name or exc} is missing: Monte Carlo runs on Dask, "
+            "in the [eval] extra (pip install 'stereo-avoid[eval]', or bash scripts/setup.sh)",
             file=sys.stderr,
         )
+        return False
+    return True
+
+
+def _montecarlo(args: argparse.Namespace) -> int:
+    if not _have_dask():
         return 2
+    from evaluation.mc_cluster import dask_client, fly_on_cluster
     from evaluation.mc_progress import ProgressBar
     from evaluation.mc_provenance import code_counts, code_fingerprint
     from evaluation.mc_report import write_report

@@ -47,6 +47,7 @@ from plant_sim.camera_publisher import StereoPublisher, readiness_fields
 from plant_sim.pose_track import PoseTrack
 from plant_sim.scenario import Scenario
 from plant_sim.truth_log import TruthLogWriter
+from protocols.config import ConfigError, bounded, check_fields
 from protocols.frames import euler321_from_rotation, rotation_from_quat
 from protocols.keys import stereo_key
 from protocols.zenoh_session import ZenohSettings
@@ -69,24 +70,24 @@ class CameraOnlyConfig:
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     offset_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # scenario = local + offset
     log_dir: Path | None = None
-    pose_rate_hz: float = 50.0  # requested LOCAL_POSITION_NED and ATTITUDE rate
-    truth_rate_hz: float = 50.0  # ground-truth rows per second of autopilot time
-    target_system: int = 0  # 0: the first autopilot heard
-    system_id: int = 1  # ours: the vehicle's camera component
-    component_id: int = _M.MAV_COMP_ID_CAMERA
-    connect_timeout_s: float = 30.0  # wall
-    max_gap_s: float = 0.25  # no frame from poses further apart [s autopilot time]
-    heartbeat_period_s: float = 1.0  # wall
+    # requested LOCAL_POSITION_NED and ATTITUDE rate
+    pose_rate_hz: float = bounded(50.0, "Hz", ge=30)
+    # ground-truth rows per second of autopilot time
+    truth_rate_hz: float = bounded(50.0, "Hz", gt=0)
+    target_system: int = bounded(0, integer=True, ge=0, le=255)  # 0: the first autopilot heard
+    system_id: int = bounded(1, integer=True, ge=1, le=255)  # ours: the vehicle's camera
+    component_id: int = bounded(_M.MAV_COMP_ID_CAMERA, integer=True, ge=0, le=255)
+    connect_timeout_s: float = bounded(30.0, "s", gt=0)  # wall
+    # no frame from poses further apart [s autopilot time]
+    max_gap_s: float = bounded(0.25, "s", gt=0)
+    heartbeat_period_s: float = bounded(1.0, "s", gt=0)  # wall
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.pose_rate_hz) and self.pose_rate_hz >= 30.0):
-            raise ValueError(f"pose rate must be >= 30 Hz, got {self.pose_rate_hz!r}")
-        if not (math.isfinite(self.truth_rate_hz) and self.truth_rate_hz > 0):
-            raise ValueError(f"truth rate must be > 0, got {self.truth_rate_hz!r}")
+        check_fields(self)
         if len(self.offset_ned_m) != 3 or not all(math.isfinite(x) for x in self.offset_ned_m):
-            raise ValueError(f"offset must be 3 finite numbers, got {self.offset_ned_m!r}")
-        if not 0 <= self.target_system <= 255:
-            raise ValueError(f"target system must be 0..255, got {self.target_system}")
+            raise ConfigError(
+                f"must be 3 finite numbers, got {self.offset_ned_m!r}", key="offset_ned_m"
+            )
 
 
 def mode_name(autopilot: int | None, custom_mode: int | None) -> str:

@@ -61,6 +61,7 @@ from plant_sim.scenario import Scenario
 from plant_sim.tlog import TlogWriter
 from plant_sim.truth_log import TruthLogWriter
 from plant_sim.vehicle import Quadrotor, Setpoint, VehicleState
+from protocols.config import bounded, check_fields
 from protocols.keys import stereo_key
 from protocols.signing import SigningKey
 from protocols.statustext import statustext_chunks
@@ -91,13 +92,17 @@ class PlantConfig:
     scenario: Scenario
     mavlink: tuple[EndpointSpec, ...]
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
-    speedup: float = 1.0  # simulation seconds per wall second; inf = as fast as possible
+    # simulation seconds per wall second; inf = as fast as possible
+    speedup: float = bounded(1.0, gt=0, finite=False)
     signing_key: SigningKey | None = None
     log_dir: Path | None = None  # .tlog and truth CSV go here; None = no logs
-    autopilot_rate_hz: float = 50.0  # mode logic, command execution, telemetry sampling
-    truth_rate_hz: float = 50.0  # ground-truth rows per simulation second (≤ autopilot rate)
-    duration_s: float | None = None  # stop after this much simulation time
-    heartbeat_period_s: float = 1.0  # wall time
+    # mode logic, command execution, telemetry sampling
+    autopilot_rate_hz: float = bounded(50.0, "Hz", gt=0)
+    # ground-truth rows per simulation second (≤ autopilot rate)
+    truth_rate_hz: float = bounded(50.0, "Hz", gt=0)
+    # stop after this much simulation time
+    duration_s: float | None = bounded(None, "s", ge=0, optional=True)
+    heartbeat_period_s: float = bounded(1.0, "s", gt=0)  # wall time
     signing_state: Path | None = None  # replay-protection timestamps kept across restarts
     autopilot_flavour: str = "ardupilot"  # or "px4": PX4 heartbeat, modes, offboard rules
 
@@ -108,10 +113,7 @@ class PlantConfig:
             )
         if not self.mavlink:
             raise ValueError("at least one --mavlink endpoint is needed")
-        if not self.speedup > 0:
-            raise ValueError(f"speedup must be > 0, got {self.speedup}")
-        if not self.autopilot_rate_hz > 0 or not self.truth_rate_hz > 0:
-            raise ValueError("autopilot_rate_hz and truth_rate_hz must be > 0")
+        check_fields(self)
 
 
 def _initial_vehicle(scenario) -> Quadrotor:

@@ -24,7 +24,7 @@ import numpy as np
 
 from plant_sim.world import World
 from protocols.camera import R_FRD_FROM_CAM, CameraModel
-from protocols.config import check_numbers
+from protocols.config import Checked, bounded
 
 __all__ = ["RenderParams", "StereoCameraRenderer", "StereoRender"]
 
@@ -33,7 +33,7 @@ _LATTICE_MASK = _LATTICE_SIZE - 1  # a compile-time constant: masked indices are
 
 
 @dataclass(frozen=True)
-class RenderParams:
+class RenderParams(Checked):
     """Appearance and noise of the synthetic camera.
 
     Attributes
@@ -62,28 +62,16 @@ class RenderParams:
         video link would; 0 = uncompressed.
     """
 
-    texture_cell_m: float = 0.03
-    ground_cell_m: float = 0.05
-    noise_std: float = 2.0
-    sky_cloud_amplitude: float = 12.0
-    lattice_seed: int = 12345
-    gain_right: float = 1.0
-    misrect_v_px: float = 0.0
-    blur_h_px: float = 0.0
-    blur_v_px: float = 0.0
-    jpeg_quality: int = 0
-
-    def __post_init__(self) -> None:
-        check_numbers(self, ("texture_cell_m", "ground_cell_m", "gain_right"), positive=True)
-        check_numbers(self, ("noise_std", "sky_cloud_amplitude", "blur_h_px", "blur_v_px"))
-        if not (isinstance(self.misrect_v_px, int | float) and math.isfinite(self.misrect_v_px)):
-            raise ValueError(f"misrect_v_px must be finite, got {self.misrect_v_px!r}")
-        if not (
-            isinstance(self.jpeg_quality, int)
-            and not isinstance(self.jpeg_quality, bool)
-            and 0 <= self.jpeg_quality <= 100
-        ):
-            raise ValueError(f"jpeg_quality must be an int in 0..100, got {self.jpeg_quality!r}")
+    texture_cell_m: float = bounded(0.03, "m", gt=0)
+    ground_cell_m: float = bounded(0.05, "m", gt=0)
+    noise_std: float = bounded(2.0, "grey level", ge=0)
+    sky_cloud_amplitude: float = bounded(12.0, "grey level", ge=0)
+    lattice_seed: int = bounded(12345, integer=True)
+    gain_right: float = bounded(1.0, gt=0)
+    misrect_v_px: float = bounded(0.0, "px")
+    blur_h_px: float = bounded(0.0, "px", ge=0)
+    blur_v_px: float = bounded(0.0, "px", ge=0)
+    jpeg_quality: int = bounded(0, integer=True, ge=0, le=100)  # 0: uncompressed
 
     @property
     def degraded(self) -> bool:

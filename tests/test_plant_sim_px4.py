@@ -160,17 +160,31 @@ def rig(tmp_path):
 def test_companion_px4_path_flies_the_paper_scene_from_the_ground(rig):
     """plant-sim as a PX4 multicopter, on the ground: the companion arms, takes off with an
     AMSL altitude, PX4 holds at the top, the companion streams setpoints, enters OFFBOARD
-    and flies the paper's scenario to the goal without a collision."""
+    and flies the paper's scenario to the goal without a collision. On the way, frames stop
+    for longer than frame_loss_s: the companion asks for PX4's Hold (AUTO_LOITER), and
+    when frames are back for the settle time, for OFFBOARD again (issue 32)."""
+    from test_companion_sil import Forwarder
+
     from evaluation.sil import _read_truth
 
-    companion = rig.companion("--takeoff-alt", "7")
-    rig.plant("--autopilot-flavour", "px4", "--start-on-ground")
-    ap = rig.wait_event(companion, "autopilot", 30)
-    assert ap["flavour"] == "px4"
-    rig.wait_event(companion, "takeoff", 60, cond=lambda f: f["step"] == "done")
-    active = rig.wait_event(companion, "phase", 30, cond=lambda f: f["phase"] == "active")
-    assert active["mode"] == "OFFBOARD"
-    rig.wait_event(companion, "goal_reached", 90)
+    companion = rig.companion("--takeoff-alt", "7", "--vehicle-id", "fwd")
+    rig.plant("--autopilot-flavour", "px4", "--start-on-ground", connect=False)
+    fwd = Forwarder(rig)  # frames relayed, so that they can be stopped
+    try:
+        ap = rig.wait_event(companion, "autopilot", 30)
+        assert ap["flavour"] == "px4"
+        rig.wait_event(companion, "takeoff", 60, cond=lambda f: f["step"] == "done")
+        active = rig.wait_event(companion, "phase", 30, cond=lambda f: f["phase"] == "active")
+        assert active["mode"] == "OFFBOARD"
+        rig.wait_event(companion, "steering", 10)
+        fwd.paused.set()
+        hold = rig.wait_event(companion, "hold", 10, cond=lambda f: f["reason"] == "frames_lost")
+        assert hold["command"] == "AUTO_LOITER"
+        fwd.paused.clear()
+        rig.wait_event(companion, "resume", 10)
+        rig.wait_event(companion, "goal_reached", 90)
+    finally:
+        fwd.close()
     steps = [f["step"] for _, f in companion.events("takeoff")]
     assert steps[:1] == ["probe"] and steps[-3:] == ["takeoff", "climb", "done"]
     assert "set_mode" not in steps  # PX4: arm and NAV_TAKEOFF, no GUIDED
@@ -180,11 +194,17 @@ def test_companion_px4_path_flies_the_paper_scene_from_the_ground(rig):
     rows = np.genfromtxt(
         rig.tmp / "run0" / "truth.csv", delimiter=",", names=True, dtype=None, encoding=None
     )
-    modes = list(dict.fromkeys(rows["mode"]))  # in order of appearance
+    modes = [m for i, m in enumerate(rows["mode"]) if i == 0 or m != rows["mode"][i - 1]]
     # Hold on the ground, AUTO_TAKEOFF, then OFFBOARD (PX4 lets OFFBOARD interrupt the
-    # takeoff's last decimetres once the companion's 0.5 m tolerance is met)
+    # takeoff's last decimetres once the companion's 0.5 m tolerance is met); the
+    # companion's Hold while frames were lost, and OFFBOARD again to the goal
     assert modes[:2] == ["AUTO_LOITER", "AUTO_TAKEOFF"], modes
-    assert modes.index("OFFBOARD") >= 2 and modes[-1] == "OFFBOARD", modes
+    first = modes.index("OFFBOARD")  # (PX4 may hold at the top for a moment first)
+    assert set(modes[2:first]) <= {"AUTO_LOITER"}, modes
+    assert modes[first:] == ["OFFBOARD", "AUTO_LOITER", "OFFBOARD"], modes
+    companion.stop()
+    mode_requests = companion.stats("COMPANION STATS ")["mode_requests"]
+    assert 3 <= mode_requests <= 4, mode_requests  # OFFBOARD (a retry at most), Hold, OFFBOARD
 
 
 @pytest.mark.slow

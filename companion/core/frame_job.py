@@ -9,22 +9,14 @@ each command (capture → on the wire, frame clock) feeds the latency budget.
 
 from __future__ import annotations
 
-import logging
 import math
 
-from companion.clock_model import (
-    FrameClock,
-)
-from companion.core.events import (
-    FrameProcessed,
-    Status,
-)
+from companion.clock_model import FrameClock
+from companion.core.events import FrameProcessed, Status
 from companion.core.outbox import SEV_INFO, SEV_WARNING
 from companion.link.setpoints import PositionTarget
 from companion.pose_history import PoseStatus
 from protocols.stereo_frame import StereoFrame
-
-_log = logging.getLogger("companion")
 
 __all__ = ["FrameJob"]
 

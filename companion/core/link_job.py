@@ -14,15 +14,8 @@ import logging
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.core.telemetry_job import MAX_POS_M, in_range
-from companion.link.flavour import (
-    control_mode,
-    detect_flavour,
-    is_autopilot_heartbeat,
-)
-from companion.link.messages import (
-    heartbeat_message,
-    mav_state,
-)
+from companion.link.flavour import control_mode, detect_flavour, is_autopilot_heartbeat
+from companion.link.messages import heartbeat_message, mav_state
 from companion.link.setpoints import SetpointPolicy
 from companion.takeover import SETPOINT_MESSAGES
 

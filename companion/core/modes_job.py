@@ -13,13 +13,8 @@ import logging
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.core.outbox import SEV_WARNING
-from companion.link.flavour import (
-    Flavour,
-    profile_for,
-)
-from companion.link.messages import (
-    set_mode_command,
-)
+from companion.link.flavour import Flavour, profile_for
+from companion.link.messages import set_mode_command
 from companion.link.mode_watch import ControlPhase
 
 _log = logging.getLogger("companion")

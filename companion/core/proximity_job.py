@@ -7,13 +7,7 @@ stamped with its capture time, and a keep-alive between frames.
 
 from __future__ import annotations
 
-import logging
-
-from companion.link.messages import (
-    obstacle_distance_message,
-)
-
-_log = logging.getLogger("companion")
+from companion.link.messages import obstacle_distance_message
 
 __all__ = ["ProximityJob"]
 

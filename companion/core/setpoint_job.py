@@ -13,14 +13,10 @@ import math
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.core.events import (
-    SendSetpoint,
-)
+from companion.core.events import SendSetpoint
 from companion.core.outbox import SEV_WARNING
 from companion.failsafe import Response
-from companion.link.flavour import (
-    profile_for,
-)
+from companion.link.flavour import profile_for
 from companion.link.setpoints import PositionTarget, position_target_message
 from companion.link.speed_limit import change_speed_command
 

@@ -5,20 +5,13 @@ A mixin of :class:`~companion.core.CompanionCore`; reads the other jobs' state, 
 
 from __future__ import annotations
 
-import logging
 from typing import Any
 
 from companion.failsafe import Response
-from companion.link.flavour import (
-    mode_name,
-)
-from companion.link.messages import (
-    CompanionState,
-)
+from companion.link.flavour import mode_name
+from companion.link.messages import CompanionState
 from companion.link.mode_watch import ControlPhase
 from companion.status import status_document
-
-_log = logging.getLogger("companion")
 
 __all__ = ["StatusJob"]
 

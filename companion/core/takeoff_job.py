@@ -11,12 +11,8 @@ from __future__ import annotations
 import logging
 
 from companion.core.link_job import statustext
-from companion.link.flavour import (
-    Flavour,
-)
-from companion.link.messages import (
-    command_long,
-)
+from companion.link.flavour import Flavour
+from companion.link.messages import command_long
 from companion.link.takeoff import (
     TakeoffCommand,
     TakeoffEvent,

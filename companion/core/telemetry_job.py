@@ -9,23 +9,12 @@ telemetry streams requested with SET_MESSAGE_INTERVAL until each is acknowledged
 
 from __future__ import annotations
 
-import logging
 import math
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.clock_model import (
-    BootTime,
-    SyncResult,
-    SyncSample,
-)
-from companion.link.messages import (
-    set_message_interval,
-    timesync_reply,
-    timesync_request,
-)
-
-_log = logging.getLogger("companion")
+from companion.clock_model import BootTime, SyncResult, SyncSample
+from companion.link.messages import set_message_interval, timesync_reply, timesync_request
 
 #: telemetry streams the core requests with SET_MESSAGE_INTERVAL
 STREAMS = (
