@@ -16,6 +16,9 @@ near pass (fulfils :mod:`companion.depth_source`'s contract).
 3. A coarse pass at a quarter of the resolution ranges surfaces nearer than ``min_range_m``
    (which the main pass would miss or alias to a larger depth) down to ``near_range_m``,
    and fills the main pass's holes; main-pass matches around a too-near surface are unknown.
+   A too-near claim where the main pass matched too must beat that match at full
+   resolution, or it is dropped (a repetitive texture's copy one period away:
+   :mod:`companion.near_alias`).
 4. Depth by Eq. 27 in one compiled pass; a small island of beyond-range matches (noise on a
    textureless wall) is unknown, not "+inf, nothing nearer".
 """
@@ -460,11 +463,14 @@ class PaddedStereoBM:
     def compute(self, frame: StereoFrame) -> DepthMap:
         """The frame's depth map (:mod:`companion.depth_source` contract)."""
         k = frame.intrinsics
-        disp, left, right = self._main_pass(frame)
         coarse = self.coarse_pass_fixed(frame)
         n_disp = self.num_disparities(k)
-        if coarse is not None:
+        if coarse is None:  # no claim to settle (a subclass may replace disparity_fixed)
+            disp = self.disparity_fixed(frame)
+        else:
             # a claim nearer than the main range must beat the main pass's own match there
+            # (companion.near_alias), scored on the images the main pass matched
+            disp, left, right = self._main_pass(frame)
             settle_near_claims(
                 coarse[0],
                 _DISP_SCALE * (n_disp - 1) // _NEAR_SCALE,
