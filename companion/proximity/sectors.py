@@ -93,6 +93,12 @@ class ProximityConfig:
         Voxels centred this close to the vehicle, horizontally, are its own body [m].
     min_distance_m : float
         The message's ``min_distance`` [m]; nearer obstacles are reported at it.
+    unseen_extension_m : float
+        An OCCUPIED voxel up to this far above or below the band counts as in it when no
+        FREE voxel lies between it and the band's unseen voxels [m]: an obstacle seen
+        only below the band continues into it until seen otherwise (the camera of a
+        vehicle pitched by its speed, 20° at 8 m/s for the ``fast`` airframe, cannot see
+        its own altitude ahead; Fig. 4's blind spot, upward). 0: the band alone.
     """
 
     enabled: bool = True
@@ -103,6 +109,7 @@ class ProximityConfig:
     band_half_height_m: float = 0.3
     ignore_within_m: float = 0.3
     min_distance_m: float = 0.2
+    unseen_extension_m: float = 1.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, bool):
@@ -111,7 +118,7 @@ class ProximityConfig:
         if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_SECTORS:
             raise ValueError(f"n_sectors must be an integer in 1..{MAX_SECTORS}, got {n!r}")
         check_numbers(self, ("rate_hz", "increment_deg", "band_half_height_m"), positive=True)
-        check_numbers(self, ("ignore_within_m", "min_distance_m"))
+        check_numbers(self, ("ignore_within_m", "min_distance_m", "unseen_extension_m"))
         if not math.isfinite(self.angle_offset_deg):
             raise ValueError(f"angle_offset_deg must be finite, got {self.angle_offset_deg!r}")
         if n * self.increment_deg > 360.0 + 1e-9:
@@ -160,11 +167,18 @@ class ProximitySectors:
         return self.angle_offset_deg + self.increment_deg * np.arange(self.n_sectors)
 
 
-def map_reach_m(space: KnownSpace) -> float:
-    """How far [m] the map vouches for, horizontally, around the vehicle (module doc)."""
+def _layer_reach_m(space: KnownSpace) -> float:
+    """How far [m] one layer of the map vouches for, horizontally, around the vehicle."""
     c = space.config
     in_grid_m = (c.size_xy_vox // 4 - 1) * c.voxel_m
     return float(min(c.max_range_m, in_grid_m))
+
+
+def map_reach_m(space: KnownSpace) -> float:
+    """How far [m] the map vouches for, horizontally, around the vehicle (module doc):
+    its far layer's reach where it has one."""
+    reach = _layer_reach_m(space)
+    return reach if space.far is None else max(reach, _layer_reach_m(space.far))
 
 
 def unknown_sectors(config: ProximityConfig, max_distance_m: float) -> ProximitySectors:
@@ -199,22 +213,29 @@ def sectors_from_map(
         raise ValueError(f"position and yaw must be finite, got {pos_ned_m!r}, {yaw_rad!r}")
     occupied = np.full(config.n_sectors, np.inf)
     unknown = np.full(config.n_sectors, np.inf)
-    _scan(
-        space.grid,
-        space.origin_vox,
-        float(space.config.voxel_m),
-        float(p[0]),
-        float(p[1]),
-        float(p[2]),
-        float(yaw_rad),
-        float(config.band_half_height_m),
-        float(config.ignore_within_m),
-        reach_m,
-        math.radians(config.increment_deg),
-        math.radians(config.angle_offset_deg),
-        occupied,
-        unknown,
-    )
+    # the grid out to its reach, then the far layer's voxels that reach beyond it
+    layers = [(space, _layer_reach_m(space), -1.0)]
+    if space.far is not None:
+        layers.append((space.far, _layer_reach_m(space.far), layers[0][1]))
+    for layer, layer_reach_m, beyond_m in layers:
+        _scan(
+            layer.grid,
+            layer.origin_vox,
+            float(layer.config.voxel_m),
+            float(p[0]),
+            float(p[1]),
+            float(p[2]),
+            float(yaw_rad),
+            float(config.band_half_height_m),
+            float(config.ignore_within_m),
+            layer_reach_m,
+            beyond_m,
+            float(config.unseen_extension_m),
+            math.radians(config.increment_deg),
+            math.radians(config.angle_offset_deg),
+            occupied,
+            unknown,
+        )
     min_cm, max_cm = _cm(config.min_distance_m), _cm(reach_m)
     out = np.full(MAX_SECTORS, UINT16_MAX, np.uint16)
     for k in range(config.n_sectors):
@@ -238,10 +259,29 @@ def _cm(value_m: float) -> int:
 
 @numba.njit(cache=True)
 def _scan(
-    grid, origin, voxel, px, py, pz, yaw, half_band, ignore_within, reach, inc, offset, occ, unk
+    grid,
+    origin,
+    voxel,
+    px,
+    py,
+    pz,
+    yaw,
+    half_band,
+    ignore_within,
+    reach,
+    beyond,
+    extension,
+    inc,
+    offset,
+    occ,
+    unk,
 ):
     """Nearest OCCUPIED (``occ``) and not-FREE (``unk``) voxel column of the band per
-    sector [m, horizontal, the footprint's nearest point]; see the module docstring."""
+    sector [m, horizontal, the footprint's nearest point], lowered where nearer than
+    already there; see the module docstring. Columns whose footprint lies entirely within
+    ``beyond`` [m] of the vehicle are skipped (a finer layer covered them); an OCCUPIED
+    voxel within ``extension`` [m] of the band joined to its unseen voxels by unseen ones
+    counts as in the band (``ProximityConfig.unseen_extension_m``)."""
     n = occ.shape[0]
     n_full = math.floor(2.0 * math.pi / inc + 1e-6)
     inv = 1.0 / voxel
@@ -251,6 +291,7 @@ def _scan(
     cj = math.floor(py * inv) - origin[1]
     k_lo = math.floor((pz - half_band) * inv) - origin[2]
     k_hi = math.floor((pz + half_band) * inv) - origin[2]
+    n_ext = math.ceil(extension * inv - 1e-9)
     ni, nj, nk = grid.shape
     for i in range(ci - r_vox, ci + r_vox + 1):
         dn = (i + origin[0] + 0.5) * voxel - px
@@ -261,6 +302,11 @@ def _scan(
             near = math.sqrt(gap_n * gap_n + gap_e * gap_e)  # the footprint's nearest point
             if near > reach or dn * dn + de * de < ignore_within * ignore_within:
                 continue
+            if beyond >= 0.0:
+                far_n = abs(dn) + half
+                far_e = abs(de) + half
+                if far_n * far_n + far_e * far_e <= beyond * beyond:
+                    continue
             is_occ = False
             is_unk = i < 0 or j < 0 or i >= ni or j >= nj
             if not is_unk:
@@ -273,6 +319,10 @@ def _scan(
                         is_occ = True
                     elif s != 1:
                         is_unk = True
+                if is_unk and not is_occ and n_ext > 0:
+                    is_occ = _joined(grid, i, j, k_lo, -1, n_ext) or _joined(
+                        grid, i, j, k_hi, 1, n_ext
+                    )
             if not (is_occ or is_unk):
                 continue
             if near > 0.0:
@@ -301,3 +351,21 @@ def _scan(
                     occ[kk] = near
                 if is_unk and near < unk[kk]:
                     unk[kk] = near
+
+
+@numba.njit(cache=True)
+def _joined(grid, i, j, k_edge, step, n_ext):
+    """An OCCUPIED voxel of column (``i``, ``j``) within ``n_ext`` voxels beyond the band's
+    edge voxel ``k_edge`` (``step`` -1: up, 1: down), reached from it through voxels that
+    are not FREE (the edge voxel included)."""
+    nk = grid.shape[2]
+    for n in range(n_ext + 1):
+        k = k_edge + step * n
+        if k < 0 or k >= nk:
+            return False
+        s = grid[i, j, k]
+        if s == 2:
+            return True
+        if s == 1:
+            return False
+    return False
