@@ -830,6 +830,7 @@ class KnownSpace:
         self.origin_vox = np.zeros(3, np.int64)  # global voxel index of grid[0, 0, 0]
         self._started = False
         self.frames = 0
+        self.range_m = float(c.max_range_m)  # how far the last frame's rays could free [m]
         far = c.far_config()
         # the far layer (KnownSpaceConfig.far_range_m): read by the proximity sectors only
         self.far: KnownSpace | None = None if far is None else KnownSpace(far)
@@ -865,6 +866,7 @@ class KnownSpace:
         pos_ned_m,
         R_ned_from_frd,
         blind_band_px: int = 0,
+        trusted_range_m: float = math.inf,
     ) -> int:
         """Fold one depth frame (left camera, NaN = unknown) in; returns the rays cast.
 
@@ -881,11 +883,16 @@ class KnownSpace:
         blind_band_px : int
             Left image columns the matcher cannot match (perception's
             ``blind_band_px``): never open sky.
+        trusted_range_m : float
+            How far the depth source vouches for a +inf pixel (perception's
+            ``trusted_range_m``) [m]: rays, open sky included, free no farther than the
+            smaller of it and ``max_range_m`` (:attr:`range_m` keeps it for the sectors).
         """
         c = self.config
         pos = np.asarray(pos_ned_m, dtype=float)
         R = np.asarray(R_ned_from_frd, dtype=float)
         self._centre_on(pos)
+        self.range_m = float(min(c.max_range_m, trusted_range_m))
         if not self._started:
             _mark_ball(
                 self.grid, self.origin_vox, c.voxel_m, *pos, c.start_free_radius_m, True, False
@@ -907,7 +914,7 @@ class KnownSpace:
             float(intrinsics.cy_px),
             cam_ned,
             R_ned_from_cam,
-            c.max_range_m,
+            self.range_m,
             c.hit_clear_m,
             c.clear_core_m,
             c.free_core_m,
@@ -917,7 +924,7 @@ class KnownSpace:
         self.mark_vehicle(pos)
         self.frames += 1
         if self.far is not None:
-            self.far.integrate(depth_m, intrinsics, pos, R, blind_band_px)
+            self.far.integrate(depth_m, intrinsics, pos, R, blind_band_px, trusted_range_m)
         return int(n)
 
     def mark_vehicle(self, pos_ned_m) -> None:

@@ -482,7 +482,7 @@ class PaddedStereoBM:
         # columns the right camera cannot see at the nearest range of the main pass
         band_px = n_disp + self.block_size(k) // 2
         depth_m, counts = self._merge(disp, coarse, k.focal_baseline_m_px, n_disp, band_px)
-        return DepthMap(disp, depth_m, counts, band_px)
+        return DepthMap(disp, depth_m, counts, band_px, float(self.config.max_range_m))
 
     def num_disparities(self, intrinsics: StereoIntrinsics) -> int:
         """Disparity search range [px]: ``f·b / min_range_m`` rounded up to a multiple of 16."""

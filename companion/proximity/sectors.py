@@ -39,9 +39,18 @@ never below it. PX4 bins ``[5i, 5i + 5)`` while ArduPilot centres sector ``j`` o
 ``5j``: with the default ``angle_offset = 0`` PX4's bins lie 2.5° clockwise of ours
 (named limitation).
 
-The reach (``max_distance_m``) is what the map can vouch for: the smaller of the depth's
-trusted range (``KnownSpaceConfig.max_range_m``) and the distance the vehicle always has
-to the grid's edge (a quarter of the grid, the recentring rule, less one voxel).
+The reach (``max_distance_m``) is what the map can vouch for: the smaller of the range
+its rays free (``KnownSpaceConfig.max_range_m`` and the depth source's trusted range) and
+the distance the vehicle always has to the grid's edge (a quarter of the grid, the
+recentring rule, less one voxel): 6.2 m for the 0.2 m grid. With the map's far layer
+(``KnownSpaceConfig.far_range_m``, 0.4 m voxels fed by the same rays) the reach is the far
+layer's (16 m): within the grid's reach the grid alone decides, beyond it the far layer's
+voxels do (a far voxel counts when its footprint reaches beyond the grid's reach).
+
+An OCCUPIED voxel up to ``unseen_extension_m`` above or below the band, joined to an
+unseen voxel of the band through unseen ones, counts as in the band: what was seen of an
+obstacle continues into the part of the band the camera did not see (a camera pitched by
+the vehicle's speed sees only below its own altitude far ahead).
 """
 
 from __future__ import annotations
@@ -171,7 +180,7 @@ def _layer_reach_m(space: KnownSpace) -> float:
     """How far [m] one layer of the map vouches for, horizontally, around the vehicle."""
     c = space.config
     in_grid_m = (c.size_xy_vox // 4 - 1) * c.voxel_m
-    return float(min(c.max_range_m, in_grid_m))
+    return float(min(space.range_m, in_grid_m))
 
 
 def map_reach_m(space: KnownSpace) -> float:
