@@ -45,6 +45,7 @@ optional, and an unknown key anywhere is an error that names it (``link.rate`` â
     band_half_height_m = 0.3             # vehicle half-height + margin
     ignore_within_m = 0.3                # the vehicle's own body
     min_distance_m = 0.2
+    unseen_extension_m = 1.0             # occupied this near the unseen band counts in it
 
     [perception]                         # companion.perception.PerceptionConfig fields
     [perception.depth_camera]            # companion.depth_camera.DepthCameraConfig fields

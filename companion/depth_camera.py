@@ -182,7 +182,7 @@ def _depth_map(frame: DepthFrame, cfg: DepthCameraConfig) -> DepthMap:
         n_unmatched=int(n_unmatched),
         n_beyond_range=int(depth.size - n_valid - n_unmatched),
     )
-    return DepthMap(disp, depth, counts, int(band))
+    return DepthMap(disp, depth, counts, int(band), float(range_m))
 
 
 @functools.cache

@@ -41,6 +41,8 @@ Out, a :class:`DepthMap` whose arrays have the frame's shape:
 ``blind_band_px``
     Left columns where the right camera cannot see a surface at the nearest range the source
     measures: an unmatched pixel there is never taken for open sky.
+``trusted_range_m``
+    The range a +inf pixel vouches for (the source's ``max_range_m``).
 
 A source is a pure function of the frame (no clock, no I/O; the same frame gives the same
 map) and may hold reusable state such as OpenCV matcher objects.
@@ -119,12 +121,16 @@ class DepthMap:
         How many pixels are known, and why the others are not.
     blind_band_px : int
         Left columns the right camera cannot see at the source's nearest range [px].
+    trusted_range_m : float
+        How far a +inf pixel vouches for free space [m]: the source's ``max_range_m``
+        (the known-space map frees no farther along such a ray).
     """
 
     disparity_fixed: np.ndarray
     depth_m: np.ndarray
     counts: ValidityCounts
     blind_band_px: int
+    trusted_range_m: float
 
 
 @runtime_checkable
@@ -167,7 +173,7 @@ def depth_from_disparity(
         n_unmatched=n_unmatched,
         n_beyond_range=disparity_fixed.size - n_valid - n_unmatched,
     )
-    return DepthMap(disparity_fixed, depth, counts, int(blind_band_px))
+    return DepthMap(disparity_fixed, depth, counts, int(blind_band_px), float(max_range_m))
 
 
 def drop_small_far_regions(depth: np.ndarray, min_area: int) -> int:

@@ -315,6 +315,8 @@ class PerceptionResult:
         Left image columns where the right camera cannot see a surface at the nearest
         range the matcher measures (its disparity range plus half a block): depth there may
         be known, but an unmatched pixel is never "open sky" (companion.known_space).
+    trusted_range_m : float
+        How far a +inf pixel vouches for free space [m] (the depth source's range).
     """
 
     sequence: int
@@ -324,6 +326,7 @@ class PerceptionResult:
     depth_m: np.ndarray
     counts: ValidityCounts
     blind_band_px: int = 0
+    trusted_range_m: float = math.inf
 
 
 def _sample_stride(n_pixels: int, max_points: int) -> int:
@@ -622,6 +625,7 @@ class StereoPerception:
             depth_m,
             depth_map.counts,
             depth_map.blind_band_px,
+            depth_map.trusted_range_m,
         )
 
     def _near_blobs(self, disp: np.ndarray, fb: float):

@@ -135,6 +135,7 @@ class AvoidancePipeline:
                 pose.pos_ned_m,
                 pose.R_ned_from_frd,
                 blind_band_px=seen.blind_band_px,
+                trusted_range_m=seen.trusted_range_m,
             )
         else:
             self.known_space.mark_vehicle(pose.pos_ned_m)

@@ -16,6 +16,9 @@ near pass (fulfils :mod:`companion.depth_source`'s contract).
 3. A coarse pass at a quarter of the resolution ranges surfaces nearer than ``min_range_m``
    (which the main pass would miss or alias to a larger depth) down to ``near_range_m``,
    and fills the main pass's holes; main-pass matches around a too-near surface are unknown.
+   A too-near claim where the main pass matched too must beat that match at full
+   resolution, or it is dropped (a repetitive texture's copy one period away:
+   :mod:`companion.near_alias`).
 4. Depth by Eq. 27 in one compiled pass; a small island of beyond-range matches (noise on a
    textureless wall) is unknown, not "+inf, nothing nearer".
 """
@@ -37,6 +40,7 @@ from companion.depth_source import (
     drop_small_far_blocks,
     drop_small_far_regions,
 )
+from companion.near_alias import settle_near_claims
 from companion.speckle import filter_speckles
 from protocols.camera import StereoIntrinsics
 from protocols.stereo_frame import PixelEncoding, StereoFrame
@@ -407,7 +411,7 @@ def _merge_depth(disp, coarse, n_band, top, d_far, fb16, out, far_from_col):
 
 @functools.cache
 def _warm_up() -> None:
-    """Compile (or load from numba's cache) the gate, merge and far-region kernels once per
+    """Compile (or load from numba's cache) the gate, merge, alias and far-region kernels once per
     process, with the argument types :meth:`PaddedStereoBM.compute` uses."""
     far = np.full((2, 8), np.inf, np.float32)
     far[:, 4:7] = np.nan  # a region of 8 +inf pixels and one of 2: the second is dropped
@@ -427,6 +431,8 @@ def _warm_up() -> None:
     for small in (coarse, _NO_COARSE):
         out = (np.empty((4, 4), np.float32), np.zeros((4, 4), np.uint8), np.zeros((2, 2), np.uint8))
         _merge_depth(main, small, 1, 16, 1, 16.0, out, 2)
+    view = np.zeros((6, 8), np.uint8)[1:5, 2:6]  # the prefiltered pair: padded views
+    settle_near_claims(coarse, 0, main, view, view, 1)
 
 
 class PaddedStereoBM:
@@ -457,12 +463,25 @@ class PaddedStereoBM:
     def compute(self, frame: StereoFrame) -> DepthMap:
         """The frame's depth map (:mod:`companion.depth_source` contract)."""
         k = frame.intrinsics
-        disp = self.disparity_fixed(frame)
         coarse = self.coarse_pass_fixed(frame)
         n_disp = self.num_disparities(k)
+        if coarse is None:  # no claim to settle (a subclass may replace disparity_fixed)
+            disp = self.disparity_fixed(frame)
+        else:
+            # a claim nearer than the main range must beat the main pass's own match there
+            # (companion.near_alias), scored on the images the main pass matched
+            disp, left, right = self._main_pass(frame)
+            settle_near_claims(
+                coarse[0],
+                _DISP_SCALE * (n_disp - 1) // _NEAR_SCALE,
+                disp,
+                left,
+                right,
+                self.block_size(k) // 2,
+            )
         band_px = self.blind_band_px(k)
         depth_m, counts = self._merge(disp, coarse, k.focal_baseline_m_px, n_disp, band_px)
-        return DepthMap(disp, depth_m, counts, band_px)
+        return DepthMap(disp, depth_m, counts, band_px, float(self.config.max_range_m))
 
     def num_disparities(self, intrinsics: StereoIntrinsics) -> int:
         """Disparity search range [px]: ``f·b / min_range_m`` rounded up to a multiple of 16."""
@@ -518,6 +537,11 @@ class PaddedStereoBM:
         :meth:`unsearched_columns` is searched (see :func:`_padded`); a pixel whose match
         would lie left of the right image (outside the right camera's view) is unmatched.
         """
+        return self._main_pass(frame)[0]
+
+    def _main_pass(self, frame: StereoFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`disparity_fixed` and the prefiltered left and right images it matched
+        (views of the frame's size into the padded pair)."""
         if frame.encoding is not PixelEncoding.MONO8:
             raise ValueError(f"unsupported pixel encoding {frame.encoding!r}")
         matcher, n_disp, block = self._matcher(frame.intrinsics)
@@ -528,6 +552,7 @@ class PaddedStereoBM:
         pad_x = n_disp + block // 2 - 1 - self.unsearched_columns(frame.intrinsics)
         left_padded, right_padded = self._prefiltered(frame, pad_x, pad_y)
         left = left_padded[pad_y : pad_y + height, pad_x : pad_x + width]
+        right = right_padded[pad_y : pad_y + height, pad_x : pad_x + width]
         out = matcher.compute(left_padded, right_padded)
         disp = out[pad_y : pad_y + height, pad_x : pad_x + width]
         # OpenCV's speckle filter (companion.speckle: 0.8 of StereoBM's own time here), on
@@ -551,7 +576,7 @@ class PaddedStereoBM:
             lambda: _DISP_SCALE * (np.arange(n_band, dtype=np.int16) - margin),
         )
         _gate(disp, left, block, least_sy, limit)
-        return disp
+        return disp, left, right
 
     def prefilter_sigma_px(self, frame: StereoFrame) -> tuple[float, float]:
         """Gaussian prefilter sigmas (x, y) [px] for this frame: ``prefilter_sigma_px`` if

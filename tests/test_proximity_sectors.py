@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from companion.known_space import FREE, OCCUPIED, TENTATIVE, UNKNOWN, KnownSpace
+from companion.known_space import FREE, OCCUPIED, TENTATIVE, UNKNOWN, KnownSpace, KnownSpaceConfig
 from companion.proximity.sectors import (
     MAX_SECTORS,
     UINT16_MAX,
@@ -24,10 +24,15 @@ VOXEL = 0.2
 DIAG = VOXEL * math.sqrt(2.0)  # the footprint's diagonal: the sectoring's resolution
 
 
-def _map(fill=FREE) -> KnownSpace:
-    space = KnownSpace()
+GRID_ONLY = KnownSpaceConfig(far_range_m=0.0)  # the 0.2 m grid without its far layer
+
+
+def _map(fill=FREE, config=GRID_ONLY) -> KnownSpace:
+    space = KnownSpace(config)
     space.mark_vehicle(POS)
     space.grid[:] = fill
+    if space.far is not None:
+        space.far.grid[:] = fill
     return space
 
 
@@ -197,8 +202,73 @@ def test_before_the_map_everything_is_unknown_and_bad_configs_are_refused():
 
 
 def test_reach_is_the_smaller_of_the_trusted_range_and_the_grid():
-    """Default map: 8 m trusted range, but the vehicle may sit 32 voxels from the edge."""
-    assert map_reach_m(KnownSpace()) == pytest.approx(6.2)
+    """The grid alone: 8 m trusted range, but the vehicle may sit 32 voxels from the edge;
+    with the far layer (default): its 16 m, in a grid of 4 × (16 / 0.4 + 1) voxels."""
+    assert map_reach_m(KnownSpace(GRID_ONLY)) == pytest.approx(6.2)
+    space = KnownSpace()
+    assert map_reach_m(space) == pytest.approx(16.0)
+    assert space.far.grid.shape == (164, 164, 32) and space.far.config.voxel_m == 0.4
+
+
+def test_the_far_layer_reports_a_wall_beyond_the_grid_and_defers_to_it_within():
+    """A wall 11 m ahead known only to the far layer reads d / cos within the far voxel's
+    diagonal; an OCCUPIED far voxel inside the grid's reach, where the grid saw free space,
+    is not reported (the fine grid is the model there)."""
+    space = _map(FREE, KnownSpaceConfig())
+    far = space.far
+    n, e, _ = _centres(far)
+    far.grid[np.broadcast_to(n >= 11.0 - 0.2, far.grid.shape)] = OCCUPIED  # the wall's voxels
+    sec = sectors_from_map(space, POS, 0.0, CFG)
+    far_diag = 0.4 * math.sqrt(2.0)
+    for k, theta in enumerate(sec.bearings_deg()):
+        off = max(abs(_wrap_deg(theta)) - CFG.increment_deg / 2.0, 0.0)
+        expect = 11.0 / math.cos(math.radians(off)) if off < 90.0 else math.inf
+        got = sec.distances_cm[k] / 100.0
+        if expect <= 16.0 - far_diag:
+            assert expect - 0.4 - far_diag - 0.01 <= got <= expect + 0.01, (k, got, expect)
+        elif expect > 16.0 + far_diag:
+            assert sec.distances_cm[k] == sec.no_obstacle_cm, k
+    space = _map(FREE, KnownSpaceConfig())
+    far = space.far
+    n, e, _ = _centres(far)
+    post = (np.abs(n - 3.0) < 0.3) & (np.abs(e) < 0.3)
+    far.grid[np.broadcast_to(post, far.grid.shape)] = OCCUPIED
+    assert sectors_from_map(space, POS, 0.0, CFG).counts() == (0, 72, 0)
+
+
+@pytest.mark.parametrize(
+    ("below_m", "between", "extension_m", "reported"),
+    [
+        (0.6, UNKNOWN, 1.0, True),  # seen only below the unseen band: it continues into it
+        (0.6, FREE, 1.0, False),  # seen free between: it stops below the band
+        (1.4, UNKNOWN, 1.0, False),  # farther below than the extension
+        (0.6, UNKNOWN, 0.0, False),  # the extension off: the band alone
+    ],
+)
+def test_an_obstacle_seen_only_below_the_unseen_band_continues_into_it(
+    below_m, between, extension_m, reported
+):
+    """A post 3 m ahead whose top was seen ``below_m`` under the band's edge while the
+    band above it is unseen (a camera pitched by the speed): an obstacle at 3 m when
+    joined to the band through unseen voxels within ``unseen_extension_m``; else the
+    sector is unknown, never clear."""
+    space = _map(FREE)
+    n, e, d = _centres(space)
+    column = (np.abs(n - 3.1) < 0.05) & (np.abs(e - 0.1) < 0.05)  # nearest point (3, 0)
+    band = CFG.band_half_height_m
+    top = band + below_m  # [m below the vehicle]
+    space.grid[np.broadcast_to(column & (d + 0.1 > -band) & (d - 0.1 < top), space.grid.shape)] = (
+        UNKNOWN
+    )
+    under = column & (d - 0.1 >= band) & (d + 0.1 <= top)  # between the band and the top
+    space.grid[np.broadcast_to(under, space.grid.shape)] = between
+    space.grid[np.broadcast_to(column & (d - 0.1 >= top), space.grid.shape)] = OCCUPIED
+    cfg = ProximityConfig(unseen_extension_m=extension_m)
+    got = sectors_from_map(space, POS, 0.0, cfg).distances_cm[0]
+    if reported:
+        assert 3.0 - 0.01 <= got / 100.0 <= 3.0
+    else:
+        assert got == UINT16_MAX
 
 
 def test_sectoring_is_cheap():

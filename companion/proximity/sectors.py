@@ -39,9 +39,18 @@ never below it. PX4 bins ``[5i, 5i + 5)`` while ArduPilot centres sector ``j`` o
 ``5j``: with the default ``angle_offset = 0`` PX4's bins lie 2.5° clockwise of ours
 (named limitation).
 
-The reach (``max_distance_m``) is what the map can vouch for: the smaller of the depth's
-trusted range (``KnownSpaceConfig.max_range_m``) and the distance the vehicle always has
-to the grid's edge (a quarter of the grid, the recentring rule, less one voxel).
+The reach (``max_distance_m``) is what the map can vouch for: the smaller of the range
+its rays free (``KnownSpaceConfig.max_range_m`` and the depth source's trusted range) and
+the distance the vehicle always has to the grid's edge (a quarter of the grid, the
+recentring rule, less one voxel): 6.2 m for the 0.2 m grid. With the map's far layer
+(``KnownSpaceConfig.far_range_m``, 0.4 m voxels fed by the same rays) the reach is the far
+layer's (16 m): within the grid's reach the grid alone decides, beyond it the far layer's
+voxels do (a far voxel counts when its footprint reaches beyond the grid's reach).
+
+An OCCUPIED voxel up to ``unseen_extension_m`` above or below the band, joined to an
+unseen voxel of the band through unseen ones, counts as in the band: what was seen of an
+obstacle continues into the part of the band the camera did not see (a camera pitched by
+the vehicle's speed sees only below its own altitude far ahead).
 """
 
 from __future__ import annotations
@@ -93,6 +102,12 @@ class ProximityConfig:
         Voxels centred this close to the vehicle, horizontally, are its own body [m].
     min_distance_m : float
         The message's ``min_distance`` [m]; nearer obstacles are reported at it.
+    unseen_extension_m : float
+        An OCCUPIED voxel up to this far above or below the band counts as in it when no
+        FREE voxel lies between it and the band's unseen voxels [m]: an obstacle seen
+        only below the band continues into it until seen otherwise (the camera of a
+        vehicle pitched by its speed, 20° at 8 m/s for the ``fast`` airframe, cannot see
+        its own altitude ahead; Fig. 4's blind spot, upward). 0: the band alone.
     """
 
     enabled: bool = True
@@ -104,6 +119,7 @@ class ProximityConfig:
     ignore_within_m: float = bounded(0.3, "m", ge=0)
     # 0 cm is "invalid" on the wire
     min_distance_m: float = bounded(0.2, "m", ge=0.01)
+    unseen_extension_m: float = bounded(1.0, "m", ge=0)
 
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, bool):
@@ -155,11 +171,18 @@ class ProximitySectors:
         return self.angle_offset_deg + self.increment_deg * np.arange(self.n_sectors)
 
 
-def map_reach_m(space: KnownSpace) -> float:
-    """How far [m] the map vouches for, horizontally, around the vehicle (module doc)."""
+def _layer_reach_m(space: KnownSpace) -> float:
+    """How far [m] one layer of the map vouches for, horizontally, around the vehicle."""
     c = space.config
     in_grid_m = (c.size_xy_vox // 4 - 1) * c.voxel_m
-    return float(min(c.max_range_m, in_grid_m))
+    return float(min(space.range_m, in_grid_m))
+
+
+def map_reach_m(space: KnownSpace) -> float:
+    """How far [m] the map vouches for, horizontally, around the vehicle (module doc):
+    its far layer's reach where it has one."""
+    reach = _layer_reach_m(space)
+    return reach if space.far is None else max(reach, _layer_reach_m(space.far))
 
 
 def unknown_sectors(config: ProximityConfig, max_distance_m: float) -> ProximitySectors:
@@ -194,22 +217,29 @@ def sectors_from_map(
         raise ValueError(f"position and yaw must be finite, got {pos_ned_m!r}, {yaw_rad!r}")
     occupied = np.full(config.n_sectors, np.inf)
     unknown = np.full(config.n_sectors, np.inf)
-    _scan(
-        space.grid,
-        space.origin_vox,
-        float(space.config.voxel_m),
-        float(p[0]),
-        float(p[1]),
-        float(p[2]),
-        float(yaw_rad),
-        float(config.band_half_height_m),
-        float(config.ignore_within_m),
-        reach_m,
-        math.radians(config.increment_deg),
-        math.radians(config.angle_offset_deg),
-        occupied,
-        unknown,
-    )
+    # the grid out to its reach, then the far layer's voxels that reach beyond it
+    layers = [(space, _layer_reach_m(space), -1.0)]
+    if space.far is not None:
+        layers.append((space.far, _layer_reach_m(space.far), layers[0][1]))
+    for layer, layer_reach_m, beyond_m in layers:
+        _scan(
+            layer.grid,
+            layer.origin_vox,
+            float(layer.config.voxel_m),
+            float(p[0]),
+            float(p[1]),
+            float(p[2]),
+            float(yaw_rad),
+            float(config.band_half_height_m),
+            float(config.ignore_within_m),
+            layer_reach_m,
+            beyond_m,
+            float(config.unseen_extension_m),
+            math.radians(config.increment_deg),
+            math.radians(config.angle_offset_deg),
+            occupied,
+            unknown,
+        )
     min_cm, max_cm = _cm(config.min_distance_m), _cm(reach_m)
     out = np.full(MAX_SECTORS, UINT16_MAX, np.uint16)
     for k in range(config.n_sectors):
@@ -233,10 +263,29 @@ def _cm(value_m: float) -> int:
 
 @numba.njit(cache=True)
 def _scan(
-    grid, origin, voxel, px, py, pz, yaw, half_band, ignore_within, reach, inc, offset, occ, unk
+    grid,
+    origin,
+    voxel,
+    px,
+    py,
+    pz,
+    yaw,
+    half_band,
+    ignore_within,
+    reach,
+    beyond,
+    extension,
+    inc,
+    offset,
+    occ,
+    unk,
 ):
     """Nearest OCCUPIED (``occ``) and not-FREE (``unk``) voxel column of the band per
-    sector [m, horizontal, the footprint's nearest point]; see the module docstring."""
+    sector [m, horizontal, the footprint's nearest point], lowered where nearer than
+    already there; see the module docstring. Columns whose footprint lies entirely within
+    ``beyond`` [m] of the vehicle are skipped (a finer layer covered them); an OCCUPIED
+    voxel within ``extension`` [m] of the band joined to its unseen voxels by unseen ones
+    counts as in the band (``ProximityConfig.unseen_extension_m``)."""
     n = occ.shape[0]
     n_full = math.floor(2.0 * math.pi / inc + 1e-6)
     inv = 1.0 / voxel
@@ -246,6 +295,7 @@ def _scan(
     cj = math.floor(py * inv) - origin[1]
     k_lo = math.floor((pz - half_band) * inv) - origin[2]
     k_hi = math.floor((pz + half_band) * inv) - origin[2]
+    n_ext = math.ceil(extension * inv - 1e-9)
     ni, nj, nk = grid.shape
     for i in range(ci - r_vox, ci + r_vox + 1):
         dn = (i + origin[0] + 0.5) * voxel - px
@@ -256,6 +306,11 @@ def _scan(
             near = math.sqrt(gap_n * gap_n + gap_e * gap_e)  # the footprint's nearest point
             if near > reach or dn * dn + de * de < ignore_within * ignore_within:
                 continue
+            if beyond >= 0.0:
+                far_n = abs(dn) + half
+                far_e = abs(de) + half
+                if far_n * far_n + far_e * far_e <= beyond * beyond:
+                    continue
             is_occ = False
             is_unk = i < 0 or j < 0 or i >= ni or j >= nj
             if not is_unk:
@@ -268,6 +323,10 @@ def _scan(
                         is_occ = True
                     elif s != 1:
                         is_unk = True
+                if is_unk and not is_occ and n_ext > 0:
+                    is_occ = _joined(grid, i, j, k_lo, -1, n_ext) or _joined(
+                        grid, i, j, k_hi, 1, n_ext
+                    )
             if not (is_occ or is_unk):
                 continue
             if near > 0.0:
@@ -296,3 +355,21 @@ def _scan(
                     occ[kk] = near
                 if is_unk and near < unk[kk]:
                     unk[kk] = near
+
+
+@numba.njit(cache=True)
+def _joined(grid, i, j, k_edge, step, n_ext):
+    """An OCCUPIED voxel of column (``i``, ``j``) within ``n_ext`` voxels beyond the band's
+    edge voxel ``k_edge`` (``step`` -1: up, 1: down), reached from it through voxels that
+    are not FREE (the edge voxel included)."""
+    nk = grid.shape[2]
+    for n in range(n_ext + 1):
+        k = k_edge + step * n
+        if k < 0 or k >= nk:
+            return False
+        s = grid[i, j, k]
+        if s == 2:
+            return True
+        if s == 1:
+            return False
+    return False
