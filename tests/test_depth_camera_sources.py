@@ -350,9 +350,24 @@ def _realsense_bag_case(tmp_path):
     return RealSenseSource(tmp_path / "rec.bag")
 
 
+RS_DEPTH = "/device_0/sensor_0/Depth_0/image/data"
+RS_DEPTH_INFO = "/device_0/sensor_0/Depth_0/info/camera_info"
+RS_PICTURE = "/device_0/sensor_0/Infrared_1/image/data"
+
+
+def _realsense_bag_through_rosbags_case(tmp_path):
+    write_realsense_bag(tmp_path / "rec.bag", n=5)
+    return Ros2DepthBagReplay(
+        tmp_path / "rec.bag", RS_DEPTH, 0.2, info_topic=RS_DEPTH_INFO, image_topic=RS_PICTURE
+    )
+
+
 CASES = {
-    "companion.camera.depth_sources.Ros2DepthBagReplay": _ros2_depth_case,
-    "companion.camera.realsense_source.RealSenseSource": _realsense_bag_case,
+    "companion.camera.depth_sources.Ros2DepthBagReplay": [
+        _ros2_depth_case,
+        _realsense_bag_through_rosbags_case,
+    ],
+    "companion.camera.realsense_source.RealSenseSource": [_realsense_bag_case],
 }
 DISCOVERED = implementations("read", "RawDepth")
 
@@ -365,14 +380,18 @@ def test_every_depth_frame_source_has_a_conformance_case():
     assert not stale, f"CASES entries that are not depth frame sources: {stale}"
 
 
-@pytest.mark.parametrize("name", DISCOVERED, ids=lambda n: n.rsplit(".", 1)[1])
-def test_depth_frame_source_contract(tmp_path, name):
+@pytest.mark.parametrize(
+    ("name", "make"),
+    [(name, make) for name in DISCOVERED for make in CASES.get(name, [None])],
+    ids=lambda x: x.rsplit(".", 1)[1] if isinstance(x, str) else getattr(x, "__name__", "none"),
+)
+def test_depth_frame_source_contract(tmp_path, name, make):
     """Sizes and intrinsics only after open(), each of the 5 recorded frames once (depth
     planes as recorded, the left picture beside them), capture times strictly increasing,
     then None for good; close() twice is fine."""
-    if name not in CASES:
+    if make is None:
         pytest.fail(f"{name} implements read() -> RawDepth but has no case in CASES")
-    source = CASES[name](tmp_path)
+    source = make(tmp_path)
     assert f"{type(source).__module__}.{type(source).__qualname__}" == name
     assert isinstance(source, DepthFrameSource)
     assert isinstance(source.description, str) and source.description
@@ -399,6 +418,37 @@ def test_depth_frame_source_contract(tmp_path, name):
     stamps = [f.capture_ns for f in frames]
     assert all(isinstance(t, int) for t in stamps)
     assert all(b > a for a, b in itertools.pairwise(stamps)), stamps
+
+
+@pytest.mark.parametrize(
+    ("image_units_m", "option_units_m", "expected_m"),
+    [(0.0005, 0.001, 0.0005), (None, 0.00025, 0.00025)],
+    ids=["units-in-frames", "units-option-only"],
+)
+def test_realsense_bag_replays_without_pyrealsense2(
+    tmp_path, image_units_m, option_units_m, expected_m
+):
+    """A RealSense ``.bag`` through ``stereo-camera replay --depth`` (rosbags, no SDK): the
+    4 bytes of depth units SDK 2.49+ appends after each image are read, not refused; a bag
+    without them takes the recording's "Depth Units" option; intrinsics from the depth
+    stream's CameraInfo (ROS 1's upper-case ``K``), stamps the device's, 100 ms apart."""
+    path = tmp_path / "rec.bag"
+    write_realsense_bag(path, n=3, depth_scale_m=option_units_m, image_depth_units_m=image_units_m)
+    now = iter(range(10**9, 10**10, 10**6))
+    source = Ros2DepthBagReplay(
+        path, RS_DEPTH, 0.2, info_topic=RS_DEPTH_INFO, image_topic=RS_PICTURE,
+        clock=lambda: next(now),
+    )  # fmt: skip
+    source.open()
+    frames = [source.read() for _ in range(3)]
+    assert source.read() is None
+    source.close()
+    assert source.intrinsics == K
+    for frame, (plane, left) in zip(frames, _views(3), strict=True):
+        assert frame.depth_scale_m == pytest.approx(expected_m, rel=1e-6)
+        np.testing.assert_array_equal(frame.depth, plane)
+        np.testing.assert_array_equal(frame.left, left)
+    np.testing.assert_array_equal(np.diff([f.capture_ns for f in frames]), 100_000_000)
 
 
 def test_live_device_time_is_mapped_by_the_smallest_offset():

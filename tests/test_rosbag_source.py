@@ -136,6 +136,25 @@ def test_camera_info_gives_the_papers_intrinsics():
         intrinsics_from_camera_info(_info(0, k, 0.0), _info(0, k, +k.fx_px * 0.2))
 
 
+def test_ros1_camera_info_gives_the_same_intrinsics():
+    """A ROS 1 bag read through rosbags keeps ROS 1's upper-case ``K``/``P`` fields."""
+    ros1 = get_typestore(Stores.ROS1_NOETIC).types["sensor_msgs/msg/CameraInfo"]
+    k = CameraModel().intrinsics
+    infos = []
+    for tx in (0.0, -k.fx_px * k.baseline_m):
+        ros2 = _info(0, k, tx)
+        infos.append(
+            ros1(
+                header=None, height=ros2.height, width=ros2.width,
+                distortion_model=ros2.distortion_model, D=ros2.d, K=ros2.k, R=ros2.r,
+                P=ros2.p, binning_x=0, binning_y=0, roi=None,
+            )
+        )  # fmt: skip
+    assert intrinsics_from_camera_info(*infos) == intrinsics_from_camera_info(
+        _info(0, k, 0.0), _info(0, k, -k.fx_px * k.baseline_m)
+    )
+
+
 @pytest.mark.parametrize("storage", [StoragePlugin.SQLITE3, StoragePlugin.MCAP])
 def test_bag_source_pairs_and_timestamps(tmp_path, storage):
     bag = tmp_path / "bag"
