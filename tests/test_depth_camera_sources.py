@@ -27,7 +27,7 @@ import time
 import numpy as np
 import pytest
 from _companion_rig import VEHICLE_ID, companion_rig
-from _contracts import implementations
+from _contracts import check_coverage, implementations
 from _realsense_ros1 import write_realsense_ros1_bag
 from rosbags.rosbag2 import StoragePlugin, Writer
 from test_rosbag_source import OBSTACLE, START_NED_M, TS, Image, _image, _info
@@ -373,11 +373,7 @@ DISCOVERED = implementations("read", "RawDepth")
 
 
 def test_every_depth_frame_source_has_a_conformance_case():
-    assert len(DISCOVERED) >= 2, DISCOVERED
-    missing = sorted(set(DISCOVERED) - set(CASES))
-    assert not missing, f"depth frame sources without a conformance case in CASES: {missing}"
-    stale = sorted(set(CASES) - set(DISCOVERED))
-    assert not stale, f"CASES entries that are not depth frame sources: {stale}"
+    check_coverage(DISCOVERED, CASES, "depth frame sources (read() -> RawDepth)", 2)
 
 
 @pytest.mark.parametrize(
