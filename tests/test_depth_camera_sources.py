@@ -2,16 +2,12 @@
 RealSense recordings, through the real libraries (rosbags, pyrealsense2) without a camera.
 
 Units: depth image encodings (16UC1, 32FC1 with REP 117's infinities), CameraInfo →
-intrinsics, the CLI's flags. Integration, as tests/test_rosbag_source.py does for pairs:
-plant-sim as the autopilot only (hovering at the paper's start, facing south), the companion
-with ``--frame-clock host``, and ``stereo-camera`` publishing depth frames of an obstacle
-3 m ahead from (a) a ROS 2 bag with a depth topic written by rosbags and (b) a RealSense
-ROS 1 ``.bag`` as SDKs before 2.59 recorded them, written by rosbags in librealsense's
-layout (``_realsense_ros1.py``) and read by pyrealsense2's own playback. The companion
-(which runs no matcher on them) must place the obstacle where it is and start avoiding it.
-Both RealSense formats, that ``.bag`` and the ``.db3`` pyrealsense2 2.59 records (made by
-its software device under its own recorder), are read back through pyrealsense2 frame for
-frame: after ``RealSenseSource`` the two take the same path into the companion.
+intrinsics, the CLI's flags. Recordings: a ROS 2 bag with a depth topic written by
+rosbags; a RealSense ROS 1 ``.bag`` as SDKs before 2.59 recorded them, written by rosbags
+in librealsense's layout (``_realsense_ros1.py``); the ``.db3`` pyrealsense2 2.59 records
+(its software device under its own recorder). Both RealSense formats are read back
+through pyrealsense2's own playback frame for frame, and the ``.bag`` through rosbags
+without the SDK. ``test_depth_camera_companion.py`` replays them into a running companion.
 
 Conformance: every public class of ours with ``read() -> RawDepth`` is discovered
 (``_contracts.implementations``) and run against the ``DepthFrameSource`` contract; one
@@ -26,11 +22,10 @@ import time
 
 import numpy as np
 import pytest
-from _companion_rig import VEHICLE_ID, companion_rig
 from _contracts import check_coverage, implementations
 from _realsense_ros1 import write_realsense_ros1_bag
+from _ros_msgs import OBSTACLE, START_NED_M, TS, Image, _image, _info
 from rosbags.rosbag2 import StoragePlugin, Writer
-from test_rosbag_source import OBSTACLE, START_NED_M, TS, Image, _image, _info
 
 from companion.camera.__main__ import build_parser, config_from_args
 from companion.camera.depth_sources import (
@@ -165,36 +160,6 @@ def test_depth_bag_errors(tmp_path):
         Ros2DepthBagReplay(tmp_path / "missing", DEPTH, 0.2).open()
 
 
-def _drives_the_companion(rig, camera, n_frames, rate_hz):
-    ready = camera.wait_line(r"^STEREO_CAMERA READY ", 30)
-    assert "size=320x240" in ready.string and "rectify=depth-camera" in ready.string, ready
-    assert rig.avoiding.wait(n_frames / rate_hz + 15.0), (
-        f"no avoiding status in {len(rig.docs)} docs\n{rig.logs()}"
-    )
-    first = next(d for d in rig.docs if d["obstacles"])
-    centre = np.array(first["obstacles"][0]["center_ned_m"])
-    assert np.linalg.norm(centre - OBSTACLE.center_ned_m) < 0.5, centre
-    assert first["obstacles"][0]["range_m"] == pytest.approx(3.0, abs=0.3)
-    log = rig.companion.stderr_text()
-    assert "bad camera frame" not in log and "unsupported pixel encoding" not in log
-    assert "DEPTH16 320x240 (depth camera, no matcher)" in log, log[-3000:]
-
-
-@pytest.mark.slow
-def test_ros2_depth_bag_drives_the_companion(tmp_path):
-    n, rate_hz = 60, 10.0
-    write_depth_bag(tmp_path / "bag", n=n, rate_hz=rate_hz)
-    with companion_rig() as rig:
-        camera = rig.start(
-            "stereo-camera",
-            "companion.camera",
-            ["replay", str(tmp_path / "bag"), "--depth", DEPTH, "--image", PICTURE,
-             "--baseline", "0.2", "--zenoh-connect", rig.companion_zenoh,
-             "--vehicle-id", VEHICLE_ID],
-        )  # fmt: skip
-        _drives_the_companion(rig, camera, n, rate_hz)
-
-
 # ---- a RealSense recording made without a camera --------------------------------------------
 
 
@@ -313,25 +278,6 @@ def test_realsense_bag_errors_name_the_file_and_the_reason(tmp_path):
         bag.write(conn, 1_000_000, ts.serialize_ros1(msg, msg.__msgtype__))
     with pytest.raises(SourceError, match=r"not_realsense\.bag.*file_version"):
         RealSenseSource(path).open()
-
-
-@pytest.mark.slow
-def test_realsense_bag_drives_the_companion(tmp_path):
-    """The issue's Done-when: a ``.bag`` made without a camera, read by pyrealsense2's
-    playback, replays through ``stereo-camera realsense --bag`` into the companion (the
-    ``.db3`` takes the same path after the source: read back above, frame for frame)."""
-    pytest.importorskip("pyrealsense2")
-    n, rate_hz = 60, 10.0
-    path = tmp_path / "rec.bag"
-    write_realsense_bag(path, n=n, rate_hz=rate_hz)
-    with companion_rig() as rig:
-        camera = rig.start(
-            "stereo-camera",
-            "companion.camera",
-            ["realsense", "--bag", str(path), "--zenoh-connect", rig.companion_zenoh,
-             "--vehicle-id", VEHICLE_ID],
-        )  # fmt: skip
-        _drives_the_companion(rig, camera, n, rate_hz)
 
 
 # ---- the DepthFrameSource contract, for every implementation -------------------------------
