@@ -393,6 +393,39 @@ def test_realsense_bag_replays_without_pyrealsense2(
     np.testing.assert_array_equal(np.diff([f.capture_ns for f in frames]), 100_000_000)
 
 
+def test_a_malformed_image_in_a_ros1_bag_is_a_clear_error(tmp_path):
+    """Extra bytes after an image are read as RealSense's depth units only where the header
+    says so (frame_id "1"); anywhere else the bag is refused naming the topic, not crashed."""
+    from rosbags.rosbag1 import Writer as Ros1Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    T = ts.types
+    path = tmp_path / "bad.bag"
+    plane = next(_views(1))[0]
+    stamp = T["builtin_interfaces/msg/Time"](sec=1, nanosec=0)
+    image = T["sensor_msgs/msg/Image"](
+        header=T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=""),
+        height=K.height_px, width=K.width_px, encoding="16UC1", is_bigendian=0,
+        step=2 * K.width_px, data=plane.view(np.uint8).reshape(-1),
+    )  # fmt: skip
+    info = T["sensor_msgs/msg/CameraInfo"](
+        header=image.header, height=K.height_px, width=K.width_px, distortion_model="",
+        D=np.zeros(5), K=np.array([K.fx_px, 0, K.cx_px, 0, K.fy_px, K.cy_px, 0, 0, 1.0]),
+        R=np.zeros(9), P=np.zeros(12), binning_x=0, binning_y=0,
+        roi=T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        ),
+    )  # fmt: skip
+    with Ros1Writer(path) as bag:
+        for topic, msg, tail in ((DEPTH_INFO, info, b""), (DEPTH, image, b"\0\0\0\0")):
+            conn = bag.add_connection(topic, msg.__msgtype__, typestore=ts)
+            bag.write(conn, 1_000_000, bytes(ts.serialize_ros1(msg, msg.__msgtype__)) + tail)
+    source = Ros2DepthBagReplay(path, DEPTH, 0.05, info_topic=DEPTH_INFO)
+    with pytest.raises(SourceError, match=r"bad\.bag: /camera/depth/image_rect_raw"):
+        source.open()
+
+
 def test_live_device_time_is_mapped_by_the_smallest_offset():
     """Live: capture = device time + min(arrival - device time) over the window: never
     later than the arrival, exact once a frame came with the minimum transport delay, and
