@@ -18,11 +18,12 @@ from __future__ import annotations
 
 import itertools
 import math
-import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 from _contracts import check_coverage, implementations
+from _realsense_recorder import record_with_sdk
 from _realsense_ros1 import write_realsense_ros1_bag
 from _ros_msgs import OBSTACLE, START_NED_M, TS, Image, _image, _info
 from rosbags.rosbag2 import StoragePlugin, Writer
@@ -168,43 +169,7 @@ def write_realsense_recording(path, n=60, rate_hz=10.0):
     pyrealsense2's software device under its recorder; the baseline is in the recording as
     the infrared 1 → 2 extrinsics and the ``stereo_baseline`` option."""
     rs = pytest.importorskip("pyrealsense2")
-    device = rs.software_device()
-    sensor = device.add_sensor("Stereo Module")
-    intr = rs.intrinsics()
-    intr.width, intr.height = K.width_px, K.height_px
-    intr.fx, intr.fy, intr.ppx, intr.ppy = K.fx_px, K.fy_px, K.cx_px, K.cy_px
-    intr.model, intr.coeffs = rs.distortion.brown_conrady, [0.0] * 5
-
-    def stream(kind, index, bpp, fmt):
-        vs = rs.video_stream()
-        vs.type, vs.index, vs.uid = kind, index, index
-        vs.width, vs.height, vs.fps, vs.bpp, vs.fmt = K.width_px, K.height_px, 30, bpp, fmt
-        vs.intrinsics = intr
-        return sensor.add_video_stream(vs)
-
-    depth = stream(rs.stream.depth, 0, 2, rs.format.z16)
-    ir1 = stream(rs.stream.infrared, 1, 1, rs.format.y8)
-    ir2 = stream(rs.stream.infrared, 2, 1, rs.format.y8)
-    sensor.add_read_only_option(rs.option.depth_units, 0.001)
-    sensor.add_read_only_option(rs.option.stereo_baseline, 1000.0 * K.baseline_m)
-    to_ir2 = rs.extrinsics()
-    to_ir2.rotation, to_ir2.translation = [1, 0, 0, 0, 1, 0, 0, 0, 1], [-K.baseline_m, 0, 0]
-    ir1.register_extrinsics_to(ir2, to_ir2)
-    recorder = rs.recorder(str(path), device)
-    sensor.open([depth, ir1])
-    sensor.start(rs.frame_queue(100))
-    for i, (plane, left) in enumerate(_views(n)):
-        for profile, pixels, bpp in ((ir1, left, 1), (depth, plane, 2)):
-            frame = rs.software_video_frame()
-            frame.pixels, frame.bpp, frame.stride = np.ascontiguousarray(pixels), bpp, bpp * 320
-            frame.timestamp = 1000.0 + i * 1000.0 / rate_hz
-            frame.domain, frame.frame_number = rs.timestamp_domain.hardware_clock, i
-            frame.profile = profile.as_video_stream_profile()
-            sensor.on_video_frame(frame)
-        time.sleep(0.005)
-    sensor.stop()
-    sensor.close()
-    del recorder  # closes the file
+    record_with_sdk(rs, path, K, _views(n), rate_hz=rate_hz)
 
 
 def write_realsense_bag(path, n=60, rate_hz=10.0, **kwargs):
@@ -424,6 +389,52 @@ def test_a_malformed_image_in_a_ros1_bag_is_a_clear_error(tmp_path):
     source = Ros2DepthBagReplay(path, DEPTH, 0.05, info_topic=DEPTH_INFO)
     with pytest.raises(SourceError, match=r"bad\.bag: /camera/depth/image_rect_raw"):
         source.open()
+
+
+def _sdk_fixture():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "make_realsense_sdk_bag", Path(__file__).parent / "data" / "make_realsense_sdk_bag.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("path", ["pyrealsense2", "rosbags"])
+def test_a_bag_recorded_by_the_sdk_itself_plays_through_both_paths(path):
+    """``tests/data/realsense_sdk2.56.5.bag``, written by librealsense 2.56.5's own recorder
+    (ROS 1, how every existing recording was made): pyrealsense2 2.59's playback
+    (``stereo-camera realsense --bag``) and rosbags (``stereo-camera replay --depth``) give
+    back its planes, pictures, intrinsics, 1 mm units and 100 ms device steps."""
+    fixture = _sdk_fixture()
+    k = fixture.K
+    if path == "pyrealsense2":
+        from companion.camera.realsense_source import RealSenseSource
+
+        pytest.importorskip("pyrealsense2")
+        source = RealSenseSource(fixture.BAG)
+    else:
+        source = Ros2DepthBagReplay(
+            fixture.BAG, RS_DEPTH, k.baseline_m, info_topic=RS_DEPTH_INFO, image_topic=RS_PICTURE
+        )
+    source.open()
+    frames = []
+    while (item := source.read()) is not None:
+        frames.append(item)
+    source.close()
+    got = source.intrinsics
+    assert (got.width_px, got.height_px) == (k.width_px, k.height_px)
+    assert (got.fx_px, got.fy_px, got.cx_px, got.cy_px) == (k.fx_px, k.fy_px, k.cx_px, k.cy_px)
+    assert got.baseline_m == pytest.approx(k.baseline_m, rel=1e-6)  # float32 in the file
+    assert len(frames) == fixture.N_FRAMES
+    for frame, (plane, picture) in zip(frames, fixture.frames(), strict=True):
+        assert frame.encoding is PixelEncoding.DEPTH16
+        assert frame.depth_scale_m == pytest.approx(0.001, rel=1e-6)
+        np.testing.assert_array_equal(frame.depth, plane)
+        np.testing.assert_array_equal(frame.left, picture)
+    np.testing.assert_array_equal(np.diff([f.capture_ns for f in frames]), 100_000_000)
 
 
 def test_live_device_time_is_mapped_by_the_smallest_offset():
