@@ -29,6 +29,7 @@ import math
 import numba
 import numpy as np
 
+from companion.depth_source import DISP_SCALE as _DISP_SCALE
 from companion.depth_source import DepthMap, depth_from_disparity
 from companion.perception import PerceptionConfig
 from companion.stereo_bm import PaddedStereoBM
@@ -36,7 +37,6 @@ from protocols.stereo_frame import PixelEncoding, StereoFrame
 
 __all__ = ["TruthDepthSource", "truth_disparity_fixed"]
 
-_DISP_SCALE = 16  # OpenCV's fixed-point disparity: 1/16 px
 _INT16_MAX = float(np.iinfo(np.int16).max)
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-__all__ = ["ROOT", "SEARCHED", "implementations"]
+__all__ = ["ROOT", "SEARCHED", "check_coverage", "implementations"]
 
 ROOT = Path(__file__).resolve().parents[1]
 SEARCHED = ("protocols", "companion", "plant_sim", "evaluation", "benchmarks", "scripts")
@@ -87,3 +87,14 @@ def implementations(
         if not more:
             return sorted(found)
         found |= more
+
+
+def check_coverage(discovered, entries, what: str, at_least: int) -> None:
+    """Fail unless every discovered implementation has an entry (how the suite builds and
+    feeds it) and every entry names one that is discovered; ``at_least`` guards discovery
+    itself (finding nothing must not pass)."""
+    assert len(discovered) >= at_least, f"discovered only {discovered}"
+    missing = sorted(set(discovered) - set(entries))
+    assert not missing, f"{what} without a conformance entry: {missing}"
+    stale = sorted(set(entries) - set(discovered))
+    assert not stale, f"conformance entries that are not {what}: {stale}"

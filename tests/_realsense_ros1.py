@@ -21,10 +21,10 @@ IntelRealSense/librealsense v2.56.5:
   at the record time since start.
 
 RealSense's ``std_msgs/Header`` names the third field ``version`` where ROS says
-``frame_id``; since v2.49 its writer sets it to "1" and appends the depth frame's
-``depth_units`` (float32) after the image's data (the md5 stays the standard one).
-``image_depth_units_m`` writes that; None (bags of older SDKs) leaves the reader to fall
-back on the "Depth Units" option.
+``frame_id``; since v2.49 its writer sets it to "1" on every image and appends the frame's
+``depth_units`` (float32 [m]; 0 for a picture) after the image's data (the md5 stays the
+standard one). ``image_depth_units_m`` writes that; None (bags of older SDKs) leaves the
+reader to fall back on the "Depth Units" option.
 """
 
 from __future__ import annotations
@@ -149,7 +149,7 @@ def write_realsense_ros1_bag(
                     continue
                 depth = stream == "Depth_0"
                 data = np.ascontiguousarray(pixels, dtype="<u2" if depth else np.uint8)
-                with_units = depth and image_depth_units_m is not None
+                with_units = image_depth_units_m is not None
                 image = Image(
                     header=Header(seq=i, stamp=stamp, frame_id="1" if with_units else ""),
                     height=data.shape[0],
@@ -159,7 +159,8 @@ def write_realsense_ros1_bag(
                     step=data.shape[1] * data.itemsize,
                     data=data.view(np.uint8).reshape(-1),
                 )
-                tail = struct.pack("<f", image_depth_units_m) if with_units else b""
+                units = image_depth_units_m if depth else 0.0
+                tail = struct.pack("<f", units) if with_units else b""
                 write(f"{sensor}/{stream}/image/data", record_ns, image, tail)
                 for key, value in (
                     ("system_time", f"{stamp_ms:.6f}"),

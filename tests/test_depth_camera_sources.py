@@ -2,16 +2,12 @@
 RealSense recordings, through the real libraries (rosbags, pyrealsense2) without a camera.
 
 Units: depth image encodings (16UC1, 32FC1 with REP 117's infinities), CameraInfo →
-intrinsics, the CLI's flags. Integration, as tests/test_rosbag_source.py does for pairs:
-plant-sim as the autopilot only (hovering at the paper's start, facing south), the companion
-with ``--frame-clock host``, and ``stereo-camera`` publishing depth frames of an obstacle
-3 m ahead from (a) a ROS 2 bag with a depth topic written by rosbags and (b) a RealSense
-ROS 1 ``.bag`` as SDKs before 2.59 recorded them, written by rosbags in librealsense's
-layout (``_realsense_ros1.py``) and read by pyrealsense2's own playback. The companion
-(which runs no matcher on them) must place the obstacle where it is and start avoiding it.
-Both RealSense formats, that ``.bag`` and the ``.db3`` pyrealsense2 2.59 records (made by
-its software device under its own recorder), are read back through pyrealsense2 frame for
-frame: after ``RealSenseSource`` the two take the same path into the companion.
+intrinsics, the CLI's flags. Recordings: a ROS 2 bag with a depth topic written by
+rosbags; a RealSense ROS 1 ``.bag`` as SDKs before 2.59 recorded them, written by rosbags
+in librealsense's layout (``_realsense_ros1.py``); the ``.db3`` pyrealsense2 2.59 records
+(its software device under its own recorder). Both RealSense formats are read back
+through pyrealsense2's own playback frame for frame, and the ``.bag`` through rosbags
+without the SDK. ``test_depth_camera_companion.py`` replays them into a running companion.
 
 Conformance: every public class of ours with ``read() -> RawDepth`` is discovered
 (``_contracts.implementations``) and run against the ``DepthFrameSource`` contract; one
@@ -22,15 +18,15 @@ from __future__ import annotations
 
 import itertools
 import math
-import time
+from pathlib import Path
 
 import numpy as np
 import pytest
-from _companion_rig import VEHICLE_ID, companion_rig
-from _contracts import implementations
+from _contracts import check_coverage, implementations
+from _realsense_recorder import record_with_sdk
 from _realsense_ros1 import write_realsense_ros1_bag
+from _ros_msgs import OBSTACLE, START_NED_M, TS, Image, _image, _info
 from rosbags.rosbag2 import StoragePlugin, Writer
-from test_rosbag_source import OBSTACLE, START_NED_M, TS, Image, _image, _info
 
 from companion.camera.__main__ import build_parser, config_from_args
 from companion.camera.depth_sources import (
@@ -165,36 +161,6 @@ def test_depth_bag_errors(tmp_path):
         Ros2DepthBagReplay(tmp_path / "missing", DEPTH, 0.2).open()
 
 
-def _drives_the_companion(rig, camera, n_frames, rate_hz):
-    ready = camera.wait_line(r"^STEREO_CAMERA READY ", 30)
-    assert "size=320x240" in ready.string and "rectify=depth-camera" in ready.string, ready
-    assert rig.avoiding.wait(n_frames / rate_hz + 15.0), (
-        f"no avoiding status in {len(rig.docs)} docs\n{rig.logs()}"
-    )
-    first = next(d for d in rig.docs if d["obstacles"])
-    centre = np.array(first["obstacles"][0]["center_ned_m"])
-    assert np.linalg.norm(centre - OBSTACLE.center_ned_m) < 0.5, centre
-    assert first["obstacles"][0]["range_m"] == pytest.approx(3.0, abs=0.3)
-    log = rig.companion.stderr_text()
-    assert "bad camera frame" not in log and "unsupported pixel encoding" not in log
-    assert "DEPTH16 320x240 (depth camera, no matcher)" in log, log[-3000:]
-
-
-@pytest.mark.slow
-def test_ros2_depth_bag_drives_the_companion(tmp_path):
-    n, rate_hz = 60, 10.0
-    write_depth_bag(tmp_path / "bag", n=n, rate_hz=rate_hz)
-    with companion_rig() as rig:
-        camera = rig.start(
-            "stereo-camera",
-            "companion.camera",
-            ["replay", str(tmp_path / "bag"), "--depth", DEPTH, "--image", PICTURE,
-             "--baseline", "0.2", "--zenoh-connect", rig.companion_zenoh,
-             "--vehicle-id", VEHICLE_ID],
-        )  # fmt: skip
-        _drives_the_companion(rig, camera, n, rate_hz)
-
-
 # ---- a RealSense recording made without a camera --------------------------------------------
 
 
@@ -203,43 +169,7 @@ def write_realsense_recording(path, n=60, rate_hz=10.0):
     pyrealsense2's software device under its recorder; the baseline is in the recording as
     the infrared 1 → 2 extrinsics and the ``stereo_baseline`` option."""
     rs = pytest.importorskip("pyrealsense2")
-    device = rs.software_device()
-    sensor = device.add_sensor("Stereo Module")
-    intr = rs.intrinsics()
-    intr.width, intr.height = K.width_px, K.height_px
-    intr.fx, intr.fy, intr.ppx, intr.ppy = K.fx_px, K.fy_px, K.cx_px, K.cy_px
-    intr.model, intr.coeffs = rs.distortion.brown_conrady, [0.0] * 5
-
-    def stream(kind, index, bpp, fmt):
-        vs = rs.video_stream()
-        vs.type, vs.index, vs.uid = kind, index, index
-        vs.width, vs.height, vs.fps, vs.bpp, vs.fmt = K.width_px, K.height_px, 30, bpp, fmt
-        vs.intrinsics = intr
-        return sensor.add_video_stream(vs)
-
-    depth = stream(rs.stream.depth, 0, 2, rs.format.z16)
-    ir1 = stream(rs.stream.infrared, 1, 1, rs.format.y8)
-    ir2 = stream(rs.stream.infrared, 2, 1, rs.format.y8)
-    sensor.add_read_only_option(rs.option.depth_units, 0.001)
-    sensor.add_read_only_option(rs.option.stereo_baseline, 1000.0 * K.baseline_m)
-    to_ir2 = rs.extrinsics()
-    to_ir2.rotation, to_ir2.translation = [1, 0, 0, 0, 1, 0, 0, 0, 1], [-K.baseline_m, 0, 0]
-    ir1.register_extrinsics_to(ir2, to_ir2)
-    recorder = rs.recorder(str(path), device)
-    sensor.open([depth, ir1])
-    sensor.start(rs.frame_queue(100))
-    for i, (plane, left) in enumerate(_views(n)):
-        for profile, pixels, bpp in ((ir1, left, 1), (depth, plane, 2)):
-            frame = rs.software_video_frame()
-            frame.pixels, frame.bpp, frame.stride = np.ascontiguousarray(pixels), bpp, bpp * 320
-            frame.timestamp = 1000.0 + i * 1000.0 / rate_hz
-            frame.domain, frame.frame_number = rs.timestamp_domain.hardware_clock, i
-            frame.profile = profile.as_video_stream_profile()
-            sensor.on_video_frame(frame)
-        time.sleep(0.005)
-    sensor.stop()
-    sensor.close()
-    del recorder  # closes the file
+    record_with_sdk(rs, path, K, _views(n), rate_hz=rate_hz)
 
 
 def write_realsense_bag(path, n=60, rate_hz=10.0, **kwargs):
@@ -315,25 +245,6 @@ def test_realsense_bag_errors_name_the_file_and_the_reason(tmp_path):
         RealSenseSource(path).open()
 
 
-@pytest.mark.slow
-def test_realsense_bag_drives_the_companion(tmp_path):
-    """The issue's Done-when: a ``.bag`` made without a camera, read by pyrealsense2's
-    playback, replays through ``stereo-camera realsense --bag`` into the companion (the
-    ``.db3`` takes the same path after the source: read back above, frame for frame)."""
-    pytest.importorskip("pyrealsense2")
-    n, rate_hz = 60, 10.0
-    path = tmp_path / "rec.bag"
-    write_realsense_bag(path, n=n, rate_hz=rate_hz)
-    with companion_rig() as rig:
-        camera = rig.start(
-            "stereo-camera",
-            "companion.camera",
-            ["realsense", "--bag", str(path), "--zenoh-connect", rig.companion_zenoh,
-             "--vehicle-id", VEHICLE_ID],
-        )  # fmt: skip
-        _drives_the_companion(rig, camera, n, rate_hz)
-
-
 # ---- the DepthFrameSource contract, for every implementation -------------------------------
 
 
@@ -350,29 +261,44 @@ def _realsense_bag_case(tmp_path):
     return RealSenseSource(tmp_path / "rec.bag")
 
 
+RS_DEPTH = "/device_0/sensor_0/Depth_0/image/data"
+RS_DEPTH_INFO = "/device_0/sensor_0/Depth_0/info/camera_info"
+RS_PICTURE = "/device_0/sensor_0/Infrared_1/image/data"
+
+
+def _realsense_bag_through_rosbags_case(tmp_path):
+    write_realsense_bag(tmp_path / "rec.bag", n=5)
+    return Ros2DepthBagReplay(
+        tmp_path / "rec.bag", RS_DEPTH, 0.2, info_topic=RS_DEPTH_INFO, image_topic=RS_PICTURE
+    )
+
+
 CASES = {
-    "companion.camera.depth_sources.Ros2DepthBagReplay": _ros2_depth_case,
-    "companion.camera.realsense_source.RealSenseSource": _realsense_bag_case,
+    "companion.camera.depth_sources.Ros2DepthBagReplay": [
+        _ros2_depth_case,
+        _realsense_bag_through_rosbags_case,
+    ],
+    "companion.camera.realsense_source.RealSenseSource": [_realsense_bag_case],
 }
 DISCOVERED = implementations("read", "RawDepth")
 
 
 def test_every_depth_frame_source_has_a_conformance_case():
-    assert len(DISCOVERED) >= 2, DISCOVERED
-    missing = sorted(set(DISCOVERED) - set(CASES))
-    assert not missing, f"depth frame sources without a conformance case in CASES: {missing}"
-    stale = sorted(set(CASES) - set(DISCOVERED))
-    assert not stale, f"CASES entries that are not depth frame sources: {stale}"
+    check_coverage(DISCOVERED, CASES, "depth frame sources (read() -> RawDepth)", 2)
 
 
-@pytest.mark.parametrize("name", DISCOVERED, ids=lambda n: n.rsplit(".", 1)[1])
-def test_depth_frame_source_contract(tmp_path, name):
+@pytest.mark.parametrize(
+    ("name", "make"),
+    [(name, make) for name in DISCOVERED for make in CASES.get(name, [None])],
+    ids=lambda x: x.rsplit(".", 1)[1] if isinstance(x, str) else getattr(x, "__name__", "none"),
+)
+def test_depth_frame_source_contract(tmp_path, name, make):
     """Sizes and intrinsics only after open(), each of the 5 recorded frames once (depth
     planes as recorded, the left picture beside them), capture times strictly increasing,
     then None for good; close() twice is fine."""
-    if name not in CASES:
+    if make is None:
         pytest.fail(f"{name} implements read() -> RawDepth but has no case in CASES")
-    source = CASES[name](tmp_path)
+    source = make(tmp_path)
     assert f"{type(source).__module__}.{type(source).__qualname__}" == name
     assert isinstance(source, DepthFrameSource)
     assert isinstance(source.description, str) and source.description
@@ -399,6 +325,116 @@ def test_depth_frame_source_contract(tmp_path, name):
     stamps = [f.capture_ns for f in frames]
     assert all(isinstance(t, int) for t in stamps)
     assert all(b > a for a, b in itertools.pairwise(stamps)), stamps
+
+
+@pytest.mark.parametrize(
+    ("image_units_m", "option_units_m", "expected_m"),
+    [(0.0005, 0.001, 0.0005), (None, 0.00025, 0.00025)],
+    ids=["units-in-frames", "units-option-only"],
+)
+def test_realsense_bag_replays_without_pyrealsense2(
+    tmp_path, image_units_m, option_units_m, expected_m
+):
+    """A RealSense ``.bag`` through ``stereo-camera replay --depth`` (rosbags, no SDK): the
+    4 bytes of depth units SDK 2.49+ appends after each image are read, not refused; a bag
+    without them takes the recording's "Depth Units" option; intrinsics from the depth
+    stream's CameraInfo (ROS 1's upper-case ``K``), stamps the device's, 100 ms apart."""
+    path = tmp_path / "rec.bag"
+    write_realsense_bag(path, n=3, depth_scale_m=option_units_m, image_depth_units_m=image_units_m)
+    now = iter(range(10**9, 10**10, 10**6))
+    source = Ros2DepthBagReplay(
+        path, RS_DEPTH, 0.2, info_topic=RS_DEPTH_INFO, image_topic=RS_PICTURE,
+        clock=lambda: next(now),
+    )  # fmt: skip
+    source.open()
+    frames = [source.read() for _ in range(3)]
+    assert source.read() is None
+    source.close()
+    assert source.intrinsics == K
+    for frame, (plane, left) in zip(frames, _views(3), strict=True):
+        assert frame.depth_scale_m == pytest.approx(expected_m, rel=1e-6)
+        np.testing.assert_array_equal(frame.depth, plane)
+        np.testing.assert_array_equal(frame.left, left)
+    np.testing.assert_array_equal(np.diff([f.capture_ns for f in frames]), 100_000_000)
+
+
+def test_a_malformed_image_in_a_ros1_bag_is_a_clear_error(tmp_path):
+    """Extra bytes after an image are read as RealSense's depth units only where the header
+    says so (frame_id "1"); anywhere else the bag is refused naming the topic, not crashed."""
+    from rosbags.rosbag1 import Writer as Ros1Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    T = ts.types
+    path = tmp_path / "bad.bag"
+    plane = next(_views(1))[0]
+    stamp = T["builtin_interfaces/msg/Time"](sec=1, nanosec=0)
+    image = T["sensor_msgs/msg/Image"](
+        header=T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=""),
+        height=K.height_px, width=K.width_px, encoding="16UC1", is_bigendian=0,
+        step=2 * K.width_px, data=plane.view(np.uint8).reshape(-1),
+    )  # fmt: skip
+    info = T["sensor_msgs/msg/CameraInfo"](
+        header=image.header, height=K.height_px, width=K.width_px, distortion_model="",
+        D=np.zeros(5), K=np.array([K.fx_px, 0, K.cx_px, 0, K.fy_px, K.cy_px, 0, 0, 1.0]),
+        R=np.zeros(9), P=np.zeros(12), binning_x=0, binning_y=0,
+        roi=T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        ),
+    )  # fmt: skip
+    with Ros1Writer(path) as bag:
+        for topic, msg, tail in ((DEPTH_INFO, info, b""), (DEPTH, image, b"\0\0\0\0")):
+            conn = bag.add_connection(topic, msg.__msgtype__, typestore=ts)
+            bag.write(conn, 1_000_000, bytes(ts.serialize_ros1(msg, msg.__msgtype__)) + tail)
+    source = Ros2DepthBagReplay(path, DEPTH, 0.05, info_topic=DEPTH_INFO)
+    with pytest.raises(SourceError, match=r"bad\.bag: /camera/depth/image_rect_raw"):
+        source.open()
+
+
+def _sdk_fixture():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "make_realsense_sdk_bag", Path(__file__).parent / "data" / "make_realsense_sdk_bag.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("path", ["pyrealsense2", "rosbags"])
+def test_a_bag_recorded_by_the_sdk_itself_plays_through_both_paths(path):
+    """``tests/data/realsense_sdk2.56.5.bag``, written by librealsense 2.56.5's own recorder
+    (ROS 1, how every existing recording was made): pyrealsense2 2.59's playback
+    (``stereo-camera realsense --bag``) and rosbags (``stereo-camera replay --depth``) give
+    back its planes, pictures, intrinsics, 1 mm units and 100 ms device steps."""
+    fixture = _sdk_fixture()
+    k = fixture.K
+    if path == "pyrealsense2":
+        from companion.camera.realsense_source import RealSenseSource
+
+        pytest.importorskip("pyrealsense2")
+        source = RealSenseSource(fixture.BAG)
+    else:
+        source = Ros2DepthBagReplay(
+            fixture.BAG, RS_DEPTH, k.baseline_m, info_topic=RS_DEPTH_INFO, image_topic=RS_PICTURE
+        )
+    source.open()
+    frames = []
+    while (item := source.read()) is not None:
+        frames.append(item)
+    source.close()
+    got = source.intrinsics
+    assert (got.width_px, got.height_px) == (k.width_px, k.height_px)
+    assert (got.fx_px, got.fy_px, got.cx_px, got.cy_px) == (k.fx_px, k.fy_px, k.cx_px, k.cy_px)
+    assert got.baseline_m == pytest.approx(k.baseline_m, rel=1e-6)  # float32 in the file
+    assert len(frames) == fixture.N_FRAMES
+    for frame, (plane, picture) in zip(frames, fixture.frames(), strict=True):
+        assert frame.encoding is PixelEncoding.DEPTH16
+        assert frame.depth_scale_m == pytest.approx(0.001, rel=1e-6)
+        np.testing.assert_array_equal(frame.depth, plane)
+        np.testing.assert_array_equal(frame.left, picture)
+    np.testing.assert_array_equal(np.diff([f.capture_ns for f in frames]), 100_000_000)
 
 
 def test_live_device_time_is_mapped_by_the_smallest_offset():

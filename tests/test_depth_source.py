@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from _contracts import implementations
+from _contracts import check_coverage, implementations
 
 from companion.bare_bm import BareStereoBM
 from companion.depth_camera import DepthCameraConfig, DepthCameraSource
@@ -100,13 +100,9 @@ def _feed(source) -> Feed:
 
 
 def test_every_depth_source_has_a_conformance_entry():
-    """Discovery finds the four we know, and every one it finds has an entry (and no entry
-    names a class that is no longer a depth source)."""
-    assert len(DISCOVERED) >= 4, DISCOVERED
-    missing = sorted(set(DISCOVERED) - set(SOURCES))
-    assert not missing, f"depth sources without a SOURCES entry (build, feed): {missing}"
-    stale = sorted(set(SOURCES) - set(DISCOVERED))
-    assert not stale, f"SOURCES entries that are not depth sources: {stale}"
+    """Discovery finds the four we know, every one it finds has an entry (and no entry
+    names a class that is no longer a depth source), and each entry builds its class."""
+    check_coverage(DISCOVERED, SOURCES, "depth sources (compute() -> DepthMap)", 4)
     for name, entry in SOURCES.items():
         assert _qualname(type(entry.build())) == name
 

@@ -16,6 +16,7 @@ import math
 import numpy as np
 import pytest
 from _companion_rig import VEHICLE_ID, companion_rig
+from _ros_msgs import OBSTACLE, START_NED_M, TS, CameraInfo, Image, _image, _info
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
@@ -27,57 +28,11 @@ from companion.camera.rosbag_source import (
 from companion.camera.sources import SourceError
 from companion.record.replay import replay
 from plant_sim.stereo_camera import StereoCameraRenderer
-from plant_sim.world import GroundPlane, Sphere, World
+from plant_sim.world import GroundPlane, World
 from protocols.camera import CameraModel
 from protocols.frames import rotation_321
 
-TS = get_typestore(Stores.ROS2_HUMBLE)
-Image = TS.types["sensor_msgs/msg/Image"]
-CameraInfo = TS.types["sensor_msgs/msg/CameraInfo"]
-Header = TS.types["std_msgs/msg/Header"]
-Time = TS.types["builtin_interfaces/msg/Time"]
-ROI = TS.types["sensor_msgs/msg/RegionOfInterest"]
-
-START_NED_M = np.array([20.0, 0.0, -7.0])  # plant-sim's default start, facing south
-OBSTACLE = Sphere((20.0 - 1.5 - 3.0, 0.0, -7.0), 1.5)  # surface 3 m ahead of the camera
 LEFT, RIGHT = "/stereo/left/image_rect", "/stereo/right/image_rect"
-
-
-def _header(stamp_ns: int, frame_id: str = "camera") -> object:
-    return Header(stamp=Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9), frame_id=frame_id)
-
-
-def _image(stamp_ns: int, pixels: np.ndarray, encoding: str = "mono8") -> object:
-    h, w = pixels.shape[:2]
-    data = np.ascontiguousarray(pixels).view(np.uint8).reshape(-1)
-    step = data.size // h
-    return Image(
-        header=_header(stamp_ns),
-        height=h,
-        width=w,
-        encoding=encoding,
-        is_bigendian=0,
-        step=step,
-        data=data,
-    )
-
-
-def _info(stamp_ns: int, k, tx: float) -> object:
-    p = np.array([k.fx_px, 0, k.cx_px, tx, 0, k.fy_px, k.cy_px, 0, 0, 0, 1, 0], dtype=float)
-    kk = np.array([k.fx_px, 0, k.cx_px, 0, k.fy_px, k.cy_px, 0, 0, 1], dtype=float)
-    return CameraInfo(
-        header=_header(stamp_ns),
-        height=k.height_px,
-        width=k.width_px,
-        distortion_model="plumb_bob",
-        d=np.zeros(5),
-        k=kk,
-        r=np.eye(3).reshape(-1),
-        p=p,
-        binning_x=0,
-        binning_y=0,
-        roi=ROI(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
-    )
 
 
 def write_bag(path, n_pairs=20, rate_hz=10.0, storage=StoragePlugin.SQLITE3, skew_ns=0):
@@ -134,6 +89,25 @@ def test_camera_info_gives_the_papers_intrinsics():
     assert got.focal_baseline_m_px == pytest.approx(71.87, abs=0.005)  # DESIGN.md
     with pytest.raises(ValueError, match="baseline"):
         intrinsics_from_camera_info(_info(0, k, 0.0), _info(0, k, +k.fx_px * 0.2))
+
+
+def test_ros1_camera_info_gives_the_same_intrinsics():
+    """A ROS 1 bag read through rosbags keeps ROS 1's upper-case ``K``/``P`` fields."""
+    ros1 = get_typestore(Stores.ROS1_NOETIC).types["sensor_msgs/msg/CameraInfo"]
+    k = CameraModel().intrinsics
+    infos = []
+    for tx in (0.0, -k.fx_px * k.baseline_m):
+        ros2 = _info(0, k, tx)
+        infos.append(
+            ros1(
+                header=None, height=ros2.height, width=ros2.width,
+                distortion_model=ros2.distortion_model, D=ros2.d, K=ros2.k, R=ros2.r,
+                P=ros2.p, binning_x=0, binning_y=0, roi=None,
+            )
+        )  # fmt: skip
+    assert intrinsics_from_camera_info(*infos) == intrinsics_from_camera_info(
+        _info(0, k, 0.0), _info(0, k, -k.fx_px * k.baseline_m)
+    )
 
 
 @pytest.mark.parametrize("storage", [StoragePlugin.SQLITE3, StoragePlugin.MCAP])

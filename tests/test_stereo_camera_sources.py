@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import pytest
-from _contracts import implementations
+from _contracts import check_coverage, implementations
 from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_typestore
 
@@ -154,11 +154,7 @@ DISCOVERED = [n for n in implementations("read", "RawPair") if n.rsplit(".", 1)[
 
 
 def test_every_stereo_source_has_a_conformance_case():
-    assert len(DISCOVERED) >= 5, DISCOVERED
-    missing = sorted(set(DISCOVERED) - set(CASES))
-    assert not missing, f"stereo sources without a conformance case in CASES: {missing}"
-    stale = sorted(set(CASES) - set(DISCOVERED))
-    assert not stale, f"CASES entries that are not stereo sources: {stale}"
+    check_coverage(DISCOVERED, CASES, "stereo sources (read() -> RawPair)", 5)
 
 
 @pytest.fixture(

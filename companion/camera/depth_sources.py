@@ -15,7 +15,12 @@ matcher on it.
     ``--baseline`` states the camera's (D435 0.050 m, D455 0.095 m). ``--image TOPIC``
     adds the left imager's picture (paired by stamp) for the viewer. Capture times: the
     header stamps, mapped so the first frame lands on the host's monotonic clock at the
-    start of the replay, as every replay source does.
+    start of the replay, as every replay source does. A RealSense ROS 1 recording (``.bag``)
+    is read this way too, without pyrealsense2 (``--depth
+    /device_0/sensor_0/Depth_0/image/data --depth-info
+    /device_0/sensor_0/Depth_0/info/camera_info``): its depth units are the frame's own
+    (SDK 2.49 and later append them, float32 [m], after the image's data, which rosbags
+    alone refuses), else the recording's "Depth Units" option, else millimetres.
 
 :class:`RealSenseSource` (``stereo-camera realsense [--bag FILE]``)
     An Intel RealSense D4xx through ``pyrealsense2``, or a recording its playback opens.
@@ -32,6 +37,7 @@ matcher on it.
 from __future__ import annotations
 
 import math
+import struct
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -41,7 +47,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from companion.camera.rosbag_source import image_to_mono8
+from companion.camera.rosbag_source import camera_info_matrix, image_to_mono8
 from companion.camera.sources import SourceError
 from protocols.camera import StereoIntrinsics
 from protocols.stereo_frame import PixelEncoding
@@ -143,8 +149,8 @@ def depth_from_image_msg(msg) -> tuple[np.ndarray, PixelEncoding, float]:
 def intrinsics_from_depth_info(info, baseline_m: float) -> StereoIntrinsics:
     """The depth image's camera from its ``CameraInfo`` (``P`` if set, else ``K``) and the
     camera's stereo baseline [m] (not in a depth CameraInfo)."""
-    p = np.asarray(info.p, dtype=float).reshape(3, 4)
-    k = np.asarray(info.k, dtype=float).reshape(3, 3)
+    p = camera_info_matrix(info, "P", (3, 4))
+    k = camera_info_matrix(info, "K", (3, 3))
     m = p[:, :3] if p[0, 0] > 0 else k
     if not m[0, 0] > 0 or not m[1, 1] > 0:
         raise ValueError("depth CameraInfo has neither P nor K (fx = 0)")
@@ -230,6 +236,7 @@ class Ros2DepthBagReplay:
         self._reader = None
         self._frames: Iterator[tuple[int, np.ndarray, PixelEncoding, float, object]] | None = None
         self._first = None
+        self._units_m: float | None = None  # a RealSense recording's Depth Units option
         self.intrinsics: StereoIntrinsics | None = None
         self.unpaired = 0
         self.description = f"rosbag-depth:{self.bag}"
@@ -270,6 +277,7 @@ class Ros2DepthBagReplay:
                 raise SourceError(f"{self.bag}: no topic {topic!r} (topics: {sorted(by_topic)})")
             if msgtype is not None and conn.msgtype != msgtype:
                 raise SourceError(f"{self.bag}: {topic} is {conn.msgtype}, not {msgtype}")
+        self._units_m = self._recorded_depth_units(by_topic)
         info = self._first_message(by_topic[self.info_topic])
         try:
             self.intrinsics = intrinsics_from_depth_info(info, self.baseline_m)
@@ -287,6 +295,35 @@ class Ros2DepthBagReplay:
             return self._reader.deserialize(raw, c.msgtype)
         raise SourceError(f"{self.bag}: no message on {conn.topic}")
 
+    def _recorded_depth_units(self, by_topic) -> float | None:
+        """A RealSense recording's "Depth Units" option [m] of the depth topic's sensor
+        (``/device_0/sensor_0/option/Depth_Units/value``), None for other bags."""
+        parts = self.depth_topic.split("/")
+        conn = by_topic.get("/".join(parts[:3]) + "/option/Depth_Units/value")
+        if len(parts) < 4 or conn is None or conn.msgtype != "std_msgs/msg/Float32":
+            return None
+        units = float(self._first_message(conn).data)
+        if not (math.isfinite(units) and units > 0):
+            raise SourceError(f"{self.bag}: {conn.topic} = {units!r} is not a depth unit")
+        return units
+
+    def _deserialize(self, conn, raw):
+        """The message, and the depth units [m] a RealSense ROS 1 recording appended after
+        an image's data (SDK 2.49 and later; the header's ``frame_id``, librealsense's
+        "version", says "1"), else None."""
+        try:
+            return self._reader.deserialize(raw, conn.msgtype), None
+        except Exception as exc:  # rosbags' own error for the 4 bytes it does not expect
+            if conn.msgtype != "sensor_msgs/msg/Image" or len(raw) < 4:
+                raise SourceError(f"{self.bag}: {conn.topic}: {exc}") from None
+            try:
+                msg = self._reader.deserialize(raw[:-4], conn.msgtype)
+            except Exception:
+                msg = None
+            if msg is None or msg.header.frame_id != "1":
+                raise SourceError(f"{self.bag}: {conn.topic}: {exc}") from None
+            return msg, float(struct.unpack("<f", bytes(raw[-4:]))[0])
+
     def _iter_frames(self, by_topic):
         reader = self._reader
         conns = [by_topic[self.depth_topic]]
@@ -296,11 +333,16 @@ class Ros2DepthBagReplay:
         depths: deque = deque()
         k = self.intrinsics
         for conn, _t, raw in reader.messages(connections=conns):
-            msg = reader.deserialize(raw, conn.msgtype)
+            msg, frame_units_m = self._deserialize(conn, raw)
             stamp = _stamp_ns(msg)
             try:
                 if conn.topic == self.depth_topic:
                     plane, encoding, scale = depth_from_image_msg(msg)
+                    units_m = frame_units_m or self._units_m
+                    if encoding is PixelEncoding.DEPTH16 and units_m is not None:
+                        if not (math.isfinite(units_m) and units_m > 0):
+                            raise ValueError(f"depth units {units_m!r} m")
+                        scale = units_m  # RealSense's, where REP 118 says millimetres
                     if plane.shape != (k.height_px, k.width_px):
                         raise ValueError(
                             f"depth image is {plane.shape[1]}x{plane.shape[0]}, CameraInfo "

@@ -11,6 +11,9 @@ Depth units: each depth frame's own (``depth_frame.get_units()``; a recording ma
 SDK 2.49 has none in its frames and playback gives the depth sensor's "Depth Units"
 option), else the depth sensor's depth scale.
 
+End of a recording: no frame within ``_POLL_MS`` while the playback says it has stopped,
+and none in a last ``_DRAIN_MS`` wait (or none for ``_WAIT_MS`` whatever it says).
+
 Time: a recording (``--bag FILE``: whatever pyrealsense2's playback opens; version 2.59
 records only ROS 2 ``.db3`` and still plays the ROS 1 ``.bag`` of older SDKs, which is
 what existing recordings are) is read as fast as it is
@@ -46,6 +49,8 @@ from protocols.stereo_frame import PixelEncoding
 __all__ = ["RealSenseSource"]
 
 _WAIT_MS = 2000  # one frame wait; a recording that delivers nothing this long has ended
+_POLL_MS = 50  # recording: a wait this long, then ask the playback whether it has stopped
+_DRAIN_MS = 300  # a stopped playback's last wait for frames still on their way
 _LIVE_TIMEOUT_S = 5.0  # a live device silent this long is an error
 _OFFSET_WINDOW = 300  # frames of (arrival - device time) the clock offset is the minimum of
 
@@ -122,6 +127,7 @@ class RealSenseSource:
         self._has_ir1 = False
         self._last_frame_number: int | None = None
         self._ended = False  # a recording that has ended stays ended (no more waits)
+        self._playback_stopped: Callable[[], bool] = lambda: False
         self.depth_scale_m = 0.001
         self.intrinsics: StereoIntrinsics | None = None
         self.description = "realsense"
@@ -164,7 +170,10 @@ class RealSenseSource:
 
     def _configure(self, rs, profile) -> None:
         if self.bag is not None:
-            profile.get_device().as_playback().set_real_time(False)
+            playback = profile.get_device().as_playback()
+            playback.set_real_time(False)
+            stopped = rs.playback_status.stopped
+            self._playback_stopped = lambda: playback.current_status() == stopped
         depth = profile.get_stream(rs.stream.depth).as_video_stream_profile()
         intr = depth.get_intrinsics()
         self.depth_scale_m = float(profile.get_device().first_depth_sensor().get_depth_scale())
@@ -189,13 +198,22 @@ class RealSenseSource:
     def read(self) -> RawDepth | None:
         if self._pipeline is None or self._ended:
             return None
-        deadline = time.monotonic() + _LIVE_TIMEOUT_S
+        start = time.monotonic()
+        deadline = start + _LIVE_TIMEOUT_S
         while True:
-            ok, frames = self._pipeline.try_wait_for_frames(_WAIT_MS)
-            if not ok:
-                if self.bag is not None:
+            wait_ms = _WAIT_MS if self.bag is None else _POLL_MS
+            ok, frames = self._pipeline.try_wait_for_frames(wait_ms)
+            if not ok and self.bag is not None and self._playback_stopped():
+                ok, frames = self._pipeline.try_wait_for_frames(_DRAIN_MS)
+                if not ok:
                     self._ended = True  # the recording has ended
                     return None
+            if not ok:
+                if self.bag is not None:
+                    if time.monotonic() - start >= _WAIT_MS / 1000:
+                        self._ended = True  # nothing for that long: ended too
+                        return None
+                    continue
                 if time.monotonic() >= deadline:
                     raise SourceError(f"RealSense: no frames for {_LIVE_TIMEOUT_S:g} s")
                 continue

@@ -62,10 +62,20 @@ def image_to_mono8(msg) -> np.ndarray:
     raise ValueError(f"unsupported image encoding {msg.encoding!r}")
 
 
+def camera_info_matrix(info, name: str, shape: tuple[int, int]) -> np.ndarray:
+    """``CameraInfo``'s matrix ``name`` ("K", "P", ...) as floats of ``shape``: ROS 2 spells
+    the fields in lower case (``p``), ROS 1 in upper case (``P``; a ROS 1 bag read through
+    rosbags keeps ROS 1's names)."""
+    values = getattr(info, name.lower(), None)
+    if values is None:
+        values = getattr(info, name.upper())
+    return np.asarray(values, dtype=float).reshape(shape)
+
+
 def intrinsics_from_camera_info(left_info, right_info) -> StereoIntrinsics:
     """Rectified stereo intrinsics from the two ``CameraInfo`` (ROS stereo convention)."""
-    p_left = np.asarray(left_info.p, dtype=float).reshape(3, 4)
-    p_right = np.asarray(right_info.p, dtype=float).reshape(3, 4)
+    p_left = camera_info_matrix(left_info, "P", (3, 4))
+    p_right = camera_info_matrix(right_info, "P", (3, 4))
     fx = p_left[0, 0]
     if not fx > 0:
         raise ValueError("left CameraInfo has no projection matrix P (fx = 0)")
