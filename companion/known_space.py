@@ -88,7 +88,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numba
@@ -215,7 +215,7 @@ class KnownSpaceConfig:
         if self.far_range_m <= 0.0:
             return None
         scale = self.far_voxel_m / self.voxel_m
-        return dataclasses.replace(
+        return replace(
             self,
             voxel_m=self.far_voxel_m,
             size_xy_vox=4 * (math.ceil(self.far_range_m / self.far_voxel_m) + 1),
