@@ -396,7 +396,8 @@ def test_core_obstacle_distance_is_on_the_wire_from_start_up_all_unknown_before_
         assert list(m.distances) == [65535] * 72
         assert m.frame == mavlink.MAV_FRAME_BODY_FRD
         assert m.increment_f == 5.0 and m.angle_offset == 0.0
-        assert m.max_distance == 620  # the map's reach (known_space 8 m, grid quarter 6.2 m)
+        # the map's reach: its far layer's (16 m of 0.4 m voxels; the fine grid alone: 6.2 m)
+        assert m.max_distance == 1600
 
 
 def test_core_obstacle_distance_follows_frames_with_their_capture_time():
@@ -410,7 +411,7 @@ def test_core_obstacle_distance_follows_frames_with_their_capture_time():
     capture_us = {s["capture_ns"] // 1000 for s in rig.statuses()}
     assert sum(m.time_usec in capture_us for m in msgs) >= by_frame
     last = msgs[-1]
-    assert 65535 in list(last.distances) and 621 not in list(last.distances)[:72]
+    assert 65535 in list(last.distances) and 1601 not in list(last.distances)[:72]
     status = rig.statuses()[-1]["proximity"]
     assert status["sent"] == len(msgs) and status["rate_hz"] >= 10.0
     assert status["unknown_sectors"] == 72
@@ -424,14 +425,15 @@ def test_core_obstacle_distance_sees_what_the_map_holds():
     rig = Rig()
     rig.run(1.0)
     space = rig.core.mission.pipeline.known_space
-    space.grid[:] = FREE
-    n = (np.arange(space.grid.shape[0]) + space.origin_vox[0] + 0.5) * 0.2
-    space.grid[n >= 3.0] = OCCUPIED
+    for layer in (space, space.far):  # the fine grid and the far layer beyond its reach
+        layer.grid[:] = FREE
+        n = (np.arange(layer.grid.shape[0]) + layer.origin_vox[0] + 0.5) * layer.config.voxel_m
+        layer.grid[n >= 3.0] = OCCUPIED
     rig.run(0.2, frames=False)
     last = rig.sent("OBSTACLE_DISTANCE")[-1]
     d = np.array(last.distances, dtype=float)
     assert d[0] == pytest.approx(300, abs=30)
-    assert np.all(d[19:54] == 621)  # facing away from the wall: clear to the reach
+    assert np.all(d[19:54] == 1601)  # facing away from the wall: clear to the far reach
 
 
 def test_core_obstacle_distance_can_be_turned_off():
