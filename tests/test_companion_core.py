@@ -467,3 +467,24 @@ def _comparable(o):
 def _blank_pair(camera: CameraModel):
     flat = np.full((camera.height_px, camera.width_px), 128, dtype=np.uint8)
     return flat, flat.copy()
+
+
+def test_core_counters_are_one_typed_record_in_the_exit_statistics():
+    """Issue 33: the counters are fields of CoreCounters, not strings; the exit statistics
+    carry each of them once, and a frame dropped for its pose counts by the lookup's
+    status (a usable lookup is not a drop)."""
+    from companion.core.counters import CoreCounters
+    from companion.pose_history import PoseStatus
+
+    counters = CoreCounters()
+    assert counters.pose_dropped(PoseStatus.TOO_NEW) == 1 == counters.pose_too_new
+    assert counters.pose_dropped(PoseStatus.TOO_OLD) == 1 and counters.pose_empty == 0
+    with pytest.raises(ValueError, match="usable"):
+        counters.pose_dropped(PoseStatus.OK)
+    rig = _steering_rig()
+    stats = rig.core.stats()
+    fields = [f.name for f in dataclasses.fields(CoreCounters)]
+    assert list(stats)[: len(fields)] == fields
+    assert stats["frames_processed"] == rig.core.counters.frames_processed > 0
+    sent = sum(1 for o in rig.outputs if isinstance(o, SendMavlink | SendSetpoint))
+    assert stats["mavlink_sent"] == sent  # every message counted once, by the outbox
