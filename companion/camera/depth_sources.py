@@ -47,7 +47,12 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from companion.camera.rosbag_source import camera_info_matrix, image_to_mono8
+from companion.camera.rosbag_source import (
+    camera_info_matrix,
+    header_stamp_ns,
+    image_to_mono8,
+    open_bag,
+)
 from companion.camera.sources import SourceError
 from protocols.camera import StereoIntrinsics
 from protocols.stereo_frame import PixelEncoding
@@ -167,10 +172,6 @@ def intrinsics_from_depth_info(info, baseline_m: float) -> StereoIntrinsics:
     )
 
 
-def _stamp_ns(msg) -> int:
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-
-
 class _ReplayClock:
     """Recorded stamps → the host's monotonic clock: the first lands at the first read,
     the others keep their spacing (or ``rate_hz``'s)."""
@@ -247,17 +248,7 @@ class Ros2DepthBagReplay:
         return None if k is None else (k.width_px, k.height_px)
 
     def open(self) -> None:
-        from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
-
-        if not self.bag.exists():
-            raise SourceError(f"ROS bag {self.bag} does not exist")
-        try:
-            reader = AnyReader([self.bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
-            reader.open()
-        except Exception as exc:  # rosbags raises its own error types on unreadable bags
-            raise SourceError(f"cannot read ROS bag {self.bag}: {exc}") from None
-        self._reader = reader
+        self._reader = open_bag(self.bag)
         try:
             self._check_and_start()
         except SourceError:
@@ -334,7 +325,7 @@ class Ros2DepthBagReplay:
         k = self.intrinsics
         for conn, _t, raw in reader.messages(connections=conns):
             msg, frame_units_m = self._deserialize(conn, raw)
-            stamp = _stamp_ns(msg)
+            stamp = header_stamp_ns(msg)
             try:
                 if conn.topic == self.depth_topic:
                     plane, encoding, scale = depth_from_image_msg(msg)

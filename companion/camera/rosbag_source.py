@@ -31,7 +31,14 @@ import numpy as np
 from companion.camera.sources import RawPair, SourceError, to_mono8
 from protocols.camera import StereoIntrinsics
 
-__all__ = ["Ros2BagReplay", "image_to_mono8", "intrinsics_from_camera_info"]
+__all__ = [
+    "Ros2BagReplay",
+    "camera_info_matrix",
+    "header_stamp_ns",
+    "image_to_mono8",
+    "intrinsics_from_camera_info",
+    "open_bag",
+]
 
 _DEFAULT_TOLERANCE_NS = 1_000_000  # 1 ms
 _COLOUR = {
@@ -98,8 +105,26 @@ def intrinsics_from_camera_info(left_info, right_info) -> StereoIntrinsics:
     )
 
 
-def _stamp_ns(msg) -> int:
+def header_stamp_ns(msg) -> int:
+    """A stamped message's header time [ns]."""
     return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def open_bag(bag: Path):
+    """An open ``rosbags`` reader over ``bag`` (ROS 2 folder, ``.db3``, ``.mcap`` or ROS 1
+    ``.bag``; unknown message types default to ROS 2 Humble's), or a :class:`SourceError`
+    that names it."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    if not bag.exists():
+        raise SourceError(f"ROS bag {bag} does not exist")
+    try:
+        reader = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except Exception as exc:  # rosbags raises its own error types on unreadable bags
+        raise SourceError(f"cannot read ROS bag {bag}: {exc}") from None
+    return reader
 
 
 def _sibling_info(topic: str) -> str:
@@ -167,16 +192,7 @@ class Ros2BagReplay:
         return self._size
 
     def open(self) -> None:
-        from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
-
-        if not self.bag.exists():
-            raise SourceError(f"ROS bag {self.bag} does not exist")
-        try:
-            reader = AnyReader([self.bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
-            reader.open()
-        except Exception as exc:  # rosbags raises its own error types on unreadable bags
-            raise SourceError(f"cannot read ROS bag {self.bag}: {exc}") from None
+        reader = open_bag(self.bag)
         self._reader = reader
         by_topic = {c.topic: c for c in reader.connections}
         for topic in self.topics:
@@ -238,7 +254,7 @@ class Ros2BagReplay:
             side = "left" if conn.topic == self.topics[0] else "right"
             other = "right" if side == "left" else "left"
             msg = reader.deserialize(raw, conn.msgtype)
-            stamp = _stamp_ns(msg)
+            stamp = header_stamp_ns(msg)
             try:
                 image = image_to_mono8(msg)
             except ValueError as exc:
