@@ -10,7 +10,7 @@
 #      (and says why it is not before);
 #   2. the companion takes off (GUIDED, arm, 7 m), flies to the goal 20 m north and
 #      avoids the 1.5 m sphere 10 m north (plant-sim's truth.csv: closest to the goal
-#      < 0.5 m, obstacle surface distance > 0.25 m);
+#      < 0.5 m, obstacle surface distance > 0.35 m, the radius with propellers);
 #   3. SITL frozen (SIGSTOP: nothing arrives, the TCP link stays open): the container
 #      turns unhealthy with the reason "link_lost"; SIGCONT: healthy again;
 #   4. the camera stopped while the companion steers: unhealthy with "no_frames".
@@ -178,7 +178,7 @@ try:
     surface = min((float(r["surface_distance_m"]) for r in flying if r["surface_distance_m"]),
                   default=math.nan)
     verdict(
-        reached and min(dist) < 0.5 and surface > 0.25,
+        reached and min(dist) < 0.5 and surface > 0.35,
         f"companion event goal_reached={reached}: closest to goal {min(dist):.2f} m, min "
         f"distance to obstacle surface {surface:.2f} m, {len(rows)} truth rows",
     )
