@@ -38,14 +38,29 @@ the camera sees little above the path), the heuristic the Euclidean distance to 
 
 The vehicle's own voxel is always traversable (it is there). When the goal's voxel is
 reached the path ends there; otherwise at the expanded voxel nearest the goal (ties: the
-shorter path), a *partial* path to the edge of what is known. At most ``max_expansions``
-voxels are expanded (the per-frame budget).
+shorter path), a *partial* path to the edge of what is known. The search ends early once
+every way still open is ``slack_m`` longer than the best found, and after
+``max_expansions`` voxels (the per-frame budget). Clearance from surfaces is stamped once
+per search from the OCCUPIED voxels near the box (cost ∝ the surface seen).
 
 First leg
 ---------
 The farthest path voxel, no more than ``leg_max_m`` along the path, that the vehicle sees
 in a straight line: every half-voxel sample of the segment from the vehicle lies in a
 traversable voxel (or the vehicle's own). Guidance aims along it.
+
+When the path wins over the cone (:func:`prefer_known_path`)
+------------------------------------------------------------
+* The cone rule found **no admissible direction**: the path is flown when it gets at
+  least ``min_progress_m`` (``GuidanceConfig.known_path_progress_m``) nearer the goal
+  (else guidance holds, as before).
+* The cone rule found one, but the path's first leg points **into a cone** of the
+  obstacle being avoided (the cone closes a way the map shows open) and the path ends
+  **past that obstacle** (nearer the goal than every one of its spheres' centres) at
+  least ``min_progress_m`` nearer the goal: the path is flown. A path that only leads up
+  to the obstacle's face does not replace the paper's way round it.
+* Once flown, the path is kept (hysteresis) while it still gets ``min_progress_m``
+  nearer the goal, so guidance does not flip between the two rules frame by frame.
 """
 
 from __future__ import annotations
@@ -63,7 +78,7 @@ import numpy as np
 from companion.known_space import FREE, OCCUPIED, TENTATIVE, UNKNOWN
 from protocols.config import check_numbers, dataclass_from_mapping
 
-__all__ = ["KnownPath", "KnownPathConfig", "plan_known_path"]
+__all__ = ["KnownPath", "KnownPathConfig", "plan_known_path", "prefer_known_path"]
 
 
 @dataclass(frozen=True)
@@ -91,6 +106,10 @@ class KnownPathConfig:
         Longest first leg, measured along the path [m].
     max_expansions : int
         Most voxels expanded per search (its cost bound).
+    slack_m : float
+        The search ends once every way still open is this much longer (cost plus
+        distance to the goal) than the best end found so far [m]: a partial path's end
+        that costs a detour of more than this is not worth looking for.
     """
 
     clearance_m: float = 0.65
@@ -98,10 +117,11 @@ class KnownPathConfig:
     section_half_height_m: float = 0.2
     near_field_m: float = 1.05
     reach_m: float = 8.0
-    reach_z_m: float = 2.0
+    reach_z_m: float = 1.0
     vertical_weight: float = 2.0
     leg_max_m: float = 4.0
-    max_expansions: int = 60000
+    max_expansions: int = 20000
+    slack_m: float = 5.0
 
     def __post_init__(self) -> None:
         names = [n for n in self.__dataclass_fields__ if n != "max_expansions"]
@@ -180,14 +200,38 @@ def _state(grid, gx, gy, gz):
 
 
 @numba.njit(cache=True)
-def _traversable(grid, gx, gy, gz, centre, voxel, spheres, occ_off, sec_off, check_section):
-    """1 when voxel (gx, gy, gz) of the grid is traversable (module docstring), else 2."""
+def _near_surface(grid, lo, nx, ny, nz, occ_off):
+    """Box voxels within the clearance of an OCCUPIED or TENTATIVE voxel: each such voxel
+    near the box stamps its clearance ball (cost ∝ the surface seen, not the box)."""
+    near = np.zeros(nx * ny * nz, np.bool_)
+    m = 0
+    for n in range(occ_off.shape[0]):
+        m = max(m, abs(occ_off[n, 0]), abs(occ_off[n, 1]), abs(occ_off[n, 2]))
+    x0, y0, z0 = max(lo[0] - m, 0), max(lo[1] - m, 0), max(lo[2] - m, 0)
+    x1 = min(lo[0] + nx + m, grid.shape[0])
+    y1 = min(lo[1] + ny + m, grid.shape[1])
+    z1 = min(lo[2] + nz + m, grid.shape[2])
+    for gx in range(x0, x1):
+        for gy in range(y0, y1):
+            for gz in range(z0, z1):
+                s = grid[gx, gy, gz]
+                if s != OCCUPIED and s != TENTATIVE:
+                    continue
+                for n in range(occ_off.shape[0]):
+                    ix = gx + occ_off[n, 0] - lo[0]
+                    iy = gy + occ_off[n, 1] - lo[1]
+                    iz = gz + occ_off[n, 2] - lo[2]
+                    if 0 <= ix < nx and 0 <= iy < ny and 0 <= iz < nz:
+                        near[ix * ny * nz + iy * nz + iz] = True
+    return near
+
+
+@numba.njit(cache=True)
+def _traversable(grid, gx, gy, gz, centre, spheres, sec_off, check_section):
+    """1 when voxel (gx, gy, gz) of the grid, not near a surface, is traversable (module
+    docstring), else 2."""
     if _state(grid, gx, gy, gz) != FREE:
         return 2
-    for n in range(occ_off.shape[0]):
-        s = _state(grid, gx + occ_off[n, 0], gy + occ_off[n, 1], gz + occ_off[n, 2])
-        if s == OCCUPIED or s == TENTATIVE:  # noqa: SIM109 (numba: no tuple membership)
-            return 2
     for m in range(spheres.shape[0]):
         dx = centre[0] - spheres[m, 0]
         dy = centre[1] - spheres[m, 1]
@@ -205,7 +249,7 @@ def _traversable(grid, gx, gy, gz, centre, voxel, spheres, occ_off, sec_off, che
 @numba.njit(cache=True)
 def _search(
     grid, origin, voxel, pos, goal, box_xy, box_z, spheres, occ_off, sec_off, near_m,
-    vertical_weight, max_expansions, leg_max_m,
+    vertical_weight, max_expansions, leg_max_m, slack_m,
 ):  # fmt: skip
     """A* (module docstring). Returns (path voxel centres (n, 3), leg index, reached,
     expanded); the path's first row is the vehicle's position."""
@@ -219,6 +263,10 @@ def _search(
     nx, ny, nz = 2 * box_xy + 1, 2 * box_xy + 1, 2 * box_z + 1
     size = nx * ny * nz
     trav = np.zeros(size, np.int8)  # 0 not asked, 1 traversable, 2 not
+    near = _near_surface(grid, lo, nx, ny, nz, occ_off)
+    for i in range(size):
+        if near[i]:
+            trav[i] = 2
     g = np.full(size, np.inf)
     parent = np.full(size, -1, np.int64)
     closed = np.zeros(size, np.bool_)
@@ -231,9 +279,11 @@ def _search(
     expanded = 0
     reached = False
     while len(heap) > 0 and expanded < max_expansions:
-        _, gc, node = heapq.heappop(heap)
+        fc, gc, node = heapq.heappop(heap)
         if closed[node]:
             continue
+        if fc > best_g + best_h + slack_m:
+            break  # every way still open is slack_m longer than the best one found
         closed[node] = True
         expanded += 1
         ix = node // (ny * nz)
@@ -272,7 +322,7 @@ def _search(
                             + (centre[2] - pos[2]) ** 2
                         )
                         trav[nb] = _traversable(
-                            grid, hx, hy, hz, centre, voxel, spheres, occ_off, sec_off, dp > near_m
+                            grid, hx, hy, hz, centre, spheres, sec_off, dp > near_m
                         )
                     if trav[nb] != 1:
                         continue
@@ -398,7 +448,7 @@ def plan_known_path(
         grid, np.asarray(origin_vox, dtype=np.int64), float(voxel_m), pos, goal,
         math.ceil(cfg.reach_m / voxel_m), math.ceil(cfg.reach_z_m / voxel_m),
         _sphere_array(spheres), occ, sec, cfg.near_field_m, cfg.vertical_weight,
-        cfg.max_expansions, cfg.leg_max_m,
+        cfg.max_expansions, cfg.leg_max_m, cfg.slack_m,
     )  # fmt: skip
     if path.shape[0] < 2 or leg == 0:
         return None
@@ -414,6 +464,56 @@ def plan_known_path(
         length_m=float(np.sum(np.linalg.norm(steps, axis=1))),
         expanded=int(expanded),
     )
+
+
+def prefer_known_path(
+    path: KnownPath | None,
+    pos_ned_m: np.ndarray,
+    goal_ned_m: np.ndarray,
+    *,
+    cone_has_direction: bool,
+    cones: Iterable,
+    kept: bool,
+    min_progress_m: float,
+) -> bool:
+    """Whether guidance flies ``path`` rather than the cone rule's aiming point (module
+    docstring, "When the path wins over the cone").
+
+    Parameters
+    ----------
+    path : KnownPath or None
+    pos_ned_m, goal_ned_m : ndarray, shape (3,)
+        Vehicle and goal [m, NED].
+    cone_has_direction : bool
+        The cone rule found an admissible aiming direction.
+    cones : iterable of CollisionCone
+        The cones of the obstacle being avoided (the overlapping cluster).
+    kept : bool
+        The path was flown at the previous step.
+    min_progress_m : float
+    """
+    if path is None:
+        return False
+    progress = float(np.linalg.norm(goal_ned_m - pos_ned_m)) - path.end_to_goal_m
+    if progress < min_progress_m:
+        return False
+    if kept or not cone_has_direction:
+        return True
+    leg = np.asarray(path.leg_end_ned_m) - pos_ned_m
+    cones = list(cones)
+    into_cone = any(_inside_cone(c, leg) for c in cones)
+    past = all(
+        path.end_to_goal_m < float(np.linalg.norm(np.asarray(c.center_ned_m) - goal_ned_m))
+        for c in cones
+    )
+    return into_cone and past
+
+
+def _inside_cone(cone, d: np.ndarray) -> bool:
+    if cone.apex_inside:
+        return True
+    norm = float(np.linalg.norm(d))
+    return norm > 0.0 and float(d @ cone.axis_ned) / norm > math.cos(cone.half_angle_rad)
 
 
 @functools.cache
