@@ -9,8 +9,14 @@ import math
 import numpy as np
 import pytest
 
-from companion.guidance.cone import BoundarySphere
-from companion.guidance.known_path import KnownPathConfig, plan_known_path
+from companion.guidance import GuidanceConfig, GuidanceState, Mode, Reason, guidance_step
+from companion.guidance.cone import BoundarySphere, collision_cone, contains_direction
+from companion.guidance.known_path import (
+    KnownPath,
+    KnownPathConfig,
+    plan_known_path,
+    prefer_known_path,
+)
 from companion.known_space import FREE, OCCUPIED, UNKNOWN
 
 VOXEL_M = 0.2
@@ -140,3 +146,90 @@ def test_config_refuses_unknown_keys_and_bad_values():
         KnownPathConfig(vertical_weight=0.5)
     with pytest.raises(ValueError):
         KnownPathConfig(max_expansions=0)
+
+
+# --- when guidance flies the path (prefer_known_path, guidance_step's known_path) -------
+
+
+def _fake_path(leg_end, end, goal) -> KnownPath:
+    """A path from the origin whose first leg ends at ``leg_end`` and which ends at ``end``."""
+    pts = np.array([(0.0, 0.0, 0.0), leg_end, end], dtype=float)
+    return KnownPath(
+        waypoints_ned_m=pts,
+        leg_end_ned_m=np.array(leg_end, dtype=float),
+        reaches_goal=False,
+        end_to_goal_m=float(np.linalg.norm(np.subtract(goal, end))),
+        length_m=float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1))),
+        expanded=0,
+    )
+
+
+GOAL = (20.0, 0.0, 0.0)
+# two boundaries overlapping across the straight path: §5 goes round both
+PINCH = [BoundarySphere((6.0, s * 1.0, 0.0), 1.2) for s in (1.0, -1.0)]
+
+
+def _step(path, spheres=PINCH, state=None):
+    plan = None if path is False else (lambda pos, goal, spheres: path)
+    return guidance_step(
+        GuidanceState() if state is None else state,
+        time_s=0.0,
+        pos_ned_m=(0.0, 0.0, 0.0),
+        vel_ned_mps=(1.0, 0.0, 0.0),
+        goal_ned_m=GOAL,
+        detections=spheres,
+        known_path=plan,
+        config=GuidanceConfig(confirm_n=1, confirm_m=1),  # avoided at first sight
+    )
+
+
+def test_without_a_map_search_the_cone_rule_alone_decides():
+    _, out = _step(False)
+    assert out.mode is Mode.AVOID and out.reason is Reason.CRITICAL
+    to_setpoint = np.asarray(out.setpoint_ned_m)
+    for sphere in PINCH:  # round the pinch (over it: the shorter way), outside every cone
+        cone = collision_cone(np.zeros(3), sphere)  # (on its tangent: 1 mrad of rounding)
+        assert not contains_direction(cone, to_setpoint, margin_rad=-1e-3)
+
+
+def test_a_path_past_the_obstacle_through_a_closed_cone_is_flown():
+    path = _fake_path((3.0, 0.0, 0.0), (12.0, 0.0, 0.0), GOAL)
+    state, out = _step(path)
+    assert out.mode is Mode.AVOID and out.reason is Reason.KNOWN_PATH
+    np.testing.assert_allclose(out.setpoint_ned_m, path.leg_end_ned_m)
+    assert out.avoidance_flag and state.on_known_path
+
+
+def test_a_path_up_to_the_obstacle_face_does_not_replace_the_way_round():
+    path = _fake_path((3.0, 0.0, 0.0), (4.6, 0.0, 0.0), GOAL)  # not past the spheres
+    _, out = _step(path)
+    assert out.reason is Reason.CRITICAL
+
+
+def test_a_path_that_gets_no_nearer_is_not_flown_and_nothing_free_holds():
+    pos = np.zeros(3)
+    spheres = [
+        BoundarySphere(tuple(pos + 3.0 * s * np.eye(3)[a]), 2.5)
+        for a in range(3)
+        for s in (1.0, -1.0)
+    ]
+    short = _fake_path((0.4, 0.0, 0.0), (0.5, 0.0, 0.0), GOAL)  # 0.5 m nearer < 1 m
+    _, out = _step(short, spheres)
+    assert out.mode is Mode.HOLD and out.reason is Reason.NO_FREE_DIRECTION
+    onward = _fake_path((0.4, 0.0, 0.0), (1.6, 0.0, 0.0), GOAL)
+    _, out = _step(onward, spheres)
+    assert out.reason is Reason.KNOWN_PATH
+    np.testing.assert_allclose(out.setpoint_ned_m, onward.leg_end_ned_m)
+
+
+def test_prefer_known_path_rules():
+    pos, goal = np.zeros(3), np.array(GOAL)
+    cones = [collision_cone(pos, s) for s in PINCH]
+    through = _fake_path((3.0, 0.0, 0.0), (12.0, 0.0, 0.0), GOAL)
+    beside = _fake_path((0.0, 3.0, 0.0), (12.0, 0.0, 0.0), GOAL)  # leg outside every cone
+    common = {"cones": cones, "min_progress_m": 1.0}
+    assert not prefer_known_path(None, pos, goal, cone_has_direction=False, kept=False, **common)
+    assert prefer_known_path(through, pos, goal, cone_has_direction=True, kept=False, **common)
+    assert not prefer_known_path(beside, pos, goal, cone_has_direction=True, kept=False, **common)
+    assert prefer_known_path(beside, pos, goal, cone_has_direction=True, kept=True, **common)
+    assert prefer_known_path(beside, pos, goal, cone_has_direction=False, kept=False, **common)
