@@ -15,6 +15,12 @@ Each step
    ``min_setpoint_distance_m`` along the direction of travel (the previous aiming
    direction while going around it): a vehicle that strays into a boundary that grew
    (the memory never shrinks one) keeps going around instead of backing out.
+   Hysteresis (issue 36): the obstacle escaped from stays active (``HYSTERESIS``, the
+   aiming point leading round it) while the vehicle is less than ``escape_clearance_m``
+   outside its boundary and the direction to the goal lies in its cone widened by
+   ``exit_margin_rad``. Released at once by the "behind" rule of step 5 (the escape
+   velocity points away from the centre), guidance navigated straight back in: 39
+   switches between ``inside_boundary`` and ``navigate`` before a thin wall.
 4. *Threats* (paper §5: critical): the reference lies inside the obstacle's cone and its
    surface is nearer than the goal plus ``goal_clearance_m``.
 5. Hysteresis on the active obstacle (AVOID/HOLD), checked in this order. It stays
@@ -197,6 +203,9 @@ class GuidanceState:
         getting nearer [m, s].
     on_known_path : bool
         The last step flew a known-space path's first leg (``KNOWN_PATH``).
+    escaped_id : int or None
+        Track the vehicle escaped from (``INSIDE_BOUNDARY``) and is not yet
+        ``escape_clearance_m`` outside of.
     """
 
     mode: Mode = Mode.NAVIGATE
@@ -211,6 +220,7 @@ class GuidanceState:
     unreachable: bool = False
     progress: Progress | None = None
     on_known_path: bool = False
+    escaped_id: int | None = None
 
 
 KnownPathFn = Callable[[np.ndarray, np.ndarray, list], KnownPath | None]
@@ -449,6 +459,7 @@ class _Decision:
     aim: np.ndarray | None = None
     aim_dir: tuple[float, float, float] | None = None
     on_path: bool = False
+    escaped: int | None = None
 
 
 def _reference(pos, vel, goal, cfg: GuidanceConfig) -> np.ndarray:
@@ -468,6 +479,7 @@ def _escape_boundary(state, f: _Frame, inside: list[int], d: _Decision, cfg) -> 
     active = max(inside, key=lambda i: (cones[i].radius_m - cones[i].distance_m, -i))
     d.active = active
     d.mode, d.reason = Mode.AVOID, Reason.INSIDE_BOUNDARY
+    d.escaped = tracks[active].track_id
     same = state.active_id == tracks[active].track_id
     keep_going = np.asarray(state.aim_dir_ned) if state.aim_dir_ned is not None and same else f.ref
     d.setpoint = escape_point(
@@ -515,6 +527,13 @@ def _keep_active(state, f: _Frame, threats: list[int], d: _Decision, cfg):
     if kept is None or kept in threats:
         return kept, kept_reason
     cone = f.cones[kept]
+    if (
+        f.tracks[kept].track_id == state.escaped_id
+        and cone.surface_distance_m < cfg.escape_clearance_m
+        and _contains_direction(cone, f.goal - f.pos, cfg.exit_margin_rad)
+    ):
+        d.escaped = state.escaped_id  # just escaped, the goal beyond: not released yet
+        return kept, Reason.HYSTERESIS
     behind = not f.has_ref or float(f.ref @ cone.axis_ned) <= 0.0
     obstacle = _same_obstacle(f.tracks, [kept])
     if any(f.goal_blocked(i) for i in obstacle):
@@ -759,6 +778,7 @@ def _outputs(f: _Frame, d: _Decision, memory, hold, yaw: float, progress: Progre
         unreachable=d.mode is Mode.HOLD and d.reason is Reason.GOAL_UNREACHABLE,
         progress=progress,
         on_known_path=d.on_path and d.mode is Mode.AVOID,
+        escaped_id=d.escaped,
     )
     output = GuidanceOutput(
         time_s=f.time_s,
