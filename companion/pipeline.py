@@ -23,6 +23,7 @@ from companion.depth_source import DepthSource
 from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput, Mode
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
 from companion.guidance.hold import hold_point, inside_any
+from companion.guidance.known_path import KnownPath, KnownPathConfig, plan_known_path, warm_up
 from companion.guidance.map_boundaries import (
     MapBoundary,
     MapBoundaryConfig,
@@ -36,6 +37,9 @@ from protocols.config import vec3
 from protocols.stereo_frame import StereoFrame
 
 __all__ = ["AvoidancePipeline", "PipelineOutput", "PoseAtCapture"]
+
+_REPLAN_FRAMES = 2  # the known-space path is searched at most every second frame
+_REUSE_AHEAD_M = 1.0  # ... and reused only while its first leg ends this far ahead
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,6 +118,16 @@ class AvoidancePipeline:
             detect_range_m=p.threshold_m, inflate_m=p.vehicle_radius_m + p.safety_margin_m
         )
         self.envelope_config = EnvelopeConfig() if envelope is None else envelope
+        e = self.envelope_config
+        self.known_path_config = KnownPathConfig(
+            clearance_m=p.vehicle_radius_m + p.safety_margin_m,
+            section_radius_m=p.vehicle_radius_m,
+            section_half_height_m=e.vehicle_half_height_m,
+            near_field_m=e.near_field_m,
+            reach_m=self.known_space.config.max_range_m,
+        )
+        self._last_path = None  # (map frame, goal, KnownPath or None) of the last search
+        warm_up()
 
     def process(
         self,
@@ -153,6 +167,7 @@ class AvoidancePipeline:
             goal_surely_blocked=goal_surely_blocked(
                 boundaries, self.goal_ned_m, self.boundary_config
             ),
+            known_path=self._known_path,
         )
         bounded = envelope_step(
             pos_ned_m=pose.pos_ned_m,
@@ -179,6 +194,30 @@ class AvoidancePipeline:
             boundaries=boundaries,
             hold_escape=escape is not None,
         )
+
+    def _known_path(self, pos_ned_m, goal_ned_m, spheres) -> KnownPath | None:
+        """Guidance's search of the known-space map (:mod:`companion.guidance.known_path`),
+        at most every ``_REPLAN_FRAMES`` frames toward one goal: in between the last path
+        stands while its first leg still ends ``_REUSE_AHEAD_M`` or more away (the search
+        costs 1–5 ms, more on a loaded machine; the map changes little in 66 ms)."""
+        last = self._last_path
+        if last is not None:
+            frame, goal, path = last
+            ahead = 0.0 if path is None else float(np.linalg.norm(path.leg_end_ned_m - pos_ned_m))
+            fresh = self.known_space.frames - frame < _REPLAN_FRAMES
+            if (
+                fresh
+                and np.array_equal(goal, goal_ned_m)
+                and (path is None or ahead >= _REUSE_AHEAD_M)
+            ):
+                return path
+        ks = self.known_space
+        path = plan_known_path(
+            ks.grid, ks.origin_vox, ks.config.voxel_m, pos_ned_m, goal_ned_m,
+            spheres=spheres, config=self.known_path_config,
+        )  # fmt: skip
+        self._last_path = (ks.frames, np.array(goal_ned_m, dtype=float), path)
+        return path
 
     def _hold_outside(
         self, pose: PoseAtCapture, bounded: EnvelopeOutput, boundaries

@@ -965,3 +965,24 @@ def test_a_stop_for_an_unseen_goal_is_released_once_the_goal_is_seen_free():
         )  # fmt: skip
     assert out.mode is Mode.NAVIGATE
     np.testing.assert_allclose(out.setpoint_ned_m, goal)
+
+
+def test_escaped_boundary_is_not_released_until_clear_of_it():
+    """Hysteresis (issue 36): out of a boundary with the velocity pointing away from its
+    centre, guidance keeps going round it until ``escape_clearance_m`` outside, instead of
+    navigating straight back in along a goal path that grazes it."""
+    config = GuidanceConfig(**ONE_SHOT)
+    sphere = BoundarySphere(center_ned_m=(0.0, 0.0, 0.0), radius_m=2.0)
+    # from 0.3 m outside, the goal lies 63° off the centre: in the cone widened by 5°, the
+    # straight path to it missing the boundary by 2.3 sin 63° - 2 = 0.05 m
+    a = math.radians(63.0)
+    goal = (10.0 * math.sin(a), 2.3 - 10.0 * math.cos(a), 0.0)
+    out_mps = (0.0, 0.5, 0.0)  # radially out
+    state, out = _step(GuidanceState(), 0.0, (0.0, 1.95, 0.0), out_mps, goal, [sphere], config)
+    assert out.reason is Reason.INSIDE_BOUNDARY
+    state, out = _step(state, DT_S, (0.0, 2.3, 0.0), out_mps, goal, [sphere], config)
+    assert out.mode is Mode.AVOID and out.reason is Reason.HYSTERESIS
+    assert np.linalg.norm(out.setpoint_ned_m) > 2.0  # never a target inside the boundary
+    far = 2.0 + config.escape_clearance_m + 0.05
+    state, out = _step(state, 2 * DT_S, (0.0, far, 0.0), out_mps, goal, [sphere], config)
+    assert out.mode is Mode.NAVIGATE

@@ -12,6 +12,8 @@ a mode, the avoidance flag of Fig. 11, a position setpoint and a yaw out.
 * :mod:`~companion.guidance.config` — the tuning, one frozen dataclass.
 * :mod:`~companion.guidance.envelope` — the safety envelope: the carrot inside known-free
   space (:mod:`companion.known_space`) and the stopping-distance speed limit.
+* :mod:`~companion.guidance.known_path` — a path through space seen free (A* over the
+  known-space map), flown where the cone rule finds no way or closes one the map shows.
 
 The public API is the step and its types; the geometry and planning functions are
 public in their own modules (``companion.guidance.cone`` etc.) for tests and tools.

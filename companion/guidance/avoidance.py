@@ -15,6 +15,12 @@ Each step
    ``min_setpoint_distance_m`` along the direction of travel (the previous aiming
    direction while going around it): a vehicle that strays into a boundary that grew
    (the memory never shrinks one) keeps going around instead of backing out.
+   Hysteresis (issue 36): the obstacle escaped from stays active (``HYSTERESIS``, the
+   aiming point leading round it) while the vehicle is less than ``escape_clearance_m``
+   outside its boundary and the direction to the goal lies in its cone widened by
+   ``exit_margin_rad``. Released at once by the "behind" rule of step 5 (the escape
+   velocity points away from the centre), guidance navigated straight back in: 39
+   switches between ``inside_boundary`` and ``navigate`` before a thin wall.
 4. *Threats* (paper §5: critical): the reference lies inside the obstacle's cone and its
    surface is nearer than the goal plus ``goal_clearance_m``.
 5. Hysteresis on the active obstacle (AVOID/HOLD), checked in this order. It stays
@@ -60,6 +66,12 @@ always ``GOAL_UNREACHABLE``.
    obstacles, candidates from the cluster of cones overlapping the active and threatening
    ones. Nothing free → HOLD (``NO_FREE_DIRECTION``). Eq. (28)'s reference is the
    velocity on entry and the previous aiming direction afterwards (below).
+   With a ``known_path`` search given (the pipeline binds the known-space map), the cone
+   rule is second-guessed where it fails (issue 36): when it leaves no admissible
+   direction, or while the straight path to the goal is blocked and a path through space
+   seen free leads past the obstacle through a way the cones close, guidance flies that
+   path's first leg (``KNOWN_PATH``, :func:`~companion.guidance.known_path.
+   prefer_known_path`); the safety envelope bounds it like any setpoint.
 
 Committing to a side
 --------------------
@@ -100,7 +112,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -115,6 +127,7 @@ from companion.guidance.cone import (
     segment_intersects_sphere,
 )
 from companion.guidance.config import GuidanceConfig
+from companion.guidance.known_path import KnownPath, prefer_known_path
 from companion.guidance.memory import ObstacleMemory, TrackedObstacle, update_memory
 from companion.guidance.planner import choose_aiming_point, overlapping_cluster
 from protocols.config import vec3
@@ -154,6 +167,9 @@ class Reason(Enum):
     """The goal lies inside a confirmed boundary: holding at the stop point outside it."""
     NO_PROGRESS = "no_progress"
     """No progress toward the goal for ``stall_timeout_s``: holding where it is."""
+    KNOWN_PATH = "known_path"
+    """Flying the first leg of a path through space seen free: the cone rule left no
+    admissible direction or closed a way the map shows open."""
 
 
 @dataclass(frozen=True)
@@ -185,6 +201,11 @@ class GuidanceState:
     progress : Progress or None
         The goal being flown to, the best distance to it and the time spent since without
         getting nearer [m, s].
+    on_known_path : bool
+        The last step flew a known-space path's first leg (``KNOWN_PATH``).
+    escaped_id : int or None
+        Track the vehicle escaped from (``INSIDE_BOUNDARY``) and is not yet
+        ``escape_clearance_m`` outside of.
     """
 
     mode: Mode = Mode.NAVIGATE
@@ -198,7 +219,13 @@ class GuidanceState:
     aim_dir_ned: tuple[float, float, float] | None = None
     unreachable: bool = False
     progress: Progress | None = None
+    on_known_path: bool = False
+    escaped_id: int | None = None
 
+
+KnownPathFn = Callable[[np.ndarray, np.ndarray, list], KnownPath | None]
+"""``(pos_ned_m, goal_ned_m, spheres) → KnownPath or None``: a search of the known-space map
+(:func:`companion.guidance.known_path.plan_known_path` with the map bound)."""
 
 _MAX_STEP_GAP_S = 0.5  # a longer gap between steps is time guidance did not steer
 
@@ -307,6 +334,7 @@ def guidance_step(
     config: GuidanceConfig | None = None,
     steering: bool = True,
     goal_surely_blocked: bool = True,
+    known_path: KnownPathFn | None = None,
 ) -> tuple[GuidanceState, GuidanceOutput]:
     """Advance guidance by one perception frame.
 
@@ -331,6 +359,8 @@ def guidance_step(
     goal_surely_blocked : bool
         A sphere holds the goal for certain, not by a blind spot only: a ``GOAL_UNREACHABLE``
         hold is latched (``_watch_progress``; ``map_boundaries.goal_surely_blocked``).
+    known_path : callable, optional
+        Search for a path through known-free space (step 7); None: the cone rule alone.
 
     Returns
     -------
@@ -358,7 +388,7 @@ def guidance_step(
     unreachable = stop is not None
     if unreachable:
         goal = stop
-    f = _Frame(time_s, pos, goal, _reference(pos, vel, goal, cfg), tracks, cones)
+    f = _Frame(time_s, pos, goal, _reference(pos, vel, goal, cfg), tracks, cones, known_path)
     live_ids = {t.track_id for t in tracks}
     d = _Decision(setpoint=goal, cleared={i for i in state.cleared_ids if i in live_ids})
     inside = [i for i, c in enumerate(cones) if c.apex_inside]
@@ -393,6 +423,7 @@ class _Frame:
     ref: np.ndarray
     tracks: tuple[TrackedObstacle, ...]
     cones: list
+    plan: KnownPathFn | None = None
 
     _blocked: dict[int, bool] = field(default_factory=dict, repr=False)
 
@@ -427,6 +458,8 @@ class _Decision:
     clear_since: float | None = None
     aim: np.ndarray | None = None
     aim_dir: tuple[float, float, float] | None = None
+    on_path: bool = False
+    escaped: int | None = None
 
 
 def _reference(pos, vel, goal, cfg: GuidanceConfig) -> np.ndarray:
@@ -446,6 +479,7 @@ def _escape_boundary(state, f: _Frame, inside: list[int], d: _Decision, cfg) -> 
     active = max(inside, key=lambda i: (cones[i].radius_m - cones[i].distance_m, -i))
     d.active = active
     d.mode, d.reason = Mode.AVOID, Reason.INSIDE_BOUNDARY
+    d.escaped = tracks[active].track_id
     same = state.active_id == tracks[active].track_id
     keep_going = np.asarray(state.aim_dir_ned) if state.aim_dir_ned is not None and same else f.ref
     d.setpoint = escape_point(
@@ -493,6 +527,13 @@ def _keep_active(state, f: _Frame, threats: list[int], d: _Decision, cfg):
     if kept is None or kept in threats:
         return kept, kept_reason
     cone = f.cones[kept]
+    if (
+        f.tracks[kept].track_id == state.escaped_id
+        and cone.surface_distance_m < cfg.escape_clearance_m
+        and _contains_direction(cone, f.goal - f.pos, cfg.exit_margin_rad)
+    ):
+        d.escaped = state.escaped_id  # just escaped, the goal beyond: not released yet
+        return kept, Reason.HYSTERESIS
     behind = not f.has_ref or float(f.ref @ cone.axis_ned) <= 0.0
     obstacle = _same_obstacle(f.tracks, [kept])
     if any(f.goal_blocked(i) for i in obstacle):
@@ -560,6 +601,8 @@ def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
         vertical_weight=cfg.vertical_weight,
         cluster_tie=plan_ref is f.ref,
     )
+    if _fly_known_path(state, f, cluster, choice is not None, d, cfg):
+        return
     if choice is None:
         d.mode, d.reason = Mode.HOLD, Reason.NO_FREE_DIRECTION
         return
@@ -571,6 +614,29 @@ def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
         cfg.max_setpoint_distance_m,
     )
     d.setpoint = f.pos + choice.direction_ned * reach
+
+
+def _fly_known_path(state, f: _Frame, cluster, cone_has_direction: bool, d, cfg) -> bool:
+    """Step 7's second guess: the first leg of a path through known-free space, when the
+    cone rule has no admissible direction or closes a way the map shows open."""
+    if f.plan is None:
+        return False
+    kept = state.on_known_path and state.mode is Mode.AVOID
+    if cone_has_direction and not kept and not any(f.goal_blocked(i) for i in cluster):
+        return False
+    path = f.plan(f.pos, f.goal, [t.sphere for t in f.tracks])
+    if not prefer_known_path(
+        path, f.pos, f.goal, cone_has_direction=cone_has_direction,
+        cones=[f.cones[i] for i in cluster], kept=kept,
+        min_progress_m=cfg.known_path_progress_m,
+    ):  # fmt: skip
+        return False
+    leg = np.array(path.leg_end_ned_m, dtype=float)
+    d.mode, d.reason, d.on_path = Mode.AVOID, Reason.KNOWN_PATH, True
+    d.aim = None
+    d.aim_dir = tuple(float(x) for x in (leg - f.pos) / norm3(leg - f.pos))
+    d.setpoint = leg
+    return True
 
 
 def _hold_at_stop_point(state: GuidanceState, f: _Frame, d: _Decision, cfg) -> None:
@@ -711,6 +777,8 @@ def _outputs(f: _Frame, d: _Decision, memory, hold, yaw: float, progress: Progre
         aim_dir_ned=d.aim_dir,
         unreachable=d.mode is Mode.HOLD and d.reason is Reason.GOAL_UNREACHABLE,
         progress=progress,
+        on_known_path=d.on_path and d.mode is Mode.AVOID,
+        escaped_id=d.escaped,
     )
     output = GuidanceOutput(
         time_s=f.time_s,
@@ -754,6 +822,7 @@ class Guidance:
         yaw_rad: float | None = None,
         steering: bool = True,
         goal_surely_blocked: bool = True,
+        known_path: KnownPathFn | None = None,
     ) -> GuidanceOutput:
         """Run :func:`guidance_step` on the held state; returns the output."""
         self.state, output = guidance_step(
@@ -767,5 +836,6 @@ class Guidance:
             config=self.config,
             steering=steering,
             goal_surely_blocked=goal_surely_blocked,
+            known_path=known_path,
         )
         return output

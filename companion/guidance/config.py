@@ -120,6 +120,10 @@ class GuidanceConfig:
         The longest a detour may go on without getting ``stall_progress_m`` nearer the goal,
         new cells or not [s]; then the ``NO_PROGRESS`` HOLD. Every flight thus ends at the
         goal or in a reported stop within a bound.
+    known_path_progress_m : float
+        A path through known-free space (:mod:`companion.guidance.known_path`) replaces the
+        cone rule's aiming point only when its end lies at least this much nearer the goal
+        than the vehicle [m] (1.0: twice ``stall_progress_m``, so flying it is progress).
     """
 
     n_candidates: int = 72
@@ -149,6 +153,7 @@ class GuidanceConfig:
     near_goal_stall_s: float = 10.0
     detour_cell_m: float = 1.0
     max_detour_s: float = 120.0
+    known_path_progress_m: float = 1.0
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
