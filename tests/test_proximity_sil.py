@@ -142,9 +142,9 @@ def _start_n_m(flavour: str, speed_mps: float) -> float:
     16 m reach (LOITER takes about 2.5 m/s² on average and overshoots; pitched 30° while
     it accelerates, the camera cannot see its own altitude ahead), and no farther: each
     second is a second of the suite."""
-    if flavour == "px4":
+    if flavour == "px4" or speed_mps <= 2.0:
         return START_N_M
-    return max(START_N_M, 11.5 + 16.0 + speed_mps**2 / (2.0 * 2.5) + 3.0)
+    return 11.5 + 16.0 + speed_mps**2 / (2.0 * 2.5) + 3.0
 
 
 def _pilot_approach(tmp_path, flavour: str, scene: str, speed_mps: float, material="textured"):
