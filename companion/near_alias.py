@@ -40,11 +40,11 @@ __all__ = ["AliasCounts", "settle_near_claims"]
 _SCALE = 4
 # A candidate beats its rival when the rival's cost is at least this many times its own
 # (plus the noise floor); between the two, the pixel is ambiguous. Measured on the synthetic
-# camera: a copy one texture period away scores 0.2-2.8 × the true match, a real surface at
-# 0.5-1.3 m scores 4-300 × lower than the main pass's alias of it (95 % above 5×).
+# camera (tests/test_near_alias.py's scenes, full-resolution BT costs): on the repetitive
+# wall the main match costs 0.2-2.8 × the copy one period away; in front of a real surface
+# at 0.5-1.3 m the main pass's alias costs 1-370 × the near match (95 % above 5 ×).
 _WIN_RATIO = 3.0
 _NOISE_FLOOR = 1.0  # [grey levels per pixel] added to both costs: noise is no evidence
-_WINDOW_RADIUS_PX = 4  # the 9 × 9 window of the main pass at the reference width
 _NEAR_SPREAD_PX = 1  # the claim is scored at its full-resolution disparity ± this [px]
 
 #: :func:`settle_near_claims`'s verdict counts: (claims confirmed, claims dropped for the

@@ -61,6 +61,32 @@ def test_ardupilot_ignores_unknown_zero_and_out_of_range_and_the_frame_field():
     assert [(round(math.degrees(f.bearing_rad)), f.distance_m) for f in faces] == [(20, 3.0)]
 
 
+def test_ardupilot_faces_lag_an_approach_by_v_over_2_pi_prx_filt():
+    """PRX_FILT (0.25 Hz): closing at v, a face's filtered distance lags the reading by
+    v / (2π·fc) (the discrete filter's ramp error is exactly v·dt·(1 − α)/α = v·RC); a
+    face last set 1 s ago or more restarts from the reading; PRX_FILT 0 is the reading."""
+    v, rate_hz = 2.0, 20.0
+    for filter_hz, lag_m in ((0.25, v / (2.0 * math.pi * 0.25)), (0.0, 0.0)):
+        rx = ProximityReceiver()
+        rx.filter_hz = filter_hz
+        for i in range(200):  # 10 s: many time constants (0.64 s)
+            t = i / rate_hz
+            rx.on_message(_obstacle_distance([round(100 * (5.0 - v * t / 5.0))]), t)
+        d_now = 5.0 - v * (199 / rate_hz) / 5.0  # the last reading [m]
+        (face,) = rx.ardupilot_faces(199 / rate_hz)
+        v_reading = v / 5.0  # the readings close at v / 5 here (they stay within range)
+        expect = d_now + lag_m * v_reading / v
+        assert face.distance_m == pytest.approx(expect, abs=0.01 + 0.005 * expect)
+    rx = ProximityReceiver()
+    rx.on_message(_obstacle_distance([500]), 0.0)
+    rx.on_message(_obstacle_distance([65535]), 0.1)  # the face reset: no reading
+    rx.on_message(_obstacle_distance([300]), 1.2)  # set 1.2 s after its last reading
+    assert rx.ardupilot_faces(1.2)[0].distance_m == pytest.approx(3.0)
+    rx.on_message(_obstacle_distance([200]), 1.25)  # 50 ms later: filtered
+    alpha = 0.05 / (0.05 + 1.0 / (2.0 * math.pi * 0.25))
+    assert rx.ardupilot_faces(1.25)[0].distance_m == pytest.approx(3.0 - alpha * 1.0)
+
+
 def test_px4_bins_map_the_message_and_local_ned_is_turned_by_yaw():
     rx = ProximityReceiver()
     rx.on_message(_obstacle_distance([300] + [65535] * 71), 0.0)

@@ -105,6 +105,8 @@ class PilotFlight:
     ) -> None:
         """One autopilot tick: update :attr:`setpoint` (None: the mode's own)."""
         self.sticks_in.timeout_s = 3.0 if self.px4 else params.value("RC_OVERRIDE_TIME")
+        if not self.px4:
+            self.proximity.filter_hz = params.value("PRX_FILT")
         sticks = self.sticks_in.sticks(now_wall_s)
         if not self.pilot_mode(machine, px4_main):
             self.setpoint = None

@@ -56,6 +56,7 @@ _PRX_TYPE_MAVLINK = 2
 #: and ranges from AC_Avoid.cpp, AP_Proximity_Params.cpp, AC_PosControl.cpp, RC_Channel).
 AVOID_PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("PRX1_TYPE", ParamType.INT8, 0, 0, 20),  # 0 none, 2 MAVLink
+    ParamSpec("PRX_FILT", ParamType.REAL32, 0.25, 0.0, 20.0),  # Hz, per-face low-pass
     ParamSpec("AVOID_ENABLE", ParamType.INT8, 3, 0, 7),  # bitmask: 1 fence, 2 proximity
     ParamSpec("AVOID_MARGIN", ParamType.REAL32, 2.0, 1.0, 10.0),  # m
     ParamSpec("AVOID_BEHAVE", ParamType.INT8, 0, 0, 1),  # 0 slide, 1 stop
