@@ -76,7 +76,7 @@ import numba
 import numpy as np
 
 from companion.known_space import FREE, OCCUPIED, TENTATIVE, UNKNOWN
-from protocols.config import check_numbers, dataclass_from_mapping
+from protocols.config import bounded, check_fields, dataclass_from_mapping
 
 __all__ = ["KnownPath", "KnownPathConfig", "plan_known_path", "prefer_known_path"]
 
@@ -112,30 +112,24 @@ class KnownPathConfig:
         that costs a detour of more than this is not worth looking for.
     """
 
-    clearance_m: float = 0.65
-    section_radius_m: float = 0.35
-    section_half_height_m: float = 0.2
-    near_field_m: float = 1.05
-    reach_m: float = 8.0
-    reach_z_m: float = 1.0
-    vertical_weight: float = 2.0
-    leg_max_m: float = 4.0
-    max_expansions: int = 20000
-    slack_m: float = 5.0
+    clearance_m: float = bounded(0.65, "m", ge=0)
+    section_radius_m: float = bounded(0.35, "m", ge=0)
+    section_half_height_m: float = bounded(0.2, "m", ge=0)
+    near_field_m: float = bounded(1.05, "m", ge=0)
+    reach_m: float = bounded(8.0, "m", gt=0)
+    reach_z_m: float = bounded(1.0, "m", gt=0)
+    vertical_weight: float = bounded(2.0, ge=1)
+    leg_max_m: float = bounded(4.0, "m", gt=0)
+    max_expansions: int = bounded(20000, integer=True, ge=1)
+    slack_m: float = bounded(5.0, "m", ge=0)
 
     def __post_init__(self) -> None:
-        names = [n for n in self.__dataclass_fields__ if n != "max_expansions"]
-        check_numbers(self, names, as_float=True)
-        check_numbers(self, ("reach_m", "reach_z_m", "leg_max_m"), positive=True)
-        if self.vertical_weight < 1.0:
-            raise ValueError(f"vertical_weight must be >= 1, got {self.vertical_weight!r}")
-        value = self.max_expansions
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"max_expansions must be an integer >= 1, got {value!r}")
+        check_fields(self)
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> KnownPathConfig:
-        """Build from a mapping; unknown keys raise ``TypeError`` naming them."""
+        """Build from a mapping; unknown keys and values out of bounds raise
+        :class:`~protocols.config.ConfigError` naming the key."""
         return dataclass_from_mapping(cls, values, "known_path")
 
 
