@@ -294,8 +294,9 @@ class TargetShaper:
         dp = [v[i] * dt + (0.5 * a[i] * dt * dt if accelerate else 0.0) for i in range(3)]
         if hold_ahead is not None:
             # the vehicle cannot follow: no motion that takes the reference farther from it.
-            # Only the part along the lead is stopped (ArduCopter's limit vector is a
-            # direction too), so a reference ahead of a vehicle at its top speed still
+            # Only the part along the lead is stopped (ArduCopter's limit is a direction
+            # too: AP_Math/control.cpp, update_vel_accel_xy removes the velocity change's
+            # component along it), so a reference ahead of a vehicle at its top speed still
             # turns: sideways motion is left to shape (the paper airframe cruises with its
             # pitch at the tilt limit; stopping the whole step froze every avoidance turn).
             lead = [p[i] - float(hold_ahead[i]) for i in range(3)]
