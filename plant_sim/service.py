@@ -186,7 +186,7 @@ class PlantService:
         self.disturbances = Disturbances(sc.disturbance) if sc.disturbance.active else None
         kin = self._kinematics(self._estimated(self.quad.snapshot()))
         self.machine = FlightModeMachine(
-            timings_from_params(self._base_timings, self.params),
+            self._timings(),
             home_ned_m=home,
             ground_down_m=ground,
             mode=sc.start.mode,
@@ -440,6 +440,19 @@ class PlantService:
             on_ground=snap.on_ground,
             tilt_saturated=snap.tilt_saturated,
         )
+
+    def _timings(self) -> ModeTimings:
+        """The mode logic's timings from the parameters. The PX4 flavour flies OFFBOARD
+        position setpoints unshaped: PX4's mc_pos_control takes an offboard trajectory
+        setpoint as it comes (no smoothing; MPC_XY_CRUISE, MPC_ACC_HOR and MPC_JERK_AUTO
+        shape its Auto modes, not OFFBOARD) and in OFFBOARD overrides the speed
+        constraints with MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP/DN
+        (src/modules/mc_pos_control/MulticopterPositionControl.cpp, Run()); its P-PID
+        cascade is the paper's LQ loop here."""
+        timings = timings_from_params(self._base_timings, self.params)
+        if self.config.autopilot_flavour == "px4":
+            return dataclasses.replace(timings, guided_shaping=False)
+        return timings
 
     def _estimated(self, truth: VehicleState) -> VehicleState:
         """The vehicle as the autopilot's estimator has it: the truth moved by the
@@ -788,7 +801,7 @@ class PlantService:
         if index is not None:
             self._param_value(index)  # echo: the new value, or the unchanged one if refused
         if reason is None:
-            self.machine.timings = timings_from_params(self._base_timings, self.params)
+            self.machine.timings = self._timings()
             if self.px4 is not None:
                 self.px4.rules = rules_from_params(self.params)
             _log.info("param %s set to %g", name, self.params.value(name))

@@ -31,10 +31,14 @@ What was followed (read in the autopilots' own sources, not copied):
   ``LOIT_BRK_DELAY``, by a braking deceleration that rises at ``LOIT_BRK_JERK`` to
   ``LOIT_BRK_DECEL``; then the position is held.
 * **PX4** (``src/modules/flight_mode_manager/tasks/Auto`` and the position-smoothing
-  library ``PositionSmoothing`` / ``VelocitySmoothing``): an offboard or auto position
-  setpoint is approached along a jerk-limited trajectory at ``MPC_XY_CRUISE`` (5 m/s),
-  ``MPC_ACC_HOR`` (3 m/s²), ``MPC_JERK_AUTO`` (4 m/s³), ``MPC_Z_V_AUTO_UP`` / ``_DN``,
-  ``MPC_ACC_UP_MAX`` / ``_DOWN_MAX``; Hold decelerates at ``MPC_ACC_HOR``.
+  library ``PositionSmoothing`` / ``VelocitySmoothing``): PX4's Auto modes and Hold
+  approach a position along a jerk-limited trajectory at ``MPC_XY_CRUISE`` (5 m/s),
+  ``MPC_ACC_HOR`` (3 m/s²), ``MPC_JERK_AUTO`` (4 m/s³); Hold decelerates at
+  ``MPC_ACC_HOR``. OFFBOARD position setpoints are *not* smoothed: mc_pos_control takes
+  the trajectory setpoint as it comes and, in OFFBOARD, bounds only the velocity, by
+  ``MPC_XY_VEL_MAX`` / ``MPC_Z_VEL_MAX_UP`` / ``_DN``
+  (``src/modules/mc_pos_control/MulticopterPositionControl.cpp``, ``Run()``), so
+  plant-sim's PX4 flavour hands OFFBOARD targets straight to the position loop.
 
 The shaping law here is this module's own: the square-root controller above, less the
 lag of its velocity loop (the command's rate of change over ``k_v``, as ArduCopter's
