@@ -259,24 +259,35 @@ def run_scene(
             tail = _kill_tail(quad, autopilot, disturbed, scene.world, state.time_s, cfg)
             tally.companion_stops(tail, quad, goal, cfg)
             break
-        # advance to the next frame through the autopilot's ticks, watching commanded
-        # tilt and clearance at every step
         seq += 1
         end_step = quad_step(quad) + _steps_until(quad, seq * frame_period_s)
-        while True:
-            tick_step = autopilot.next_tick_step()
-            if tick_step < end_step and tick_step == quad_step(quad):
-                autopilot.tick(quad, _disturb(disturbed, quad, quad.time_s))
-                continue
-            n_steps = min(end_step, tick_step) - quad_step(quad)
-            if n_steps <= 0:
-                break
-            roll_cmd, pitch_cmd, surface_min = quad.step_watching(n_steps, centres_ned_m, radii_m)
-            tally.max_roll = max(tally.max_roll, roll_cmd)
-            tally.max_pitch = max(tally.max_pitch, pitch_cmd)
-            tally.min_surface = min(tally.min_surface, surface_min)
+        _fly_until(end_step, quad, autopilot, disturbed, (centres_ned_m, radii_m), tally)
     verdict = tally.verdict(scene, quad, goal, frames=seq + 1, wall_start_s=wall_start)
     return RunResult(verdict=verdict, history=history, kills=tuple(kills))
+
+
+def _fly_until(
+    end_step: int,
+    quad: Quadrotor,
+    autopilot: LockstepAutopilot,
+    disturbed: Disturbances | None,
+    spheres: tuple[np.ndarray, np.ndarray],
+    tally: _Tally,
+) -> None:
+    """Advance the plant to physics step ``end_step`` (the next frame) through the
+    autopilot's ticks, watching commanded tilt and clearance at every step."""
+    while True:
+        tick_step = autopilot.next_tick_step()
+        if tick_step < end_step and tick_step == quad_step(quad):
+            autopilot.tick(quad, _disturb(disturbed, quad, quad.time_s))
+            continue
+        n_steps = min(end_step, tick_step) - quad_step(quad)
+        if n_steps <= 0:
+            return
+        roll_cmd, pitch_cmd, surface_min = quad.step_watching(n_steps, *spheres)
+        tally.max_roll = max(tally.max_roll, roll_cmd)
+        tally.max_pitch = max(tally.max_pitch, pitch_cmd)
+        tally.min_surface = min(tally.min_surface, surface_min)
 
 
 def _disturbances(scene: Scene) -> Disturbances | None:
