@@ -3,10 +3,12 @@
 Deterministic in simulation time and free of sockets: each camera period the plant is
 advanced, the stereo pair rendered at the true pose, the companion's
 :class:`~companion.core.Mission` (the same waypoint sequencing and avoidance pipeline the
-networked companion's core runs per frame) turns it into a setpoint, and the plant
-tracks that setpoint until the next frame. The pose handed to the mission is the plant's
-at the frame's capture time, as the networked companion interpolates it from telemetry.
-What lockstep leaves out is the link: mode changes, failsafes, takeover (tested in
+networked companion's core runs per frame) turns it into a setpoint and a speed limit,
+and plant-sim's ArduCopter GUIDED flies them (:mod:`evaluation.lockstep_autopilot`: the
+same mode logic, target shaping and DO_CHANGE_SPEED as the networked plant-sim, ticking
+at 50 Hz) until the next frame. The pose handed to the mission is the plant's at the
+frame's capture time, as the networked companion interpolates it from telemetry.
+What lockstep leaves out is the link itself: mode changes, failsafes, takeover (tested in
 process on :class:`~companion.core.CompanionCore`).
 """
 
@@ -16,7 +18,7 @@ import copy
 import functools
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,13 +31,14 @@ from companion.perception import PerceptionConfig
 from companion.pipeline import PoseAtCapture
 from companion.proximity.sectors import ProximityConfig, sectors_from_map
 from evaluation.history import History
+from evaluation.lockstep_autopilot import LockstepAutopilot, autopilot_params
 from evaluation.scenes import Scene
 from evaluation.truth_perception import TruthDepthSource
 from plant_sim.depth_camera import CameraEncoding, DepthNoiseParams, depth_frame
 from plant_sim.disturbance import Disturbances
 from plant_sim.params import ControlParams, QuadrotorParams
 from plant_sim.stereo_camera import RenderParams, StereoCameraRenderer
-from plant_sim.vehicle import Quadrotor, Setpoint, VehicleState
+from plant_sim.vehicle import Quadrotor, VehicleState
 from plant_sim.world import World
 from protocols.camera import CameraModel
 from protocols.config import check_numbers
@@ -89,9 +92,20 @@ class RunConfig:
     # (plant_sim.depth_camera) with these errors; the companion runs no matcher.
     camera_encoding: CameraEncoding = CameraEncoding.MONO8
     depth_noise: DepthNoiseParams = field(default_factory=DepthNoiseParams)
+    # plant-sim's ArduCopter between the companion and the LQ loop (issue 31): its tick
+    # rate [Hz of simulation time], its parameters (ArduCopter names and units, e.g.
+    # {"WPNAV_SPEED": 100.0}) and whether the companion states the envelope's speed limit
+    # with DO_CHANGE_SPEED, as it does to ArduPilot (False: the carrot alone bounds it)
+    autopilot_rate_hz: float = 50.0
+    autopilot_params: Mapping[str, float] = field(default_factory=dict)
+    state_speed_limit: bool = True
 
     def __post_init__(self) -> None:
-        check_numbers(self, ("camera_rate_hz", "max_time_s", "goal_tolerance_m"), positive=True)
+        check_numbers(
+            self,
+            ("camera_rate_hz", "max_time_s", "goal_tolerance_m", "autopilot_rate_hz"),
+            positive=True,
+        )
 
 
 @dataclass(frozen=True)
@@ -113,6 +127,9 @@ class Verdict:
     # None, "collision", "timeout", "hold" (stopped: no free direction), "companion_stopped"
     failure: str | None
     hold_reason: str | None = None  # guidance's reason when the run ended in a HOLD
+    # frames on which the companion's overspeed warning would fire: measured speed above
+    # the envelope's stated limit by more than its tolerance (CompanionCore._check_overspeed)
+    overspeed_frames: int = 0
 
     @property
     def passed(self) -> bool:
@@ -198,7 +215,7 @@ def run_scene(
     """
     cfg = config or RunConfig()
     wall_start = time.perf_counter()
-    quad, mission = _start(scene, cfg)
+    quad, mission, autopilot = _start(scene, cfg)
     shoot = _camera(scene, cfg, mission)
     centres_ned_m = np.array([s.center_ned_m for s in scene.world.spheres]).reshape(-1, 3)
     radii_m = np.array([s.radius_m for s in scene.world.spheres])
@@ -220,10 +237,10 @@ def run_scene(
         if on_step is not None:
             on_step(frame, pose, step, mission)
         out = step.output
-        # the autopilot closes its loop on its estimate: the target, less the error
-        quad.set_setpoint(
-            Setpoint(pos_ned_m=tuple(out.setpoint_ned_m - error_ned_m), yaw_rad=out.yaw_rad)
+        autopilot.command(
+            out.setpoint_ned_m, out.yaw_rad, out.envelope.speed_limit_mps, state.time_s
         )
+        tally.overspeed_frames += bool(out.envelope.overspeed)
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
         if record_history:
             _record(history, state, surface, out, len(out.perception.obstacles), mission)
@@ -234,21 +251,43 @@ def run_scene(
             progress(state.time_s, math.dist(state.pos_ned_m, goal))
             next_progress_s += 1.0
         while pending_kills and state.time_s >= pending_kills[0] - 1e-9:
-            kills.append(_kill_tail(copy.deepcopy(quad), scene.world, pending_kills.pop(0), cfg))
+            flown = copy.deepcopy((quad, autopilot, disturbed))
+            kills.append(_kill_tail(*flown, scene.world, pending_kills.pop(0), cfg))
         if tally.ends_run(cfg, mission, out.guidance, state, surface):
             break
         if cfg.companion_stop_s is not None and state.time_s >= cfg.companion_stop_s:
-            tally.companion_stops(_kill_tail(quad, scene.world, state.time_s, cfg), quad, goal, cfg)
+            tail = _kill_tail(quad, autopilot, disturbed, scene.world, state.time_s, cfg)
+            tally.companion_stops(tail, quad, goal, cfg)
             break
-        # advance to the next frame, watching commanded tilt and clearance at every step
         seq += 1
-        n_steps = _steps_until(quad, seq * frame_period_s)
-        roll_cmd, pitch_cmd, surface_min = quad.step_watching(n_steps, centres_ned_m, radii_m)
+        end_step = quad_step(quad) + _steps_until(quad, seq * frame_period_s)
+        _fly_until(end_step, quad, autopilot, disturbed, (centres_ned_m, radii_m), tally)
+    verdict = tally.verdict(scene, quad, goal, frames=seq + 1, wall_start_s=wall_start)
+    return RunResult(verdict=verdict, history=history, kills=tuple(kills))
+
+
+def _fly_until(
+    end_step: int,
+    quad: Quadrotor,
+    autopilot: LockstepAutopilot,
+    disturbed: Disturbances | None,
+    spheres: tuple[np.ndarray, np.ndarray],
+    tally: _Tally,
+) -> None:
+    """Advance the plant to physics step ``end_step`` (the next frame) through the
+    autopilot's ticks, watching commanded tilt and clearance at every step."""
+    while True:
+        tick_step = autopilot.next_tick_step()
+        if tick_step < end_step and tick_step == quad_step(quad):
+            autopilot.tick(quad, _disturb(disturbed, quad, quad.time_s))
+            continue
+        n_steps = min(end_step, tick_step) - quad_step(quad)
+        if n_steps <= 0:
+            return
+        roll_cmd, pitch_cmd, surface_min = quad.step_watching(n_steps, *spheres)
         tally.max_roll = max(tally.max_roll, roll_cmd)
         tally.max_pitch = max(tally.max_pitch, pitch_cmd)
         tally.min_surface = min(tally.min_surface, surface_min)
-    verdict = tally.verdict(scene, quad, goal, frames=seq + 1, wall_start_s=wall_start)
-    return RunResult(verdict=verdict, history=history, kills=tuple(kills))
 
 
 def _disturbances(scene: Scene) -> Disturbances | None:
@@ -270,14 +309,28 @@ _NO_ERROR = np.zeros(3)
 _NO_ERROR.flags.writeable = False
 
 
-def _start(scene: Scene, cfg: RunConfig) -> tuple[Quadrotor, Mission]:
-    """The plant at the scene's start and the companion's mission to its waypoints."""
+def quad_step(quad: Quadrotor) -> int:
+    """The plant's physics step count (its clock in whole steps)."""
+    return round(quad.time_s / quad.dt_s)
+
+
+def _start(scene: Scene, cfg: RunConfig) -> tuple[Quadrotor, Mission, LockstepAutopilot]:
+    """The plant at the scene's start, its autopilot in GUIDED and the companion's mission
+    to its waypoints."""
+    ground_down_m = None if scene.world.ground is None else scene.world.ground.down_m
     quad = Quadrotor(
         cfg.vehicle,
         cfg.control,
         pos_ned_m=scene.start_ned_m,
         yaw_rad=scene.start_yaw_rad,
-        ground_down_m=None if scene.world.ground is None else scene.world.ground.down_m,
+        ground_down_m=ground_down_m,
+    )
+    autopilot = LockstepAutopilot(
+        quad,
+        autopilot_params(cfg.control.max_tilt_deg, cfg.autopilot_params),
+        ground_down_m=ground_down_m,
+        rate_hz=cfg.autopilot_rate_hz,
+        state_speed_limit=cfg.state_speed_limit,
     )
     mission = Mission(
         scene.waypoints_ned_m,
@@ -288,7 +341,7 @@ def _start(scene: Scene, cfg: RunConfig) -> tuple[Quadrotor, Mission]:
         cfg.envelope,
         depth_source=TruthDepthSource(cfg.perception) if cfg.truth_perception else None,
     )
-    return quad, mission
+    return quad, mission, autopilot
 
 
 def _camera(
@@ -349,6 +402,7 @@ class _Tally:
     collided: bool = False
     failure: str | None = None
     hold_reason: str | None = None
+    overspeed_frames: int = 0
 
     def ends_run(self, cfg: RunConfig, mission: Mission, decision, state, surface: float) -> bool:
         """A collision, the goal, a reported stop come to rest for 2 s (the world is static)
@@ -396,6 +450,7 @@ class _Tally:
             frames=frames,
             failure=self.failure,
             hold_reason=self.hold_reason,
+            overspeed_frames=self.overspeed_frames,
         )
 
 
@@ -409,16 +464,28 @@ def _steps_until(quad: Quadrotor, time_s: float) -> int:
     return n
 
 
-def _kill_tail(quad: Quadrotor, world: World, stop_s: float, cfg: RunConfig) -> KillOutcome:
-    """Fly ``quad`` (a copy) with its last setpoint until it stops; see :class:`KillOutcome`."""
-    setpoint = quad.setpoint.pos_ned_m
+def _kill_tail(
+    quad: Quadrotor,
+    autopilot: LockstepAutopilot,
+    disturbed: Disturbances | None,
+    world: World,
+    stop_s: float,
+    cfg: RunConfig,
+) -> KillOutcome:
+    """Fly ``quad`` (a copy) with no further command: its autopilot keeps flying the last
+    target it was sent, until the vehicle stops; see :class:`KillOutcome`."""
+    setpoint = autopilot.last_target_ned_m
     min_surface = nearest_surface_m(world, quad.pos_ned_m)
     max_speed = 0.0
     still_since: float | None = None
     stopped = False
     t_end = quad.time_s + 60.0
     while quad.time_s < t_end:
-        quad.step(quad.control.steps_per_control)
+        n = autopilot.next_tick_step() - quad_step(quad)
+        if n <= 0:
+            autopilot.tick(quad, _disturb(disturbed, quad, quad.time_s))
+            continue
+        quad.step(n)
         min_surface = min(min_surface, nearest_surface_m(world, quad.pos_ned_m))
         speed = float(np.linalg.norm(quad.vel_ned_mps))
         max_speed = max(max_speed, speed)

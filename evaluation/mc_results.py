@@ -37,6 +37,11 @@ RESULTS_NAME = "results.jsonl"
 SPEC_NAME = "run.json"
 PERCEPTIONS: tuple[str, ...] = ("stereo", "truth", "depth")
 _VERDICT_FIELDS = tuple(f.name for f in dataclasses.fields(Verdict))
+_VERDICT_DEFAULTS = {
+    f.name: f.default
+    for f in dataclasses.fields(Verdict)
+    if f.default is not dataclasses.MISSING and f.name != "hold_reason"
+}
 
 
 class ResultsFileError(RuntimeError):
@@ -74,10 +79,11 @@ def verdict_to_record(verdict: Verdict, **extra: Any) -> dict[str, Any]:
 
 def verdict_from_record(record: dict[str, Any]) -> Verdict:
     """The :class:`Verdict` of a record written by :func:`verdict_to_record`."""
-    missing = [f for f in _VERDICT_FIELDS if f not in record]
+    missing = [f for f in _VERDICT_FIELDS if f not in record and f not in _VERDICT_DEFAULTS]
     if missing:
         raise ValueError(f"verdict record lacks {missing}")
-    return Verdict(**{f: record[f] for f in _VERDICT_FIELDS})
+    # a field added later with a default (overspeed_frames) is absent from older records
+    return Verdict(**{f: record.get(f, _VERDICT_DEFAULTS.get(f)) for f in _VERDICT_FIELDS})
 
 
 class ResultsFile:

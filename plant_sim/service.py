@@ -29,7 +29,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from plant_sim.autopilot import commands as cmds
-from plant_sim.autopilot.flavours import FLAVOUR_NAMES, flavour_for, param_specs_for
+from plant_sim.autopilot.flavours import FLAVOUR_NAMES, flavour_class, flavour_for, param_specs_for
 from plant_sim.autopilot.link import EndpointSpec, MavlinkLink
 from plant_sim.autopilot.modes import (
     FORCE_ARM_MAGIC,
@@ -178,7 +178,7 @@ class PlantService:
         self.disturbances = Disturbances(sc.disturbance) if sc.disturbance.active else None
         kin = self._kinematics(self._estimated(self.quad.snapshot()))
         self.machine = FlightModeMachine(
-            timings_from_params(self._base_timings, self.params),
+            self._timings(),
             home_ned_m=home,
             ground_down_m=ground,
             mode=sc.start.mode,
@@ -423,6 +423,12 @@ class PlantService:
             on_ground=snap.on_ground,
             tilt_saturated=snap.tilt_saturated,
         )
+
+    def _timings(self) -> ModeTimings:
+        """The mode logic's timings from the parameters, as the flavour flies them
+        (:meth:`~plant_sim.autopilot.flavours.AutopilotFlavour.timings`)."""
+        base = timings_from_params(self._base_timings, self.params)
+        return flavour_class(self.config.autopilot_flavour).timings(base)
 
     def _estimated(self, truth: VehicleState) -> VehicleState:
         """The vehicle as the autopilot's estimator has it: the truth moved by the
@@ -730,7 +736,7 @@ class PlantService:
         if index is not None:
             self._param_value(index)  # echo: the new value, or the unchanged one if refused
         if reason is None:
-            self.machine.timings = timings_from_params(self._base_timings, self.params)
+            self.machine.timings = self._timings()
             self.flavour.params_changed(self.params)
             _log.info("param %s set to %g", name, self.params.value(name))
 

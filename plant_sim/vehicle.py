@@ -94,9 +94,13 @@ def _advance(
     """Advance ``n_steps`` RK4 steps with the controller every ``steps_per_control`` steps.
 
     Returns the new state, the control phase, the (possibly turning) yaw target and
-    whether the vehicle rests on the ground. Ground contact is inelastic: the vehicle
-    stops on the plane ``z = ground_z_m`` (paper frame) and sits level there. ``loop``
-    holds what the steps do not change (:meth:`Quadrotor._loop_args`).
+    whether the vehicle rests on the ground. The controller is
+    :func:`plant_sim.flight_control.control_law`, its acceleration feed-forward through
+    the drag-lag lead (issue 31). (numba caches this loop, callees compiled in, by this
+    file's stamp: a change to the controller or the dynamics must touch this file.)
+    Ground contact is inelastic: the vehicle stops on the plane ``z = ground_z_m`` (paper
+    frame) and sits level there. ``loop`` holds what the steps do not change
+    (:meth:`Quadrotor._loop_args`).
     """
     (
         steps_per_control,

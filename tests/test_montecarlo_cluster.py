@@ -24,8 +24,9 @@ from evaluation.mc_results import (
     ResultsFile,
     ResultsFileError,
     verdict_from_record,
+    verdict_to_record,
 )
-from evaluation.montecarlo import fly_record, fly_seed
+from evaluation.montecarlo import error_verdict, fly_record, fly_seed
 
 SEEDS = range(40, 60)  # 20 seeds, five of each family
 HORIZON_S = 1.5  # simulation seconds per scene
@@ -225,3 +226,13 @@ def test_the_cli_refuses_a_resume_over_other_code_and_a_stray_override(tmp_path,
     assert main([*args, "--allow-code-change"]) == 2
     assert "only applies with --resume" in capsys.readouterr().err
     assert [r["code"] for r in _lines(out / "results.jsonl")] == ["bbbb"], "nothing flown"
+
+
+def test_a_record_from_before_overspeed_frames_still_loads_and_a_missing_field_is_refused():
+    """Verdict.overspeed_frames (issue 31) came later: older results files still resume."""
+    record = verdict_to_record(error_verdict(7, "x"))
+    del record["overspeed_frames"]
+    assert verdict_from_record(record).overspeed_frames == 0
+    del record["min_surface_distance_m"]
+    with pytest.raises(ValueError, match="min_surface_distance_m"):
+        verdict_from_record(record)

@@ -20,6 +20,7 @@ logic); a flavour owns:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 
@@ -27,7 +28,13 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from plant_sim.autopilot import commands as cmds
 from plant_sim.autopilot.collision_prevention import CP_PARAM_SPECS
-from plant_sim.autopilot.modes import FlightMode, FlightModeMachine, GuidedTarget, Kinematics
+from plant_sim.autopilot.modes import (
+    FlightMode,
+    FlightModeMachine,
+    GuidedTarget,
+    Kinematics,
+    ModeTimings,
+)
 from plant_sim.autopilot.params import ParamSpec, ParamTable
 from plant_sim.autopilot.px4 import PX4_PARAM_SPECS, Px4Main, Px4Modes, rules_from_params
 from plant_sim.autopilot.simple_avoid import AVOID_PARAM_SPECS
@@ -39,6 +46,7 @@ __all__ = [
     "ArduCopterFlavour",
     "AutopilotFlavour",
     "Px4Flavour",
+    "flavour_class",
     "flavour_for",
     "param_specs_for",
 ]
@@ -61,6 +69,12 @@ class AutopilotFlavour:
 
     def __init__(self, machine: FlightModeMachine) -> None:
         self.machine = machine
+
+    @classmethod
+    def timings(cls, timings: ModeTimings) -> ModeTimings:
+        """The mode logic's timings as this autopilot flies them: ArduCopter shapes a GUIDED
+        position target (:mod:`plant_sim.autopilot.shaping`)."""
+        return timings
 
     # ---- what the service reads ----------------------------------------------------
     def heartbeat(self, telemetry: TelemetryBuilder) -> mavlink.MAVLink_heartbeat_message:
@@ -117,6 +131,16 @@ class Px4Flavour(AutopilotFlavour):
     name = "px4"
     param_specs = PX4_PARAM_SPECS + CP_PARAM_SPECS
     px4_pilot = True
+
+    @classmethod
+    def timings(cls, timings: ModeTimings) -> ModeTimings:
+        """OFFBOARD position setpoints unshaped: PX4's mc_pos_control takes an offboard
+        trajectory setpoint as it comes (no smoothing; MPC_XY_CRUISE, MPC_ACC_HOR and
+        MPC_JERK_AUTO shape its Auto modes, not OFFBOARD) and in OFFBOARD overrides the
+        speed constraints with MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP/DN
+        (src/modules/mc_pos_control/MulticopterPositionControl.cpp, Run()); its P-PID
+        cascade is the paper's LQ loop here."""
+        return dataclasses.replace(timings, guided_shaping=False)
 
     def __init__(
         self, machine: FlightModeMachine, kin: Kinematics, home_amsl_m: float, params: ParamTable
@@ -194,6 +218,14 @@ def _outcome(reason: str | None) -> cmds.CommandOutcome:
 def param_specs_for(name: str) -> tuple[ParamSpec, ...]:
     """The extra parameters of flavour ``name`` (the table is built before the flavour)."""
     return Px4Flavour.param_specs if name == "px4" else ArduCopterFlavour.param_specs
+
+
+def flavour_class(name: str) -> type[AutopilotFlavour]:
+    """The strategy class of ``--autopilot-flavour name`` (one of :data:`FLAVOUR_NAMES`)."""
+    classes = {"ardupilot": ArduCopterFlavour, "px4": Px4Flavour}
+    if name not in classes:
+        raise ValueError(f"autopilot flavour must be one of {FLAVOUR_NAMES}, got {name!r}")
+    return classes[name]
 
 
 def flavour_for(

@@ -12,8 +12,9 @@ Physical meaning of each mode in the SIL (there is no RC transmitter):
   ArduCopter's position controller (WPNAV_SPEED, WPNAV_ACCEL, WPNAV_SPEED_UP/DN,
   WPNAV_ACCEL_Z, PSC_JERK_XY/Z: :mod:`plant_sim.autopilot.shaping`) and
   MAV_CMD_DO_CHANGE_SPEED replaces the speed limit until the position sub-mode restarts
-  (mode entry, end of a takeoff), as ArduCopter's ``pva_control_start``; without it (the
-  default) the target goes straight to the LQ loop and DO_CHANGE_SPEED is refused.
+  (mode entry, end of a takeoff), as ArduCopter's ``pva_control_start``. This is the
+  default; with SIM_GUID_SHAPE 0 the target goes straight to the LQ loop and
+  DO_CHANGE_SPEED is refused.
   Velocity targets expire after ``guided_velocity_timeout_s`` (GUID_TIMEOUT) into a
   brake-and-hold; NAV_TAKEOFF climbs at ``takeoff_climb_mps``.
   Entering GUIDED decelerates at WPNAV_ACCEL and holds.
@@ -133,10 +134,10 @@ class ModeTimings:
     # plant-sim 1.07): the reference's jerk is min(PSC_JERK_XY, this).
     airframe_jerk_mps3: float = 2.0
     saturated_lead_m: float = 0.5  # a tilt-saturated vehicle this far behind holds the path
-    # GUIDED position targets through the shaping above (SIM_GUID_SHAPE 1) or straight to
-    # the LQ loop (0, the default until the lockstep harness flies the same autopilot and
-    # the paper airframe's 0.2 m overshoot of a shaped target is mended: issue 31 note)
-    guided_shaping: bool = False
+    # GUIDED position targets through the shaping above (SIM_GUID_SHAPE 1, the default,
+    # as ArduCopter flies them; the lockstep harness flies the same) or straight to the LQ
+    # loop (0: the airframe's own limits, DO_CHANGE_SPEED refused)
+    guided_shaping: bool = True
 
 
 @dataclass(frozen=True)

@@ -83,7 +83,7 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("LOIT_BRK_DECEL", ParamType.REAL32, 250.0, 25.0, 250.0),  # cm/s²
     ParamSpec("LOIT_BRK_JERK", ParamType.REAL32, 500.0, 500.0, 5000.0),  # cm/s³
     ParamSpec("LOIT_BRK_DELAY", ParamType.REAL32, 1.0, 0.0, 2.0),  # s
-    ParamSpec("SIM_GUID_SHAPE", ParamType.INT8, 0, 0, 1),  # GUIDED targets shaped (1)
+    ParamSpec("SIM_GUID_SHAPE", ParamType.INT8, 1, 0, 1),  # GUIDED targets shaped (1)
     ParamSpec("ANGLE_MAX", ParamType.INT16, 1500, read_only=True),  # cdeg (paper: 15°)
     ParamSpec("FS_GCS_ENABLE", ParamType.INT8, 0, 0, 7),
     ParamSpec("BRD_SAFETY_DEFLT", ParamType.INT8, 0, read_only=True),

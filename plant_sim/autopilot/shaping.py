@@ -31,10 +31,14 @@ What was followed (read in the autopilots' own sources, not copied):
   ``LOIT_BRK_DELAY``, by a braking deceleration that rises at ``LOIT_BRK_JERK`` to
   ``LOIT_BRK_DECEL``; then the position is held.
 * **PX4** (``src/modules/flight_mode_manager/tasks/Auto`` and the position-smoothing
-  library ``PositionSmoothing`` / ``VelocitySmoothing``): an offboard or auto position
-  setpoint is approached along a jerk-limited trajectory at ``MPC_XY_CRUISE`` (5 m/s),
-  ``MPC_ACC_HOR`` (3 m/s²), ``MPC_JERK_AUTO`` (4 m/s³), ``MPC_Z_V_AUTO_UP`` / ``_DN``,
-  ``MPC_ACC_UP_MAX`` / ``_DOWN_MAX``; Hold decelerates at ``MPC_ACC_HOR``.
+  library ``PositionSmoothing`` / ``VelocitySmoothing``): PX4's Auto modes and Hold
+  approach a position along a jerk-limited trajectory at ``MPC_XY_CRUISE`` (5 m/s),
+  ``MPC_ACC_HOR`` (3 m/s²), ``MPC_JERK_AUTO`` (4 m/s³); Hold decelerates at
+  ``MPC_ACC_HOR``. OFFBOARD position setpoints are *not* smoothed: mc_pos_control takes
+  the trajectory setpoint as it comes and, in OFFBOARD, bounds only the velocity, by
+  ``MPC_XY_VEL_MAX`` / ``MPC_Z_VEL_MAX_UP`` / ``_DN``
+  (``src/modules/mc_pos_control/MulticopterPositionControl.cpp``, ``Run()``), so
+  plant-sim's PX4 flavour hands OFFBOARD targets straight to the position loop.
 
 The shaping law here is this module's own: the square-root controller above, less the
 lag of its velocity loop (the command's rate of change over ``k_v``, as ArduCopter's
@@ -199,8 +203,9 @@ class TargetShaper:
 
         ``hold_ahead_ned_m``, ``vehicle_vel_ned_mps``: the vehicle's position and velocity
         when it cannot follow (its tilt is saturated); the reference then does not move
-        farther ahead of it and takes the vehicle's velocity, so it does not carry a speed
-        the vehicle never reached into the approach of the target.
+        farther ahead of it and takes the vehicle's velocity along the lead, so it does
+        not carry a speed the vehicle never reached into the approach of the target;
+        across the lead it is shaped as before (it can still turn).
         """
         if not dt_s > 0.0:
             return
@@ -246,8 +251,11 @@ class TargetShaper:
         # vertical (NED down): climb and descent limits differ
         kd = lim.jerk_d_mps3 / lim.accel_d_mps2
         ed = t[2] - p[2]
+        # closing speed: the velocity's component towards the target (negative when the
+        # reference moves away from it; not |v| with the error's sign, which read a
+        # reference climbing towards a target above as moving away and kept it climbing)
         closing_d = _closing_speed(
-            abs(ed), math.copysign(v[2], ed), kd, self.PLAN_DECEL_FRACTION * lim.accel_d_mps2
+            abs(ed), math.copysign(1.0, ed) * v[2], kd, self.PLAN_DECEL_FRACTION * lim.accel_d_mps2
         )
         vd_w = math.copysign(max(0.0, closing_d), ed)
         vd_w = max(-lim.speed_up_mps, min(lim.speed_down_mps, vd_w))
@@ -289,15 +297,26 @@ class TargetShaper:
         hs_before = math.hypot(v[0], v[1])
         dp = [v[i] * dt + (0.5 * a[i] * dt * dt if accelerate else 0.0) for i in range(3)]
         if hold_ahead is not None:
-            # the vehicle cannot follow: no step that takes the reference farther from it
+            # the vehicle cannot follow: no motion that takes the reference farther from it.
+            # Only the part along the lead is stopped (ArduCopter's limit is a direction
+            # too: AP_Math/control.cpp, update_vel_accel_xy removes the velocity change's
+            # component along it), so a reference ahead of a vehicle at its top speed still
+            # turns: sideways motion is left to shape (the paper airframe cruises with its
+            # pitch at the tilt limit; stopping the whole step froze every avoidance turn).
             lead = [p[i] - float(hold_ahead[i]) for i in range(3)]
-            if sum(dp[i] * lead[i] for i in range(3)) > 0.0:
-                dp = [0.0, 0.0, 0.0]
-                accelerate = False
-                if vehicle_vel is not None:
+            norm = math.sqrt(sum(x * x for x in lead))
+            u = [x / norm for x in lead] if norm > 1e-9 else [0.0, 0.0, 0.0]
+            along = sum(dp[i] * u[i] for i in range(3))
+            if along > 0.0:
+                dp = [dp[i] - along * u[i] for i in range(3)]
+                if vehicle_vel is not None:  # its speed along the lead: the vehicle's
+                    v_along = sum((v[i] - float(vehicle_vel[i])) * u[i] for i in range(3))
                     for i in range(3):
-                        v[i] = float(vehicle_vel[i])
-                        a[i] = 0.0
+                        v[i] -= v_along * u[i]
+                a_along = sum(a[i] * u[i] for i in range(3))
+                if a_along > 0.0:
+                    for i in range(3):
+                        a[i] -= a_along * u[i]
         for i in range(3):
             p[i] += dp[i]
             if accelerate:
