@@ -116,7 +116,7 @@ def test_the_harness_hands_the_mission_its_depth_source(truth):
     """Ground truth is the mission's depth source from construction, with the run's
     perception settings; without it the mission keeps the companion's matcher."""
     cfg = RunConfig(truth_perception=truth, perception=PerceptionConfig(max_range_m=9.0))
-    _, mission = _start(paper_scene(), cfg)
+    _, mission, _ = _start(paper_scene(), cfg)
     source = mission.pipeline.perception.source
     assert isinstance(source, TruthDepthSource) is truth
     assert source.config is cfg.perception
