@@ -278,7 +278,7 @@ def _fly_until(
     autopilot's ticks, watching commanded tilt and clearance at every step."""
     while True:
         tick_step = autopilot.next_tick_step()
-        if tick_step < end_step and tick_step == quad_step(quad):
+        if tick_step < end_step and tick_step <= quad_step(quad):  # due (never skipped)
             autopilot.tick(quad, _disturb(disturbed, quad, quad.time_s))
             continue
         n_steps = min(end_step, tick_step) - quad_step(quad)

@@ -116,7 +116,7 @@ class LockstepAutopilot:
         self.stats = AutopilotStats()
         self._targets = SetpointPolicy(Flavour.ARDUPILOT)
         self._speed = SpeedLimitPolicy()
-        self._inbox: list[tuple[str, object]] = []
+        self._inbox: list[PositionTarget | float] = []  # what was sent since the last tick
         self._error_ned_m = np.zeros(3)
         self._next_tick_step = 0
         quad.set_setpoint(self.machine.setpoint)
@@ -128,14 +128,14 @@ class LockstepAutopilot:
         """A frame's output, as the companion sends it at ``capture_s`` (its clock)."""
         target = PositionTarget(tuple(float(x) for x in target_ned_m), float(yaw_rad))
         if self._targets.on_new_target(target, capture_s):
-            self._inbox.append(("target", target))
+            self._inbox.append(target)
             self._targets.sent(target, capture_s)
             self.stats.targets_sent += 1
         if not self.state_speed_limit:
             return
         speed = self._speed.due(min(float(speed_limit_mps), self.wpnav_speed_mps), capture_s)
         if speed is not None:
-            self._inbox.append(("speed", speed))
+            self._inbox.append(speed)
             self._speed.sent(speed, capture_s)
             self.stats.speed_limits_sent += 1
             self.stats.lowest_speed_stated_mps = min(self.stats.lowest_speed_stated_mps, speed)
@@ -152,13 +152,12 @@ class LockstepAutopilot:
         self._error_ned_m = np.asarray(error_ned_m, dtype=float)
         kin = kinematics(quad.snapshot(), self._error_ned_m)
         inbox, self._inbox = self._inbox, []
-        for kind, what in inbox:
-            if kind == "target":
-                assert isinstance(what, PositionTarget)
+        for what in inbox:
+            if isinstance(what, PositionTarget):
                 self.machine.guided_target(
                     GuidedTarget(pos_ned_m=what.pos_ned_m, yaw_rad=what.yaw_rad), kin
                 )
-            elif self.machine.change_speed("ne", float(what)) is not None:  # type: ignore[arg-type]
+            elif self.machine.change_speed("ne", what) is not None:  # DO_CHANGE_SPEED
                 self.stats.speed_limits_refused += 1
         self.machine.update(kin)
         quad.set_setpoint(shifted(self.machine.setpoint, self._error_ned_m))
@@ -169,12 +168,6 @@ class LockstepAutopilot:
         """The last position target the companion sent (the start before any) [m, NED]."""
         last = self._targets.last
         return self._start_ned_m if last is None else last.pos_ned_m
-
-    @property
-    def stated_speed_mps(self) -> float:
-        """The horizontal speed limit GUIDED flies now [m/s] (WPNAV_SPEED or
-        DO_CHANGE_SPEED's)."""
-        return self.machine.shaper.limits.speed_ne_mps
 
 
 def kinematics(state: VehicleState, error_ned_m: np.ndarray) -> Kinematics:
