@@ -57,8 +57,11 @@ When the path wins over the cone (:func:`prefer_known_path`)
 * The cone rule found one, but the path's first leg points **into a cone** of the
   obstacle being avoided (the cone closes a way the map shows open) and the path ends
   **past that obstacle** (nearer the goal than every one of its spheres' centres) at
-  least ``min_progress_m`` nearer the goal: the path is flown. A path that only leads up
-  to the obstacle's face does not replace the paper's way round it.
+  least ``min_progress_m`` nearer the goal, and the path (plus the straight line from its
+  end to the goal) is ``min_progress_m`` shorter than the cone's way (vehicle → aiming
+  point → goal): the path is flown. A path that only leads up to the obstacle's face, or
+  goes round it the way the cone does (§6: one sphere), does not replace the paper's
+  rule.
 * Once flown, the path is kept (hysteresis) while it still gets ``min_progress_m``
   nearer the goal, so guidance does not flip between the two rules frame by frame.
 """
@@ -475,6 +478,7 @@ def prefer_known_path(
     cones: Iterable,
     kept: bool,
     min_progress_m: float,
+    cone_way_m: float = math.inf,
 ) -> bool:
     """Whether guidance flies ``path`` rather than the cone rule's aiming point (module
     docstring, "When the path wins over the cone").
@@ -491,6 +495,9 @@ def prefer_known_path(
     kept : bool
         The path was flown at the previous step.
     min_progress_m : float
+    cone_way_m : float
+        Length of the cone rule's way: vehicle → aiming point → goal [m] (a lower bound on
+        it; the path must be ``min_progress_m`` shorter).
     """
     if path is None:
         return False
@@ -506,7 +513,8 @@ def prefer_known_path(
         path.end_to_goal_m < float(np.linalg.norm(np.asarray(c.center_ned_m) - goal_ned_m))
         for c in cones
     )
-    return into_cone and past
+    shorter = path.length_m + path.end_to_goal_m <= cone_way_m - min_progress_m
+    return into_cone and past and shorter
 
 
 def _inside_cone(cone, d: np.ndarray) -> bool:
