@@ -206,11 +206,14 @@ def test_a_path_up_to_the_obstacle_face_does_not_replace_the_way_round():
     path = _fake_path((3.0, 0.0, 0.0), (4.6, 0.0, 0.0), GOAL)  # not past the spheres
     _, out = _step(path)
     assert out.reason is Reason.CRITICAL
-    # a path past the spheres but no shorter than the cone's way round them (§6's case)
+    # one sphere (§6's case): a path past it, no shorter than the cone's way round it
     path = _fake_path((3.0, 0.0, 0.0), (12.0, 0.0, 0.0), GOAL)
     path = dataclasses.replace(path, length_m=path.length_m + 3.0)
-    _, out = _step(path)
+    _, out = _step(path, [BoundarySphere((8.0, 0.0, 0.0), 3.2)])
     assert out.reason is Reason.CRITICAL
+    # two spheres, the same path between them (an opening): flown
+    _, out = _step(path)
+    assert out.reason is Reason.KNOWN_PATH
 
 
 def test_a_path_that_gets_no_nearer_is_not_flown_and_nothing_free_holds():
