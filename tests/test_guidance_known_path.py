@@ -4,6 +4,7 @@ below 2 × (vehicle radius + margin) and passed above it, inflated boundaries av
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -165,8 +166,9 @@ def _fake_path(leg_end, end, goal) -> KnownPath:
 
 
 GOAL = (20.0, 0.0, 0.0)
-# two boundaries overlapping across the straight path: §5 goes round both
-PINCH = [BoundarySphere((6.0, s * 1.0, 0.0), 1.2) for s in (1.0, -1.0)]
+# two boundaries overlapping across the straight path: §5 goes round both (sideways: over
+# their seam is steeper than the 12° aiming limit), vehicle → aiming point → goal 22.2 m
+PINCH = [BoundarySphere((8.0, s * 2.0, 0.0), 3.2) for s in (1.0, -1.0)]
 
 
 def _step(path, spheres=PINCH, state=None):
@@ -187,7 +189,7 @@ def test_without_a_map_search_the_cone_rule_alone_decides():
     _, out = _step(False)
     assert out.mode is Mode.AVOID and out.reason is Reason.CRITICAL
     to_setpoint = np.asarray(out.setpoint_ned_m)
-    for sphere in PINCH:  # round the pinch (over it: the shorter way), outside every cone
+    for sphere in PINCH:  # round the pinch, outside every cone
         cone = collision_cone(np.zeros(3), sphere)  # (on its tangent: 1 mrad of rounding)
         assert not contains_direction(cone, to_setpoint, margin_rad=-1e-3)
 
@@ -204,6 +206,14 @@ def test_a_path_up_to_the_obstacle_face_does_not_replace_the_way_round():
     path = _fake_path((3.0, 0.0, 0.0), (4.6, 0.0, 0.0), GOAL)  # not past the spheres
     _, out = _step(path)
     assert out.reason is Reason.CRITICAL
+    # one sphere (§6's case): a path past it, no shorter than the cone's way round it
+    path = _fake_path((3.0, 0.0, 0.0), (12.0, 0.0, 0.0), GOAL)
+    path = dataclasses.replace(path, length_m=path.length_m + 3.0)
+    _, out = _step(path, [BoundarySphere((8.0, 0.0, 0.0), 3.2)])
+    assert out.reason is Reason.CRITICAL
+    # two spheres, the same path between them (an opening): flown
+    _, out = _step(path)
+    assert out.reason is Reason.KNOWN_PATH
 
 
 def test_a_path_that_gets_no_nearer_is_not_flown_and_nothing_free_holds():

@@ -601,7 +601,7 @@ def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
         vertical_weight=cfg.vertical_weight,
         cluster_tie=plan_ref is f.ref,
     )
-    if _fly_known_path(state, f, cluster, choice is not None, d, cfg):
+    if _fly_known_path(state, f, cluster, choice, d, cfg):
         return
     if choice is None:
         d.mode, d.reason = Mode.HOLD, Reason.NO_FREE_DIRECTION
@@ -616,11 +616,17 @@ def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
     d.setpoint = f.pos + choice.direction_ned * reach
 
 
-def _fly_known_path(state, f: _Frame, cluster, cone_has_direction: bool, d, cfg) -> bool:
+def _fly_known_path(state, f: _Frame, cluster, choice, d, cfg) -> bool:
     """Step 7's second guess: the first leg of a path through known-free space, when the
-    cone rule has no admissible direction or closes a way the map shows open."""
+    cone rule has no admissible direction (``choice`` None) or closes a way the map shows
+    open."""
     if f.plan is None:
         return False
+    cone_has_direction = choice is not None
+    cone_way_m = math.inf
+    if choice is not None:
+        aim = np.asarray(choice.aiming_point_ned_m)
+        cone_way_m = norm3(aim - f.pos) + norm3(f.goal - aim)
     kept = state.on_known_path and state.mode is Mode.AVOID
     if cone_has_direction and not kept and not any(f.goal_blocked(i) for i in cluster):
         return False
@@ -628,7 +634,7 @@ def _fly_known_path(state, f: _Frame, cluster, cone_has_direction: bool, d, cfg)
     if not prefer_known_path(
         path, f.pos, f.goal, cone_has_direction=cone_has_direction,
         cones=[f.cones[i] for i in cluster], kept=kept,
-        min_progress_m=cfg.known_path_progress_m,
+        min_progress_m=cfg.known_path_progress_m, cone_way_m=cone_way_m,
     ):  # fmt: skip
         return False
     leg = np.array(path.leg_end_ned_m, dtype=float)

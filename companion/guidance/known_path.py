@@ -57,8 +57,12 @@ When the path wins over the cone (:func:`prefer_known_path`)
 * The cone rule found one, but the path's first leg points **into a cone** of the
   obstacle being avoided (the cone closes a way the map shows open) and the path ends
   **past that obstacle** (nearer the goal than every one of its spheres' centres) at
-  least ``min_progress_m`` nearer the goal: the path is flown. A path that only leads up
-  to the obstacle's face does not replace the paper's way round it.
+  least ``min_progress_m`` nearer the goal, and the path (plus the straight line from its
+  end to the goal) is ``min_progress_m`` shorter than the cone's way (vehicle → aiming
+  point → goal) or passes *between* two of the obstacle's spheres (seen from above, it
+  crosses the segment joining their centres: an opening): the path is flown. A path
+  that only leads up to the obstacle's face, or goes round it the way the cone does
+  (§6: one sphere), does not replace the paper's rule.
 * Once flown, the path is kept (hysteresis) while it still gets ``min_progress_m``
   nearer the goal, so guidance does not flip between the two rules frame by frame.
 """
@@ -469,6 +473,7 @@ def prefer_known_path(
     cones: Iterable,
     kept: bool,
     min_progress_m: float,
+    cone_way_m: float = math.inf,
 ) -> bool:
     """Whether guidance flies ``path`` rather than the cone rule's aiming point (module
     docstring, "When the path wins over the cone").
@@ -485,6 +490,9 @@ def prefer_known_path(
     kept : bool
         The path was flown at the previous step.
     min_progress_m : float
+    cone_way_m : float
+        Length of the cone rule's way: vehicle → aiming point → goal [m] (a lower bound on
+        it; the path must be ``min_progress_m`` shorter).
     """
     if path is None:
         return False
@@ -500,7 +508,31 @@ def prefer_known_path(
         path.end_to_goal_m < float(np.linalg.norm(np.asarray(c.center_ned_m) - goal_ned_m))
         for c in cones
     )
-    return into_cone and past
+    shorter = path.length_m + path.end_to_goal_m <= cone_way_m - min_progress_m
+    return into_cone and past and (shorter or _between_pieces(path, cones))
+
+
+def _between_pieces(path: KnownPath, cones: list) -> bool:
+    """The path passes between two of the obstacle's spheres: seen from above, it crosses
+    the segment joining their centres (an opening, not the way round the outline)."""
+    if len(cones) < 2:
+        return False
+    c = np.array([np.asarray(k.center_ned_m)[:2] for k in cones])
+    i, j = np.triu_indices(len(c), k=1)
+    a, b = c[i], c[j]  # (pairs, 2)
+    w = np.asarray(path.waypoints_ned_m)[:, :2]
+    p, q = w[:-1], w[1:]  # (segments, 2)
+
+    def cross(o, u, v):  # z of (u - o) × (v - o), broadcast (segments, pairs)
+        return (u[..., 0] - o[..., 0]) * (v[..., 1] - o[..., 1]) - (u[..., 1] - o[..., 1]) * (
+            v[..., 0] - o[..., 0]
+        )
+
+    P, Q = p[:, None, :], q[:, None, :]
+    A, B = a[None, :, :], b[None, :, :]
+    d1, d2 = cross(A, B, P), cross(A, B, Q)
+    d3, d4 = cross(P, Q, A), cross(P, Q, B)
+    return bool(np.any((d1 * d2 < 0.0) & (d3 * d4 < 0.0)))
 
 
 def _inside_cone(cone, d: np.ndarray) -> bool:
