@@ -380,8 +380,8 @@ def test_ground_station_loiter_stops_setpoints(rig):
     gcs.mav.command_long_send(1, 1, 176, 0, 1, 5, 0, 0, 0, 0, 0)  # DO_SET_MODE LOITER
     released = rig.wait_event(companion, "phase", 5, cond=lambda f: f["phase"] == "released")
     time.sleep(2.0)  # 8 s of simulation time
+    companion.stop()  # first: its exit statistics, not a link lost on a slow exit
     plant.stop()
-    companion.stop()
     stats = companion.stats("COMPANION STATS ")
     assert stats["setpoints_sent"] == released["setpoints_sent"]  # none after the release
     assert stats["mode_releases"] == 1 and stats["hold_commands"] == 0
