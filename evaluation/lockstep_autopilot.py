@@ -172,15 +172,7 @@ class LockstepAutopilot:
 
 def kinematics(state: VehicleState, error_ned_m: np.ndarray) -> Kinematics:
     """What the mode logic reads: the vehicle as the autopilot's estimate has it."""
-    p, v = state.pos_ned_m + error_ned_m, state.vel_ned_mps
-    return Kinematics(
-        time_s=state.time_s,
-        pos_ned_m=(float(p[0]), float(p[1]), float(p[2])),
-        vel_ned_mps=(float(v[0]), float(v[1]), float(v[2])),
-        yaw_rad=state.yaw_rad,
-        on_ground=state.on_ground,
-        tilt_saturated=state.tilt_saturated,
-    )
+    return Kinematics.of(state, error_ned_m)
 
 
 def shifted(sp: Setpoint, error_ned_m: np.ndarray) -> Setpoint:

@@ -414,15 +414,7 @@ class PlantService:
     # ---- helpers -------------------------------------------------------------------
     @staticmethod
     def _kinematics(snap: VehicleState) -> Kinematics:
-        p, v = snap.pos_ned_m, snap.vel_ned_mps
-        return Kinematics(
-            time_s=snap.time_s,
-            pos_ned_m=(float(p[0]), float(p[1]), float(p[2])),
-            vel_ned_mps=(float(v[0]), float(v[1]), float(v[2])),
-            yaw_rad=snap.yaw_rad,
-            on_ground=snap.on_ground,
-            tilt_saturated=snap.tilt_saturated,
-        )
+        return Kinematics.of(snap)
 
     def _timings(self) -> ModeTimings:
         """The mode logic's timings from the parameters, as the flavour flies them

@@ -39,7 +39,7 @@ import math
 from dataclasses import dataclass, replace
 
 from plant_sim.autopilot.shaping import BrakeProfile, ShapingLimits, TargetShaper
-from plant_sim.vehicle import Setpoint
+from plant_sim.vehicle import Setpoint, VehicleState
 from protocols.mavlink_modes import ArduCopterMode
 
 __all__ = [
@@ -150,6 +150,21 @@ class Kinematics:
     yaw_rad: float
     on_ground: bool
     tilt_saturated: bool = False  # the controller is at its tilt limit (cannot follow)
+
+    @classmethod
+    def of(cls, state: VehicleState, error_ned_m=None) -> Kinematics:
+        """The vehicle ``state`` as the autopilot's estimate has it: its position moved by
+        ``error_ned_m`` [m, NED] (none: the truth)."""
+        p = state.pos_ned_m if error_ned_m is None else state.pos_ned_m + error_ned_m
+        v = state.vel_ned_mps
+        return cls(
+            time_s=state.time_s,
+            pos_ned_m=(float(p[0]), float(p[1]), float(p[2])),
+            vel_ned_mps=(float(v[0]), float(v[1]), float(v[2])),
+            yaw_rad=state.yaw_rad,
+            on_ground=state.on_ground,
+            tilt_saturated=state.tilt_saturated,
+        )
 
 
 @dataclass(frozen=True)
