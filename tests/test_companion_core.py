@@ -436,6 +436,37 @@ def test_core_obstacle_distance_sees_what_the_map_holds():
     assert np.all(d[19:54] == 1601)  # facing away from the wall: clear to the far reach
 
 
+def test_core_obstacle_distance_is_from_where_the_vehicle_is_at_the_send():
+    """Between telemetry the sectors are seen from the newest position carried forward by
+    its velocity (a wall 3 m ahead, 4 m/s toward it: 0.25 s later it reads 2 m); once the
+    newest position is older than 0.5 s the vehicle could be anywhere: all unknown."""
+    from companion.known_space import FREE, OCCUPIED
+    from companion.proximity.sender import POSE_STALE_S
+
+    rig = Rig()
+    rig.run(1.0)
+    space = rig.core.mission.pipeline.known_space
+    for layer in (space, space.far):
+        layer.grid[:] = FREE
+        n = (np.arange(layer.grid.shape[0]) + layer.origin_vox[0] + 0.5) * layer.config.voxel_m
+        layer.grid[n >= 3.0] = OCCUPIED
+    rig.now_ns += 5_000_000  # newer than the rig's last telemetry
+    rig.receive(mavlink.MAVLink_local_position_ned_message(rig.boot_ms, 0.0, 0.0, -7.0, 4, 0, 0))
+    rig.receive(mavlink.MAVLink_attitude_message(rig.boot_ms, 0.0, 0.0, 0.0, 0, 0, 0))
+    n_before = len(rig.sent("OBSTACLE_DISTANCE"))
+    rig.run(0.25, frames=False, telemetry=False)
+    sent = rig.sent("OBSTACLE_DISTANCE")[n_before:]
+    assert len(sent) >= 4
+    # the wall's sector, carried 4 m/s × 0.25 s (± a voxel and a send period of 0.2 m)
+    assert sent[-1].distances[0] == pytest.approx(300 - 100, abs=30), sent[-1].distances[0]
+    assert sent[0].distances[0] > sent[-1].distances[0] + 50  # it closed in between sends
+    rig.run(POSE_STALE_S, frames=False, telemetry=False)
+    assert list(rig.sent("OBSTACLE_DISTANCE")[-1].distances) == [65535] * 72
+    assert rig.core.proximity.stale_pose > 0
+    rig.run(0.1)  # telemetry again (at rest): the wall is back where it is
+    assert rig.sent("OBSTACLE_DISTANCE")[-1].distances[0] == pytest.approx(300, abs=30)
+
+
 def test_core_obstacle_distance_can_be_turned_off():
     cfg = CompanionConfig()
     cfg = dataclasses.replace(cfg, proximity=dataclasses.replace(cfg.proximity, enabled=False))

@@ -308,3 +308,18 @@ def test_the_run_keeps_the_sectors_of_its_closest_approach_and_draws_them():
     seen = sec.distances_cm[:72][sec.distances_cm[:72] <= sec.max_distance_cm] / 100.0
     expect = sorted([round(x, 6) for x in seen] + [6.2] * (72 - len(seen)))
     assert heights == pytest.approx(expect)
+
+
+def test_position_at_send_is_carried_by_its_velocity_until_stale():
+    """The newest telemetry position moved by v·age; older than 0.5 s (the autopilots'
+    proximity timeout) it places nothing."""
+    from companion.proximity.sender import POSE_STALE_S, position_at_send
+
+    p, v = np.array([1.0, 2.0, -7.0]), np.array([8.0, -2.0, 0.5])
+    assert np.allclose(position_at_send(p, v, 0.0), p)
+    assert np.allclose(position_at_send(p, v, 0.125), p + v * 0.125)
+    assert np.allclose(position_at_send(p, v, POSE_STALE_S), p + v * POSE_STALE_S)
+    assert position_at_send(p, v, POSE_STALE_S + 1e-3) is None
+    assert position_at_send(p, v, -0.01) is None  # a clock gone backward: not trusted
+    assert position_at_send(p, v, math.inf) is None
+    assert position_at_send(p, np.array([math.nan, 0.0, 0.0]), 0.1) is None

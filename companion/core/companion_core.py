@@ -182,6 +182,7 @@ class CompanionCore(
         self._last_boot_ms: int | None = None
         self._telemetry_newest_ns: int | None = None  # read by the Zenoh thread too
         self._newest_seen_ns: int | None = None  # newest frame-clock stamp observed
+        self._position_host_ns: int | None = None  # host time the newest position came
         self._streams_acked = 0  # accepted SET_MESSAGE_INTERVAL since the last request
         self._next_stream_request_s = 0.0
         # modes

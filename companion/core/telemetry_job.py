@@ -40,7 +40,7 @@ class TelemetryJob:
 
     Owns ``clock``, ``poses``, ``boot_time``, ``_timesync_pending``, ``_next_timesync_s``,
     ``_streams_acked``, ``_next_stream_request_s``, ``_telemetry_newest_ns``,
-    ``_newest_seen_ns``, ``_last_boot_ms``.
+    ``_newest_seen_ns``, ``_last_boot_ms``, ``_position_host_ns``.
     """
 
     def _telemetry_seen(self, t_ns: int) -> None:
@@ -87,6 +87,7 @@ class TelemetryJob:
             if t is None:
                 self.counters.telemetry_unmapped += 1
             elif self.poses.add_position(t, pos, vel):
+                self._position_host_ns = self._now_ns  # proximity: its age at a send
                 self._observe(t)
                 self._telemetry_seen(t)
 

@@ -7,23 +7,36 @@ the message goes out from start-up, before takeoff, in every mode and whether or
 companion steers, at no less than :attr:`ProximityConfig.rate_hz`:
 
 * each processed frame sends the sectors of the map it just updated, stamped with the
-  frame's capture time, seen from the newest telemetry pose (the vehicle moved while the
-  frame was processed: the distances are from where it is, so the processing latency
-  does not add to the autopilot's reaction);
+  frame's capture time, seen from where the vehicle is at the send (below): the vehicle
+  moved while the frame was processed, and the distances are from where it is, so the
+  processing latency does not add to the autopilot's reaction;
 * a timer fills every gap longer than the period (before the first frame, during a
-  takeoff, when frames stop): the same map (it remembers; it does not age) from the
-  newest telemetry pose, stamped with the capture time of the newest depth in the map;
-  before any depth, every sector is unknown (``UINT16_MAX``) — honest, and enough for
-  ArduCopter's pre-arm check; PX4 will not move in Position mode on it
+  takeoff, when frames stop): the same map (it remembers; it does not age) from where
+  the vehicle is at the send, stamped with the capture time of the newest depth in the
+  map; before any depth, every sector is unknown (``UINT16_MAX``) — honest, and enough
+  for ArduCopter's pre-arm check; PX4 will not move in Position mode on it
   (``CP_GO_NO_DATA = 0``), which is what it should do.
+
+**Where the vehicle is at the send** (:func:`position_at_send`): the map is in LOCAL_NED
+and the autopilot reads each sector as a distance from where the vehicle is when the
+message arrives (``AP_Proximity_MAV::handle_obstacle_distance_msg`` stores it against its
+own receipt time; ``time_usec`` is not read). So the newest telemetry position is carried
+forward with its velocity over the time since it arrived (the companion's own delay:
+a loaded processor, a long frame): at 8 m/s every 0.1 s of it is 0.8 m the autopilot
+would otherwise think it has left. A position older than :data:`POSE_STALE_S` is not
+carried forward: the vehicle could be anywhere, and the sectors are sent unknown
+(never clear, never an obstacle where there is none) until telemetry returns.
 
 Pure: the caller passes the wall time (``now_s``) and the map; no clock, no I/O.
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from typing import Any
+
+import numpy as np
 
 from companion.known_space import KnownSpace
 from companion.proximity.sectors import (
@@ -34,10 +47,26 @@ from companion.proximity.sectors import (
     unknown_sectors,
 )
 
-__all__ = ["ProximitySender"]
+__all__ = ["POSE_STALE_S", "ProximitySender", "position_at_send"]
 
+#: Telemetry older than this [s wall] no longer places the vehicle in the map: the
+#: autopilots' own proximity timeout (ArduPilot ``PROXIMITY_MAV_TIMEOUT_MS``, PX4
+#: ``RANGE_STREAM_TIMEOUT_US``: 0.5 s) — sectors from an older position are not trusted.
+POSE_STALE_S = 0.5
 _RATE_WINDOW_S = 2.0  # the send rate is measured over this much wall time
 _SLACK_S = 1e-3  # [s wall]
+
+
+def position_at_send(pos_ned_m, vel_ned_mps, age_s: float) -> np.ndarray | None:
+    """Where the vehicle is at the send [m, LOCAL_NED]: the telemetry position
+    ``pos_ned_m`` carried forward by its velocity over ``age_s`` [s] since it arrived;
+    None when it is older than :data:`POSE_STALE_S` (or not finite): not usable."""
+    p = np.asarray(pos_ned_m, dtype=float)
+    v = np.asarray(vel_ned_mps, dtype=float)
+    if not (math.isfinite(age_s) and 0.0 <= age_s <= POSE_STALE_S):
+        return None
+    out = p + v * age_s
+    return out if np.all(np.isfinite(out)) else None
 
 
 class ProximitySender:
@@ -53,6 +82,7 @@ class ProximitySender:
         self.period_s = 1.0 / config.rate_hz
         self.sent = 0
         self.from_frames = 0
+        self.stale_pose = 0  # sends all unknown because telemetry was older than 0.5 s
         self.last: ProximitySectors | None = None
         self._last_send_s = float("-inf")
         self._times: deque[float] = deque()
@@ -63,16 +93,18 @@ class ProximitySender:
         return now_s - self._last_send_s >= self.period_s - _SLACK_S
 
     def on_frame(
-        self, space: KnownSpace, pos_ned_m, yaw_rad: float, now_s: float
+        self, space: KnownSpace, pos_ned_m, yaw_rad: float | None, now_s: float
     ) -> ProximitySectors:
-        """Sectors of the map just updated by a frame, at the frame's pose."""
+        """Sectors of the map just updated by a frame, at the vehicle's position at the
+        send (None: stale → all unknown)."""
         self.from_frames += 1
-        return self._sent(sectors_from_map(space, pos_ned_m, yaw_rad, self.config), now_s)
+        return self.on_timer(space, pos_ned_m, yaw_rad, now_s)
 
     def on_timer(
         self, space: KnownSpace | None, pos_ned_m, yaw_rad: float | None, now_s: float
     ) -> ProximitySectors:
-        """Sectors from the newest pose (None: not known yet → all unknown)."""
+        """Sectors at the vehicle's position at the send (None: not known yet, or stale →
+        all unknown)."""
         if space is None or space.frames == 0 or pos_ned_m is None or yaw_rad is None:
             reach = 0.0 if space is None else map_reach_m(space)
             return self._sent(unknown_sectors(self.config, reach), now_s)
@@ -85,6 +117,7 @@ class ProximitySender:
         return {
             "sent": self.sent,
             "from_frames": self.from_frames,
+            "stale_pose": self.stale_pose,
             "rate_hz": round(len(self._times) / _RATE_WINDOW_S, 2),
             "obstacle_sectors": counts[0],
             "clear_sectors": counts[1],
