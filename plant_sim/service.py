@@ -191,6 +191,7 @@ class PlantService:
             config.autopilot_flavour, self.machine, kin, self._home_amsl_m(), self.params
         )
         self.pilot = PilotFlight(px4=self.flavour.px4_pilot)  # sticks + proximity avoidance
+        self._tick_wall_s = time.monotonic()  # the wall time the current tick is due at
         self._apply_machine()
         self.telemetry = TelemetryBuilder(
             VehicleIdentity(sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.alt_amsl_m)
@@ -357,6 +358,14 @@ class PlantService:
         # disturbances); the camera and the truth log see the true vehicle
         snap = self._estimated(truth)
         self._last_snapshot = snap
+        # the wall time this tick is due at: a tick run late to catch up after the process
+        # was starved is judged as of when it was due, not when it ran, for the wall-time
+        # link rules (stick expiry, the proximity timeout). A real autopilot is not
+        # starved so; the messages it would have had meanwhile wait in the socket here.
+        now = time.monotonic()
+        self._tick_wall_s = (
+            now if self.pacer.unpaced else min(now, self.pacer.wall_at(truth.time_s))
+        )
         kin = self._kinematics(snap)
         inbox, self._inbox = self._inbox, []
         for msg in inbox:
@@ -372,7 +381,7 @@ class PlantService:
             self.machine,
             self.flavour.pilot_main,
             self.params,
-            time.monotonic(),
+            self._tick_wall_s,
             self._tick_dt_s,
         )
         self._apply_machine()
@@ -542,7 +551,7 @@ class PlantService:
         elif mtype in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
             self._position_target(msg, kin)
         elif mtype in _PILOT_MESSAGES:
-            reason = self.pilot.on_message(msg, time.monotonic())
+            reason = self.pilot.on_message(msg, self._tick_wall_s)
             if reason is not None:
                 self._refusal(f"pilot:{mtype}", reason, kin.time_s)
         elif mtype == "PARAM_REQUEST_LIST":
@@ -643,7 +652,7 @@ class PlantService:
             return None
         if math.isfinite(params[1]) and round(params[1]) == FORCE_ARM_MAGIC:
             return None
-        reason = self.pilot.prearm_failure(self.params, time.monotonic())
+        reason = self.pilot.prearm_failure(self.params, self._tick_wall_s)
         if reason is None:
             return None
         return cmds.CommandOutcome(cmds.MavResult.FAILED, f"Arm: {reason}")

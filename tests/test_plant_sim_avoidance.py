@@ -140,6 +140,11 @@ def test_inside_the_margin_it_backs_away_at_most_backup_speed():
     params = AvoidParams(proximity=True, margin_m=2.0, accel_max_mps2=0.0)
     out = SimpleAvoid().adjust((0.0, 0.0), 0.0, [Face(0.0, 1.0)], params, 0.0, 0.02)
     assert out == pytest.approx((-0.75, 0.0))  # AVOID_BACKUP_SPD
+    # a small breach backs away at sqrt_controller(breach, kP, 0.4 · accel), ArduPilot's
+    # calc_backup_velocity_2D: linear kP·breach below 0.4 m, √(2·0.4·(b − 0.2)) above
+    for face_m, speed in ((1.7, 0.3), (1.4, math.sqrt(2 * 0.4 * (0.6 - 0.2)))):
+        out = SimpleAvoid().adjust((0.0, 0.0), 0.0, [Face(0.0, face_m)], params, 0.0, 0.02)
+        assert out == pytest.approx((-speed, 0.0)), face_m
 
 
 def test_avoid_accel_max_limits_the_change_of_velocity():

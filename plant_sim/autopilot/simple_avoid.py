@@ -17,7 +17,7 @@ velocity out; time is passed in. Follows ``libraries/AC_Avoidance/AC_Avoid.cpp``
   the velocity is not turned. ``kP`` is ``PSC_POSXY_P`` (1.0); ``accel`` is
   ``min(LOIT_ACC_MAX, AC_AVOID_ACCEL_CMSS_MAX = 1 m/s²)``.
 * **Back-up** inside the margin by more than ``AVOID_BACKUP_DZ``: away from the point at
-  ``sqrt_controller(breach, kP, accel)``, at most ``AVOID_BACKUP_SPD``; the pilot keeps
+  ``sqrt_controller(breach, kP, 0.4 · accel)``, at most ``AVOID_BACKUP_SPD``; the pilot keeps
   any larger velocity in that direction per axis (the quadrant rule, one obstacle per
   quadrant's maximum).
 * ``AVOID_ACCEL_MAX``: the avoidance's change of velocity is limited to this [m/s²]
@@ -49,6 +49,7 @@ __all__ = [
 
 _AVOID_ACCEL_MAX_CAP_MPS2 = 1.0  # AC_AVOID_ACCEL_CMSS_MAX 100 cm/s²
 _ACCEL_TIMEOUT_S = 0.2  # AC_AVOID_ACCEL_TIMEOUT_MS
+_BACKUP_ACCEL_SCALE = 0.4  # calc_backup_velocity_2D: get_max_speed(kP, 0.4 · accel, …)
 _PROXIMITY_BIT = 2  # AVOID_ENABLE bit 1: UseProximitySensor
 _PRX_TYPE_MAVLINK = 2
 
@@ -169,7 +170,8 @@ class SimpleAvoid:
                 continue
             breach = params.margin_m - dist
             if breach > params.backup_deadzone_m:
-                back = abs(sqrt_controller(breach, params.kp, accel, dt))
+                # calc_backup_velocity_2D: at 0.4 of the avoidance's acceleration
+                back = abs(sqrt_controller(breach, params.kp, _BACKUP_ACCEL_SCALE * accel, dt))
                 backups.append((-ox / dist * back, -oy / dist * back))
             if not moving:
                 continue
