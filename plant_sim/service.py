@@ -190,7 +190,10 @@ class PlantService:
         self.flavour = flavour_for(
             config.autopilot_flavour, self.machine, kin, self._home_amsl_m(), self.params
         )
-        self.pilot = PilotFlight(px4=self.flavour.px4_pilot)  # sticks + proximity avoidance
+        self.pilot = PilotFlight(  # sticks + proximity avoidance
+            px4=self.flavour.px4_pilot,
+            drag_per_s=self.quad.params.drag_force_kgps[0] / self.quad.params.mass_kg,
+        )
         self._tick_wall_s = time.monotonic()  # the wall time the current tick is due at
         self._apply_machine()
         self.telemetry = TelemetryBuilder(

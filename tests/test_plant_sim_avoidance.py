@@ -16,7 +16,12 @@ from plant_sim.autopilot.collision_prevention import (
 )
 from plant_sim.autopilot.pilot_input import PilotInput
 from plant_sim.autopilot.proximity import PROXIMITY_TIMEOUT_S, Face, ProximityReceiver
-from plant_sim.autopilot.simple_avoid import AvoidParams, SimpleAvoid, sqrt_controller
+from plant_sim.autopilot.simple_avoid import (
+    AvoidParams,
+    SimpleAvoid,
+    adjust_roll_pitch,
+    sqrt_controller,
+)
 
 M = mavlink
 
@@ -159,6 +164,36 @@ def test_without_proximity_or_data_nothing_changes():
     assert SimpleAvoid().adjust((5.0, 0.0), 0.0, faces, AvoidParams(), 0.0, 0.02) == (5.0, 0.0)
     on = AvoidParams(proximity=True)
     assert SimpleAvoid().adjust((5.0, 0.0), 0.0, [], on, 0.0, 0.02) == (5.0, 0.0)
+
+
+def test_alt_hold_leans_away_by_45_deg_times_closeness_capped_at_avoid_angle_max():
+    """AC_Avoid::adjust_roll_pitch: a face at d < AVOID_DIST_MAX (5 m) leans the vehicle
+    away by 45°·(1 − d/5), at most min(AVOID_ANGLE_MAX, 0.75·ANGLE_MAX), added to the
+    pilot's lean; the total at most ANGLE_MAX."""
+    on = AvoidParams(proximity=True)  # AVOID_ANGLE_MAX 10°, AVOID_DIST_MAX 5 m
+    big = math.radians(35.0)
+    deg = math.radians
+    # ahead at 4.5 m: 4.5° nose up; the pilot's 3° forward becomes 1.5° up
+    r, p = adjust_roll_pitch(0.0, -deg(3.0), big, [Face(0.0, 4.5)], on)
+    assert (r, p) == pytest.approx((0.0, deg(4.5 - 3.0)))
+    # ahead at 2.5 m: 22.5° asked, 10° given: the pilot's 20° forward is left at 10°
+    r, p = adjust_roll_pitch(0.0, -deg(20.0), big, [Face(0.0, 2.5)], on)
+    assert (r, p) == pytest.approx((0.0, -deg(10.0)))
+    # at 45° right, 4 m: 9° away, along the bearing (roll left and pitch up alike)
+    r, p = adjust_roll_pitch(0.0, 0.0, big, [Face(deg(45.0), 4.0)], on)
+    assert (r, p) == pytest.approx((-deg(9.0) / math.sqrt(2), deg(9.0) / math.sqrt(2)))
+    # walls on both sides at once: the left and right leans cancel (positive + negative)
+    both = [Face(deg(90.0), 3.0), Face(deg(270.0), 3.0)]
+    assert adjust_roll_pitch(0.0, 0.0, big, both, on) == pytest.approx((0.0, 0.0))
+    # 0.75·ANGLE_MAX caps a small airframe's lean: ANGLE_MAX 8° → 6°
+    r, p = adjust_roll_pitch(0.0, 0.0, deg(8.0), [Face(0.0, 1.0)], on)
+    assert p == pytest.approx(deg(6.0))
+    # the total at most ANGLE_MAX: 33° back-roll pilot + 10° avoidance → 35°
+    r, p = adjust_roll_pitch(0.0, deg(33.0), big, [Face(0.0, 1.0)], on)
+    assert p == pytest.approx(big)
+    # nothing beyond AVOID_DIST_MAX, nothing without proximity avoidance
+    assert adjust_roll_pitch(0.1, -0.2, big, [Face(0.0, 5.0)], on) == (0.1, -0.2)
+    assert adjust_roll_pitch(0.1, -0.2, big, [Face(0.0, 1.0)], AvoidParams()) == (0.1, -0.2)
 
 
 # ---- PX4's Collision Prevention ------------------------------------------------------

@@ -58,6 +58,13 @@ def _set_param(m, name: str, value: float) -> None:
     assert echo is not None and echo.param_value == pytest.approx(value), name
 
 
+def _param(m, name: str) -> float:
+    m.mav.param_request_read_send(1, 1, name.encode(), -1)
+    echo = recv(m, "PARAM_VALUE", 5.0, cond=lambda p: p.param_id == name)
+    assert echo is not None, name
+    return float(echo.param_value)
+
+
 def _arm(m):
     return command(m, ARM, 1)
 
@@ -127,7 +134,7 @@ goal_ned_m = [0.0, 0.0, -7.0]
 pos_ned_m = [{start}, 0.0, -7.0]
 yaw_deg = 180.0
 airborne = true
-mode = "LOITER"
+mode = "{mode}"
 
 [[obstacles]]
 {obstacle}"""
@@ -147,17 +154,30 @@ def _start_n_m(flavour: str, speed_mps: float) -> float:
     return 11.5 + 16.0 + speed_mps**2 / (2.0 * 2.5) + 3.0
 
 
-def _pilot_approach(tmp_path, flavour: str, scene: str, speed_mps: float, material="textured"):
+def _pilot_approach(
+    tmp_path,
+    flavour: str,
+    scene: str,
+    speed_mps: float,
+    material="textured",
+    *,
+    lean_deg: float | None = None,
+):
     """Fly straight at the obstacle with the pitch stick held (MANUAL_CONTROL) in LOITER
-    (PX4: Position mode) while the companion only reports; returns the truth log."""
+    (PX4: Position mode) while the companion only reports; returns the truth log. With
+    ``lean_deg`` (ArduCopter) the vehicle flies ALT_HOLD with the stick at that forward
+    lean, ``speed_mps`` then being its expected average speed (the run's length)."""
     from evaluation.sil import _read_truth
 
-    start_n_m = _start_n_m(flavour, speed_mps)
+    start_n_m = START_N_M if lean_deg is not None else _start_n_m(flavour, speed_mps)
     surface_m = start_n_m - (11.5 if scene == "sphere" else 10.1)
     sim_s = 6.0 + surface_m / speed_mps
     scenario = tmp_path / "approach.toml"
     obstacle = _SCENES[scene].format(material=material)
-    scenario.write_text(_APPROACH.format(start=start_n_m, obstacle=obstacle), encoding="utf-8")
+    mode = "LOITER" if lean_deg is None else "ALT_HOLD"
+    scenario.write_text(
+        _APPROACH.format(start=start_n_m, obstacle=obstacle, mode=mode), encoding="utf-8"
+    )
     mav_port = free_port()
     plant_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     companion_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
@@ -187,7 +207,10 @@ def _pilot_approach(tmp_path, flavour: str, scene: str, speed_mps: float, materi
             # obstacle: ArduPilot's own 0.25 Hz face filter (PRX_FILT) would only delay
             # them, v / (2π · 0.25 Hz) = 1.3 m at 2 m/s (docs/autopilots.md), so it is off.
             _set_param(m, "PRX_FILT", 0.0)
-            _set_param(m, "LOIT_SPEED", speed_mps * 100.0)
+            if lean_deg is None:
+                _set_param(m, "LOIT_SPEED", speed_mps * 100.0)
+            else:  # full stick is ANGLE_MAX
+                stick = lean_deg / (_param(m, "ANGLE_MAX") / 100.0)
         x = round(1000.0 * (0.04 + 0.96 * stick))  # past the 20 µs dead band
         deadline = time.monotonic() + 3.0 * sim_s / SPEEDUP + 60.0
         seen = []  # (vehicle north [m], nearest sector [m] or None) per OBSTACLE_DISTANCE
@@ -288,3 +311,24 @@ def test_textureless_wall_is_unknown_px4_holds_and_ardupilot_flies_on(tmp_path, 
         assert surface.min() < 1.0, "ArduPilot has no reading to stop on"
     # the wall is never reported as a near obstacle: no sector within 2 m of the vehicle
     assert all(near is None or near > 2.5 for near in near_wall), near_wall
+
+
+@pytest.mark.slow
+def test_pilot_flown_alt_hold_is_leaned_away_from_the_sphere(tmp_path):
+    """ALT_HOLD, the pilot leaning 5° toward the paper's sphere (1.9 m/s on the fast
+    airframe's drag): ArduCopter's AC_Avoid::adjust_roll_pitch leans it back by
+    45°·(1 − d/AVOID_DIST_MAX), capped at AVOID_ANGLE_MAX 10°. The two cancel at
+    d = 5·(1 − 5/45) = 4.4 m; with no margin and no stopping distance the vehicle coasts
+    past that on its speed, is pushed back with the stick still held, and never comes near
+    the surface (a lean over 10° would fly on: the pilot can override, by design)."""
+    lean_deg = 5.0
+    # 1.5 m/s: its average speed from rest toward a terminal 1.9 m/s (the run's length)
+    truth, stats, _ = _pilot_approach(tmp_path, "ardupilot", "sphere", 1.5, lean_deg=lean_deg)
+    assert stats["avoidance_limited_ticks"] > 0
+    surface, north = truth["surface_distance_m"], truth["pos_n_m"]
+    closest = int(surface.argmin())
+    balance_m = 5.0 * (1.0 - lean_deg / 45.0)
+    assert START_N_M - north.min() > 3.0, "the lean moved the vehicle toward the sphere"
+    assert 2.0 <= surface[closest] < balance_m, surface[closest]
+    # pushed back with the stick held: it moves away from its closest point
+    assert north[closest:].max() > north[closest] + 0.3, north[closest:].max()

@@ -27,6 +27,8 @@ Physical meaning of each mode in the SIL (there is no RC transmitter):
   ``0.8·g·tan(ANGLE_MAX)``.
 * STABILIZE — centred sticks: level attitude at hover throttle, which in this drag-only
   world decays to zero velocity; modelled as zero-velocity hold.
+* ALT_HOLD — the pilot's lean angles with the altitude held, flown by
+  :mod:`plant_sim.autopilot.pilot_flight` whenever armed and airborne; here, as STABILIZE.
 * LAND — descend at ``land_speed_mps`` over the current north/east; disarm on touchdown.
 * RTL — climb to ``rtl_alt_m`` above home (if lower), fly to home, then LAND.
 * AUTO — refused: the mission is always empty.
@@ -61,6 +63,7 @@ class FlightMode(enum.IntEnum):
     """The ArduCopter custom modes plant-sim flies (numbers: protocols.mavlink_modes)."""
 
     STABILIZE = ArduCopterMode.STABILIZE
+    ALT_HOLD = ArduCopterMode.ALT_HOLD
     AUTO = ArduCopterMode.AUTO
     GUIDED = ArduCopterMode.GUIDED
     LOITER = ArduCopterMode.LOITER
@@ -70,7 +73,9 @@ class FlightMode(enum.IntEnum):
 
 
 #: Modes from which the motors may be armed (ArduCopter refuses AUTO, RTL, LAND, BRAKE).
-ARMABLE_MODES = frozenset({FlightMode.STABILIZE, FlightMode.GUIDED, FlightMode.LOITER})
+ARMABLE_MODES = frozenset(
+    {FlightMode.STABILIZE, FlightMode.ALT_HOLD, FlightMode.GUIDED, FlightMode.LOITER}
+)
 
 
 class LandedState(enum.IntEnum):
@@ -580,6 +585,6 @@ class FlightModeMachine:
             self._brake(kin, self.timings.brake)
         elif mode is FlightMode.LOITER:
             self._brake(kin, self.timings.loiter)
-        else:  # GUIDED, STABILIZE: stop, then hold
+        else:  # GUIDED, STABILIZE, ALT_HOLD: stop, then hold
             self.speed_override = {}
             self._brake(kin)

@@ -20,9 +20,21 @@ fed the shaped velocity and acceleration). Throttle climbs at up to ``PILOT_SPEE
 is entered again from the current state: ArduCopter's LOITER braking and hold
 (:mod:`plant_sim.autopilot.modes`; no avoidance while braking, named simplification).
 
+ALT_HOLD (ArduCopter, armed and airborne; ``ArduCopter/mode_althold.cpp``): the sticks
+are lean angles, ``ANGLE_MAX`` at full deflection with a circular limit and the lateral
+tilt turned into an Euler roll (``Mode::get_pilot_desired_lean_angles``); simple
+avoidance then leans the vehicle away from near faces
+(:func:`~plant_sim.autopilot.simple_avoid.adjust_roll_pitch`). Nothing holds the
+position: the lean is flown as the acceleration it gives at constant altitude, forward
+``−g·tan(pitch)`` and right ``g·tan(roll)/cos(pitch)``, less the airframe's drag on the
+ground velocity (``drag_per_s``: the controller's feedback linearization cancels drag, so
+it is put back), and the velocity so integrated is the setpoint (as in LOITER above).
+Centred sticks level the vehicle and it drifts to rest on its drag.
+
 Not modelled: ArduCopter's stick-to-lean-angle shaping of AC_Loiter (its drag term and
-``LOIT_ANG_MAX``; here the stick sets the velocity target directly), ALT_HOLD and
-STABILIZE with pilot input (non-GPS avoidance), PX4's jerk-limited stick shaping.
+``LOIT_ANG_MAX``; here the stick sets the velocity target directly), STABILIZE with pilot
+input, ALT_HOLD's throttle-limited lean angle (``get_althold_lean_angle_max``), PX4's
+jerk-limited stick shaping.
 
 Pre-arm (ArduCopter, ``PRX1_TYPE = 2``, ``ARMING_CHECK`` ≠ 0): without proximity data in
 the last 0.5 s arming is refused with "PRX1: No Data" (``AP_Proximity::prearm_healthy``).
@@ -37,7 +49,7 @@ from plant_sim.autopilot.modes import FlightMode, FlightModeMachine, Kinematics
 from plant_sim.autopilot.params import ParamTable
 from plant_sim.autopilot.pilot_input import PilotInput, Sticks
 from plant_sim.autopilot.proximity import ProximityReceiver
-from plant_sim.autopilot.simple_avoid import SimpleAvoid, avoid_params
+from plant_sim.autopilot.simple_avoid import SimpleAvoid, adjust_roll_pitch, avoid_params
 from plant_sim.vehicle import Setpoint
 from protocols.mavlink_modes import Px4Main
 
@@ -48,6 +60,7 @@ _LEASH_M = 1.0
 _YAW_RATE_RADPS = math.radians(90.0)
 _PX4_CLIMB_MPS = 3.0  # MPC_Z_VEL_MAX_UP
 _PX4_SINK_MPS = 1.0  # MPC_Z_VEL_MAX_DN
+_G_MPS2 = 9.80665
 
 
 class PilotFlight:
@@ -57,10 +70,13 @@ class PilotFlight:
     ----------
     px4 : bool
         PX4 flavour (Position mode, Collision Prevention) instead of ArduCopter's.
+    drag_per_s : float
+        The airframe's horizontal drag over its mass [1/s] (ALT_HOLD's lean).
     """
 
-    def __init__(self, px4: bool) -> None:
+    def __init__(self, px4: bool, drag_per_s: float = 0.0) -> None:
         self.px4 = px4
+        self.drag_per_s = drag_per_s
         self.sticks_in = PilotInput()
         self.proximity = ProximityReceiver()
         self.avoid = SimpleAvoid()
@@ -89,10 +105,15 @@ class PilotFlight:
 
     # ---- flight --------------------------------------------------------------------
     def pilot_mode(self, machine: FlightModeMachine, px4_main: Px4Main | None) -> bool:
-        """The mode takes the pilot's sticks (LOITER; PX4: POSCTL), armed and flying."""
-        if not machine.armed or machine.landed or machine.mode is not FlightMode.LOITER:
+        """The mode takes the pilot's sticks (LOITER, ALT_HOLD; PX4: POSCTL), armed and
+        flying."""
+        if not machine.armed or machine.landed:
             return False
-        return px4_main is None or px4_main is Px4Main.POSCTL
+        if machine.mode is FlightMode.ALT_HOLD:
+            return not self.px4
+        return machine.mode is FlightMode.LOITER and (
+            px4_main is None or px4_main is Px4Main.POSCTL
+        )
 
     def step(
         self,
@@ -110,6 +131,12 @@ class PilotFlight:
         sticks = self.sticks_in.sticks(now_wall_s)
         if not self.pilot_mode(machine, px4_main):
             self.setpoint = None
+            return
+        if machine.mode is FlightMode.ALT_HOLD:
+            if self.setpoint is None:
+                self._vel_ne = (kin.vel_ned_mps[0], kin.vel_ned_mps[1])
+                self._ref = list(kin.pos_ned_m)
+            self._lean(kin, sticks, params, now_wall_s, dt)
             return
         if sticks.centred:
             if self.setpoint is not None:
@@ -148,8 +175,36 @@ class PilotFlight:
         a = math.hypot(an, ae)
         if a > accel:
             an, ae = an * accel / a, ae * accel / a
+        self._track(kin, vel, (an, ae), -sticks.up * climb, sticks.yaw, dt)
+
+    def _lean(self, kin, sticks: Sticks, params: ParamTable, now_wall_s: float, dt) -> None:
+        """ALT_HOLD: the sticks' lean angles, leaned away from near faces, flown as the
+        acceleration they give (module docstring)."""
+        angle_max = math.radians(params.value("ANGLE_MAX") / 100.0)
+        roll, pitch = sticks.right * angle_max, -sticks.forward * angle_max
+        total = math.hypot(roll, pitch)
+        if total > angle_max:
+            roll, pitch = roll * angle_max / total, pitch * angle_max / total
+        roll = math.atan(math.cos(pitch) * math.tan(roll))  # lateral tilt → Euler roll
+        faces = self.proximity.ardupilot_faces(now_wall_s)
+        adjusted = adjust_roll_pitch(roll, pitch, angle_max, faces, avoid_params(params))
+        if adjusted != (roll, pitch):
+            self.limited_ticks += 1
+        roll, pitch = adjusted
+        fwd, right = -_G_MPS2 * math.tan(pitch), _G_MPS2 * math.tan(roll) / math.cos(pitch)
+        c, s = math.cos(kin.yaw_rad), math.sin(kin.yaw_rad)
+        v = kin.vel_ned_mps
+        an = c * fwd - s * right - self.drag_per_s * v[0]
+        ae = s * fwd + c * right - self.drag_per_s * v[1]
+        vel = (v[0] + an * dt, v[1] + ae * dt)
+        up = params.value("PILOT_SPEED_UP") / 100.0
+        climb = up if sticks.up > 0 else (params.value("PILOT_SPEED_DN") / 100.0 or up)
+        self._track(kin, vel, (an, ae), -sticks.up * climb, sticks.yaw, dt)
+
+    def _track(self, kin, vel, acc_ne, vd: float, yaw_stick: float, dt: float) -> None:
+        """The setpoint that flies horizontal velocity ``vel`` with feed-forward
+        ``acc_ne`` and climbs at ``-vd``, turning at the yaw stick's rate."""
         self._vel_ne = vel
-        vd = -sticks.up * climb
         # horizontally the velocity is tracked (the reference is where the vehicle will
         # be at the next tick: no position error builds up to pull it past a limit the
         # avoidance set); vertically the altitude reference moves with the throttle
@@ -160,8 +215,8 @@ class PilotFlight:
         self.setpoint = Setpoint(
             pos_ned_m=(ref[0], ref[1], ref[2]),
             vel_ned_mps=(vel[0], vel[1], vd),
-            acc_ned_mps2=(an, ae, 0.0),
-            yaw_rate_radps=sticks.yaw * _YAW_RATE_RADPS,
+            acc_ned_mps2=(acc_ne[0], acc_ne[1], 0.0),
+            yaw_rate_radps=yaw_stick * _YAW_RATE_RADPS,
         )
 
     def _avoid(self, vel, kin: Kinematics, params: ParamTable, now_wall_s: float, dt: float):

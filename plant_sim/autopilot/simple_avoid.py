@@ -23,10 +23,19 @@ velocity out; time is passed in. Follows ``libraries/AC_Avoidance/AC_Avoid.cpp``
 * ``AVOID_ACCEL_MAX``: the avoidance's change of velocity is limited to this [m/s²]
   (0: unlimited), restarting from the pilot's velocity 200 ms after avoidance last acted.
 
+* **ALT_HOLD** (:func:`adjust_roll_pitch`, ``AC_Avoid::adjust_roll_pitch`` and
+  ``get_proximity_roll_pitch_norm``, called by ``ModeAltHold::run`` while flying): each
+  face nearer than ``AVOID_DIST_MAX`` (5 m) leans the vehicle away by
+  ``45° · (1 − d / AVOID_DIST_MAX)`` (roll ``−sin(bearing)``, pitch ``+cos(bearing)``
+  parts; per axis the largest positive and the most negative are summed), the lean at most
+  ``min(AVOID_ANGLE_MAX, 0.75 · ANGLE_MAX)`` (10°), added to the pilot's and the total at
+  most ``ANGLE_MAX``. There is no margin and no stopping distance: a pilot leaning harder
+  than the avoidance's 10° flies on; a gentler lean comes to rest where the two cancel.
+
 Not implemented: the fence and beacon sources, the vertical (3-D) limits and
-``AVOID_ALT_MIN``, the non-GPS modes' lean-angle avoidance (``AVOID_ANGLE_MAX``,
-``AVOID_DIST_MAX``, ALT_HOLD / STABILIZE), the boundary's line segments between faces
-(each face is its nearest point) and BendyRuler / Dijkstra path planning (``OA_TYPE``).
+``AVOID_ALT_MIN``, STABILIZE's avoidance (the same lean, plant-sim does not fly
+STABILIZE from sticks), the boundary's line segments between faces (each face is its
+nearest point) and BendyRuler / Dijkstra path planning (``OA_TYPE``).
 With unknown sectors (``UINT16_MAX``) ArduPilot has no reading, exactly as for a clear
 sector: it flies into space the camera could not match (a textureless wall).
 """
@@ -43,12 +52,14 @@ __all__ = [
     "AVOID_PARAM_SPECS",
     "AvoidParams",
     "SimpleAvoid",
+    "adjust_roll_pitch",
     "avoid_params",
     "sqrt_controller",
 ]
 
 _AVOID_ACCEL_MAX_CAP_MPS2 = 1.0  # AC_AVOID_ACCEL_CMSS_MAX 100 cm/s²
 _ACCEL_TIMEOUT_S = 0.2  # AC_AVOID_ACCEL_TIMEOUT_MS
+_AVOID_ANGLE_MAX_PERCENT = 0.75  # AC_AVOID_ANGLE_MAX_PERCENT: the pilot can override
 _BACKUP_ACCEL_SCALE = 0.4  # calc_backup_velocity_2D: get_max_speed(kP, 0.4 · accel, …)
 _PROXIMITY_BIT = 2  # AVOID_ENABLE bit 1: UseProximitySensor
 _PRX_TYPE_MAVLINK = 2
@@ -64,6 +75,8 @@ AVOID_PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("AVOID_BACKUP_SPD", ParamType.REAL32, 0.75, 0.0, 2.0),  # m/s
     ParamSpec("AVOID_ACCEL_MAX", ParamType.REAL32, 3.0, 0.0, 9.0),  # m/s²
     ParamSpec("AVOID_BACKUP_DZ", ParamType.REAL32, 0.1, 0.0, 2.0),  # m
+    ParamSpec("AVOID_ANGLE_MAX", ParamType.INT16, 1000, 0, 4500),  # cdeg, non-GPS modes
+    ParamSpec("AVOID_DIST_MAX", ParamType.REAL32, 5.0, 1.0, 30.0),  # m, non-GPS modes
     ParamSpec("PSC_POSXY_P", ParamType.REAL32, 1.0, 0.5, 2.0),  # 1/s
     ParamSpec("PILOT_SPEED_UP", ParamType.INT16, 250, 50, 500),  # cm/s
     ParamSpec("PILOT_SPEED_DN", ParamType.INT16, 0, 0, 500),  # cm/s, 0: PILOT_SPEED_UP
@@ -83,6 +96,8 @@ class AvoidParams:
     backup_deadzone_m: float = 0.1
     kp: float = 1.0  # PSC_POSXY_P [1/s]
     loiter_accel_mps2: float = 5.0  # LOIT_ACC_MAX
+    angle_max_rad: float = math.radians(10.0)  # AVOID_ANGLE_MAX (ALT_HOLD)
+    dist_max_m: float = 5.0  # AVOID_DIST_MAX (ALT_HOLD)
 
 
 def avoid_params(table: ParamTable) -> AvoidParams:
@@ -97,7 +112,43 @@ def avoid_params(table: ParamTable) -> AvoidParams:
         backup_deadzone_m=table.value("AVOID_BACKUP_DZ"),
         kp=table.value("PSC_POSXY_P"),
         loiter_accel_mps2=table.value("LOIT_ACC_MAX") / 100.0,
+        angle_max_rad=math.radians(table.value("AVOID_ANGLE_MAX") / 100.0),
+        dist_max_m=table.value("AVOID_DIST_MAX"),
     )
+
+
+def adjust_roll_pitch(
+    roll_rad: float,
+    pitch_rad: float,
+    vehicle_angle_max_rad: float,
+    faces: list[Face],
+    params: AvoidParams,
+) -> tuple[float, float]:
+    """ALT_HOLD's avoidance: the pilot's roll and pitch [rad] leaned away from the faces
+    nearer than ``AVOID_DIST_MAX`` (module docstring; ``AC_Avoid::adjust_roll_pitch``)."""
+    if not params.proximity or params.angle_max_rad <= 0.0 or vehicle_angle_max_rad <= 0.0:
+        return roll_rad, pitch_rad
+    roll_pos = roll_neg = pitch_pos = pitch_neg = 0.0
+    for face in faces:
+        d = face.distance_m
+        if d < 0.0 or d >= params.dist_max_m:
+            continue
+        lean = 1.0 - d / params.dist_max_m  # distance_to_lean_norm
+        roll = -math.sin(face.bearing_rad) * lean
+        pitch = math.cos(face.bearing_rad) * lean
+        roll_pos, roll_neg = max(roll_pos, roll), min(roll_neg, roll)
+        pitch_pos, pitch_neg = max(pitch_pos, pitch), min(pitch_neg, pitch)
+    r = (roll_pos + roll_neg) * math.radians(45.0)
+    p = (pitch_pos + pitch_neg) * math.radians(45.0)
+    limit = min(params.angle_max_rad, vehicle_angle_max_rad * _AVOID_ANGLE_MAX_PERCENT)
+    n = math.hypot(r, p)
+    if n > limit:
+        r, p = r * limit / n, p * limit / n
+    r, p = r + roll_rad, p + pitch_rad
+    n = math.hypot(r, p)
+    if n > vehicle_angle_max_rad:
+        r, p = r * vehicle_angle_max_rad / n, p * vehicle_angle_max_rad / n
+    return r, p
 
 
 def sqrt_controller(error: float, p: float, second_ord_lim: float, dt: float) -> float:
