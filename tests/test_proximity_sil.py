@@ -239,6 +239,11 @@ def _pilot_approach(
         print(f"{flavour} {scene} {speed_mps} m/s: min surface distance "
               f"{truth['surface_distance_m'].min():.2f} m, avoidance ticks "
               f"{stats['avoidance_limited_ticks']}")  # fmt: skip
+        moving = truth["vel_n_mps"] < -0.5  # flying south, toward the obstacle
+        if moving.any():  # where the first approach came to rest: the stop itself
+            first = int(moving.argmax())
+            rest = first + int((truth["vel_n_mps"][first:] >= 0.0).argmax())
+            print(f"  first stop {truth['surface_distance_m'][rest]:.2f} m from the surface")
         gaps = [b[2] - a[2] for a, b in itertools.pairwise(seen)]
         print(f"  OBSTACLE_DISTANCE: {len(seen)}, longest gap {max(gaps):.3f} s (wall)")
         for n, near, t in seen[:: max(1, len(seen) // 80)]:
