@@ -162,6 +162,7 @@ def _pilot_approach(
     material="textured",
     *,
     lean_deg: float | None = None,
+    sim_s: float | None = None,
 ):
     """Fly straight at the obstacle with the pitch stick held (MANUAL_CONTROL) in LOITER
     (PX4: Position mode) while the companion only reports; returns the truth log. With
@@ -171,7 +172,7 @@ def _pilot_approach(
 
     start_n_m = START_N_M if lean_deg is not None else _start_n_m(flavour, speed_mps)
     surface_m = start_n_m - (11.5 if scene == "sphere" else 10.1)
-    sim_s = 6.0 + surface_m / speed_mps
+    sim_s = sim_s or 6.0 + surface_m / speed_mps
     scenario = tmp_path / "approach.toml"
     obstacle = _SCENES[scene].format(material=material)
     mode = "LOITER" if lean_deg is None else "ALT_HOLD"
@@ -238,12 +239,15 @@ def _pilot_approach(
         truth = _read_truth(tmp_path / "run" / "truth.csv")
         print(f"{flavour} {scene} {speed_mps} m/s: min surface distance "
               f"{truth['surface_distance_m'].min():.2f} m, avoidance ticks "
-              f"{stats['avoidance_limited_ticks']}")  # fmt: skip
+              f"{stats['avoidance_limited_ticks']}, flown without fresh proximity data "
+              f"{stats['proximity_stale_ticks']} ticks")  # fmt: skip
         moving = truth["vel_n_mps"] < -0.5  # flying south, toward the obstacle
         if moving.any():  # where the first approach came to rest: the stop itself
             first = int(moving.argmax())
-            rest = first + int((truth["vel_n_mps"][first:] >= 0.0).argmax())
-            print(f"  first stop {truth['surface_distance_m'][rest]:.2f} m from the surface")
+            stopped = truth["vel_n_mps"][first:] >= 0.0
+            if stopped.any():
+                rest = first + int(stopped.argmax())
+                print(f"  first stop {truth['surface_distance_m'][rest]:.2f} m from the surface")
         gaps = [b[2] - a[2] for a, b in itertools.pairwise(seen)]
         print(f"  OBSTACLE_DISTANCE: {len(seen)}, longest gap {max(gaps):.3f} s (wall)")
         for n, near, t in seen[:: max(1, len(seen) // 80)]:
@@ -306,11 +310,17 @@ def test_textureless_wall_is_unknown_px4_holds_and_ardupilot_flies_on(tmp_path, 
     (UINT16_MAX), never clear. PX4 (CP_GO_NO_DATA 0) refuses to move into them; ArduPilot
     ignores unknown sectors as it ignores clear ones (AP_Proximity_MAV drops UINT16_MAX),
     so its simple avoidance does not stop the pilot: documented, not a plant-sim bug."""
-    truth, _, seen = _pilot_approach(tmp_path, flavour, "wall", 2.0, material="textureless")
+    # PX4 does not move at all: 5 s of held stick show it (ArduCopter needs its 11 s)
+    sim_s = 5.0 if flavour == "px4" else None
+    truth, _, seen = _pilot_approach(
+        tmp_path, flavour, "wall", 2.0, material="textureless", sim_s=sim_s
+    )
     surface = truth["surface_distance_m"]
     near_wall = [near for n, near, _ in seen if n - 10.1 < 4.0]  # within 4 m of the wall
     if flavour == "px4":
         assert surface.min() >= 2.0 - 0.3, surface.min()
+        # the held stick (2 m/s: 8 m in 4 s) did not move it toward the unknown
+        assert START_N_M - truth["pos_n_m"].min() < 0.5, truth["pos_n_m"].min()
     else:
         assert near_wall, "the vehicle came within 4 m of the wall"
         assert surface.min() < 1.0, "ArduPilot has no reading to stop on"

@@ -32,7 +32,13 @@ it is put back), and the velocity so integrated is the setpoint (as in LOITER ab
 Centred sticks level the vehicle and it drifts to rest on its drag.
 
 Not modelled: ArduCopter's stick-to-lean-angle shaping of AC_Loiter (its drag term and
-``LOIT_ANG_MAX``; here the stick sets the velocity target directly), STABILIZE with pilot
+``LOIT_ANG_MAX``; here the stick sets the velocity target directly) and what
+``AC_Loiter::calc_desired_velocity`` then hands the position controller
+(``set_pos_vel_accel_NE_cm``): a position target integrated from the avoided velocity,
+not re-anchored on the vehicle, and the pilot's acceleration as feed-forward, *not* limited
+by avoidance ("TODO: We need to also limit the _desired_accel" in ArduPilot's source) —
+here the vehicle tracks the avoided velocity with its own change as feed-forward, so a
+held stick does not push against the avoidance's stop as it may on ArduCopter; STABILIZE with pilot
 input, ALT_HOLD's throttle-limited lean angle (``get_althold_lean_angle_max``), PX4's
 jerk-limited stick shaping.
 
@@ -84,6 +90,7 @@ class PilotFlight:
         self._vel_ne = (0.0, 0.0)
         self._ref: list[float] = [0.0, 0.0, 0.0]
         self.limited_ticks = 0  # ticks in which avoidance changed the pilot's velocity
+        self.stale_ticks = 0  # pilot-flown ticks without fresh proximity data (0.5 s rule)
 
     # ---- input ---------------------------------------------------------------------
     def on_message(self, msg, now_wall_s: float) -> str | None:
@@ -186,6 +193,8 @@ class PilotFlight:
         if total > angle_max:
             roll, pitch = roll * angle_max / total, pitch * angle_max / total
         roll = math.atan(math.cos(pitch) * math.tan(roll))  # lateral tilt → Euler roll
+        if not self.proximity.fresh(now_wall_s):
+            self.stale_ticks += 1
         faces = self.proximity.ardupilot_faces(now_wall_s)
         adjusted = adjust_roll_pitch(roll, pitch, angle_max, faces, avoid_params(params))
         if adjusted != (roll, pitch):
@@ -220,6 +229,8 @@ class PilotFlight:
         )
 
     def _avoid(self, vel, kin: Kinematics, params: ParamTable, now_wall_s: float, dt: float):
+        if not self.proximity.fresh(now_wall_s):
+            self.stale_ticks += 1
         if self.px4:
             cp = cp_params(params)
             bins, range_m = self.proximity.px4_bins(now_wall_s, kin.yaw_rad)
@@ -240,4 +251,5 @@ class PilotFlight:
             "pilot_inputs": self.sticks_in.received,
             "pilot_inputs_refused": self.sticks_in.refused,
             "avoidance_limited_ticks": self.limited_ticks,
+            "proximity_stale_ticks": self.stale_ticks,
         }
