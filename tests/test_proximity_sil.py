@@ -272,13 +272,16 @@ def _companion_at(mav_port: int, zenoh: str) -> Iterator[ChildProcess]:
         child.close()
 
 
-# At 8 m/s the stop is real time with 0.07-0.13 m to spare on a quiet machine (helper
-# runs: ArduCopter sphere 1.77-1.83 m, PX4 wall 1.62-1.91 m); on a loaded one the
-# companion's reports stall past ArduPilot's 0.5 s proximity timeout and the held stick
-# flies on (1.52 m measured in CI at load 8-10). Not strict: it runs and reports.
+# At 8 m/s (issue 34, second pass, load 13-21): ArduCopter's first approach comes to rest
+# 1.9-3.0 m out; the held stick's re-approach then overshoots the margin on the fast
+# airframe's slow tilt loop (1.68, 1.69 m), and a starved companion (0.87 s silent, past
+# ArduPilot's 0.5 s timeout) let the stick fly it into the wall (-0.10 m). 3 of 7
+# ArduCopter runs below 1.7 m, 4 kept 0.10-0.18 m; PX4 1.87-2.07 m in 6 runs
+# (docs/autopilots.md). Not strict: they run and report.
 _LOAD_AT_8 = pytest.mark.xfail(
     strict=False,
-    reason="8 m/s real-time approach: 0.07-0.13 m to spare; fails when the machine is loaded",
+    reason="8 m/s real-time approach: 0.10-0.18 m to spare; the re-approach overshoot or a "
+    "starved companion takes it below 1.7 m on a loaded machine",
 )
 
 
