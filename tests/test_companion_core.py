@@ -467,6 +467,20 @@ def test_core_obstacle_distance_is_from_where_the_vehicle_is_at_the_send():
     assert rig.sent("OBSTACLE_DISTANCE")[-1].distances[0] == pytest.approx(300, abs=30)
 
 
+def test_core_obstacle_distance_counts_sends_past_the_autopilots_timeout():
+    """A companion starved for 0.7 s (no input at all) sent nothing for longer than the
+    autopilots' 0.5 s proximity timeout: counted, with the longest gap, in the status."""
+    rig = Rig()
+    rig.run(0.5)
+    assert rig.core.proximity.late == 0
+    rig.now_ns += 700_000_000  # the process did not run
+    rig.run(0.2)
+    assert rig.core.proximity.late == 1
+    figures = rig.core.proximity.figures(rig.core._now_s)
+    # 0.7 s + the next 10 ms tick, + up to one 50 ms send period before the stall
+    assert figures["late"] == 1 and 0.71 - 1e-9 <= figures["longest_gap_s"] <= 0.76
+
+
 def test_core_obstacle_distance_can_be_turned_off():
     cfg = CompanionConfig()
     cfg = dataclasses.replace(cfg, proximity=dataclasses.replace(cfg.proximity, enabled=False))

@@ -42,6 +42,7 @@ class StatusJob:
             "waypoint": self.mission.waypoint,
             "takeoff": None if self.takeoff is None else self.takeoff.step.value,
             "obstacle_distance_sent": None if self.proximity is None else self.proximity.sent,
+            "obstacle_distance_late": None if self.proximity is None else self.proximity.late,
         }
 
     def progress_text(self) -> str:
@@ -91,6 +92,7 @@ class StatusJob:
             f", OBSTACLE_DISTANCE {p['sent']} at {p['rate_hz']:.1f} Hz (sectors: "
             f"{p['obstacle_sectors']} obstacle, {p['clear_sectors']} clear, "
             f"{p['unknown_sectors']} unknown)"
+            + (f", {p['late']} sent past the 0.5 s timeout" if p["late"] else "")
         )
 
     def _frame_status(self, result, pose_status, pose, sent: bool) -> dict[str, Any]:

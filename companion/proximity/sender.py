@@ -83,6 +83,10 @@ class ProximitySender:
         self.sent = 0
         self.from_frames = 0
         self.stale_pose = 0  # sends all unknown because telemetry was older than 0.5 s
+        # sends more than POSE_STALE_S (the autopilots' 0.5 s proximity timeout) after the
+        # previous one: the autopilot had dropped the data meanwhile (a starved companion)
+        self.late = 0
+        self.longest_gap_s = 0.0
         self.last: ProximitySectors | None = None
         self._last_send_s = float("-inf")
         self._times: deque[float] = deque()
@@ -118,6 +122,8 @@ class ProximitySender:
             "sent": self.sent,
             "from_frames": self.from_frames,
             "stale_pose": self.stale_pose,
+            "late": self.late,
+            "longest_gap_s": round(self.longest_gap_s, 3),
             "rate_hz": round(len(self._times) / _RATE_WINDOW_S, 2),
             "obstacle_sectors": counts[0],
             "clear_sectors": counts[1],
@@ -126,6 +132,11 @@ class ProximitySender:
         }
 
     def _sent(self, sectors: ProximitySectors, now_s: float) -> ProximitySectors:
+        gap_s = now_s - self._last_send_s
+        if math.isfinite(gap_s):
+            self.longest_gap_s = max(self.longest_gap_s, gap_s)
+            if gap_s > POSE_STALE_S:
+                self.late += 1
         self.sent += 1
         self.last = sectors
         self._last_send_s = now_s
