@@ -3,6 +3,7 @@ against ArduPilot's and PX4's rules and closed forms (pure, no processes)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -217,6 +218,30 @@ def test_cp_keeps_cp_dist_and_refuses_unknown_directions():
     assert constrain_velocity((8.0, 0.0), 0.0, np.full(72, np.inf), 6.2, 0.0, cp) == (0.0, 0.0)
     off = CpParams(dist_m=-1.0)
     assert constrain_velocity((8.0, 0.0), 0.0, np.full(72, np.inf), 6.2, 0.0, off) == (8.0, 0.0)
+    # CP_GO_NO_DATA 1: into a bin that never had data, yes; into one that had, no
+    go = dataclasses.replace(cp, go_no_data=True)
+    fov = np.ones(72, dtype=bool)
+    fov[0] = False
+    assert constrain_velocity((1.0, 0.0), 0.0, bins, 6.2, 0.0, go, fov) == (1.0, 0.0)
+    fov[0] = True
+    assert constrain_velocity((1.0, 0.0), 0.0, bins, 6.2, 0.0, go, fov) == (0.0, 0.0)
+    assert constrain_velocity((1.0, 0.0), 0.0, bins, 6.2, 0.0, cp, ~fov) == (0.0, 0.0)
+    # and never without any data at all ("No obstacle data, not moving")
+    none = np.full(72, np.inf)
+    assert constrain_velocity((1.0, 0.0), 0.0, none, 6.2, 0.0, go, ~fov) == (0.0, 0.0)
+
+
+def test_px4_bins_that_had_a_reading_stay_in_the_field_of_view():
+    """PX4's _data_fov: a bin joins when it takes a reading, and stays after it reverts
+    to UINT16_MAX (unknown) or the stream times out."""
+    rx = ProximityReceiver()
+    rx.on_message(_obstacle_distance([300] * 3 + [65535] * 69), 0.0)
+    rx.px4_bins(0.0, 0.0)
+    assert rx.px4_fov.sum() > 0 and not rx.px4_fov[36]
+    seen = rx.px4_fov.copy()
+    rx.on_message(_obstacle_distance([65535] * 72), 0.1)
+    bins, _ = rx.px4_bins(0.1, 0.0)
+    assert not np.isfinite(bins).any() and np.array_equal(rx.px4_fov, seen)
 
 
 def test_cp_guidance_turns_toward_the_open_bin_within_cp_guide_ang():

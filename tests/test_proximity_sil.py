@@ -163,6 +163,7 @@ def _pilot_approach(
     *,
     lean_deg: float | None = None,
     sim_s: float | None = None,
+    params: dict[str, float] | None = None,
 ):
     """Fly straight at the obstacle with the pitch stick held (MANUAL_CONTROL) in LOITER
     (PX4: Position mode) while the companion only reports; returns the truth log. With
@@ -212,6 +213,8 @@ def _pilot_approach(
                 _set_param(m, "LOIT_SPEED", speed_mps * 100.0)
             else:  # full stick is ANGLE_MAX
                 stick = lean_deg / (_param(m, "ANGLE_MAX") / 100.0)
+        for name, value in (params or {}).items():
+            _set_param(m, name, value)
         x = round(1000.0 * (0.04 + 0.96 * stick))  # past the 20 µs dead band
         deadline = time.monotonic() + 3.0 * sim_s / SPEEDUP + 60.0
         seen = []  # (vehicle north [m], nearest sector [m] or None) per OBSTACLE_DISTANCE

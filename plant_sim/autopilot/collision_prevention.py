@@ -11,9 +11,11 @@ constrained velocity out. Follows ``src/lib/collision_prevention/CollisionPreven
 * **No data at all** (every bin without data, or the stream older than 0.5 s): no
   horizontal movement ("No obstacle data, not moving...").
 * **Direction without data**: a setpoint pointing into a bin without data is refused
-  (zero) unless ``CP_GO_NO_DATA = 1`` — and even then not into a bin the sensor covers
-  but reported unknown (``_data_fov``: our sensor reports the whole circle, so every
-  bin is "in the field of view"; ``CP_GO_NO_DATA = 1`` changes nothing here).
+  (zero) unless ``CP_GO_NO_DATA = 1`` — and even then not into a bin that has had data
+  before (``_data_fov[i]``, set in ``_addObstacleSensorData`` when a bin takes a reading
+  that is not ``UINT16_MAX`` and never cleared; ``_checkSetpointDirectionFeasibility``):
+  with ``CP_GO_NO_DATA = 1`` PX4 flies into directions the companion has never reported
+  (a textureless wall from the start), not into ones it reported and then lost.
 * **Guidance**: the setpoint's direction may turn by up to ``CP_GUIDE_ANG`` toward the
   bin of least cost (deviation cost ``CP_DIST · 50 · |Δbin|`` [cm] minus the mean of
   the bin and its neighbours and the bin's own distance; unknown bins never chosen,
@@ -105,8 +107,10 @@ def constrain_velocity(
     range_m: float,
     age_s: float,
     params: CpParams,
+    fov: np.ndarray | None = None,
 ) -> tuple[float, float]:
-    """The pilot's velocity setpoint [m/s, NE] after Collision Prevention (module doc)."""
+    """The pilot's velocity setpoint [m/s, NE] after Collision Prevention (module doc);
+    ``fov`` the bins that have had data (None: every bin)."""
     if not params.active:
         return desired_ne_mps
     known = np.isfinite(bins_m)
@@ -118,8 +122,8 @@ def constrain_velocity(
     body = math.degrees(math.atan2(desired_ne_mps[1], desired_ne_mps[0]) - yaw_rad) % 360.0
     index = int(body // _BIN_DEG) % PX4_BINS
     index = _adapt_direction(index, bins_m, params)
-    if not known[index]:
-        return (0.0, 0.0)  # CP_GO_NO_DATA: every bin is in the sensor's field of view
+    if not known[index] and (not params.go_no_data or fov is None or fov[index]):
+        return (0.0, 0.0)  # no data that way (CP_GO_NO_DATA, _data_fov)
     if index != int(body // _BIN_DEG) % PX4_BINS:
         heading = yaw_rad + math.radians(index * _BIN_DEG)
         vel = (speed * math.cos(heading), speed * math.sin(heading))

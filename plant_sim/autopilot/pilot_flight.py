@@ -234,9 +234,9 @@ class PilotFlight:
         if self.px4:
             cp = cp_params(params)
             bins, range_m = self.proximity.px4_bins(now_wall_s, kin.yaw_rad)
-            out = constrain_velocity(
-                vel, kin.yaw_rad, bins, range_m, self.proximity.age_s(now_wall_s), cp
-            )
+            age_s = self.proximity.age_s(now_wall_s)
+            fov = self.proximity.px4_fov
+            out = constrain_velocity(vel, kin.yaw_rad, bins, range_m, age_s, cp, fov)
         else:
             faces = self.proximity.ardupilot_faces(now_wall_s)
             out = self.avoid.adjust(vel, kin.yaw_rad, faces, avoid_params(params), kin.time_s, dt)

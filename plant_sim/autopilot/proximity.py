@@ -26,7 +26,8 @@ what each autopilot makes of it:
   mapped onto 72 bins of 5° (``bin i = [5i, 5i + 5)``, body frame) with
   ``msg_index = ceil(wrap_360(5 i − angle_offset) / increment)``, MAV_FRAME_BODY_FRD or
   LOCAL_NED (then rotated by the vehicle's yaw); ``UINT16_MAX`` leaves a bin without data;
-  a bin older than ``RANGE_STREAM_TIMEOUT_US`` (500 ms) is reset to no data. Not
+  a bin older than ``RANGE_STREAM_TIMEOUT_US`` (500 ms) is reset to no data; a bin that
+  has taken a reading once stays "in the field of view" (``_data_fov``). Not
   modelled: fusing several sensors (``_enterData``'s range rules beyond one source),
   DISTANCE_SENSOR input.
 """
@@ -87,6 +88,7 @@ class ProximityReceiver:
         self._faces: dict[int, Face] = {}  # ArduPilot's faces with a reading, filtered
         self._filtered_m: dict[int, float] = {}  # per face, kept while it has no reading
         self._face_set_s: dict[int, float] = {}  # when each face last had a reading
+        self.px4_fov = np.zeros(PX4_BINS, dtype=bool)  # PX4 bins that have had a reading
 
     def on_message(self, msg, now_s: float) -> str | None:
         """Keep ``msg`` (an OBSTACLE_DISTANCE) received at wall time ``now_s``; returns
@@ -155,7 +157,12 @@ class ProximityReceiver:
 
     def px4_bins(self, now_s: float, yaw_rad: float) -> tuple[np.ndarray, float]:
         """PX4's 72 body-frame bins [m] (inf where no data) and the sensor's range [m];
-        all inf when the data is stale."""
+        all inf when the data is stale. Bins with a reading join :attr:`px4_fov`."""
+        bins, range_m = self._px4_bins(now_s, yaw_rad)
+        self.px4_fov |= np.isfinite(bins)
+        return bins, range_m
+
+    def _px4_bins(self, now_s: float, yaw_rad: float) -> tuple[np.ndarray, float]:
         bins = np.full(PX4_BINS, np.inf)
         r = self._last
         if r is None or not self.fresh(now_s):
