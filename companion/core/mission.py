@@ -75,7 +75,6 @@ class Mission:
         self._avoiding = False
         self._hold_escaped = False  # this hold already said its target was moved out
         self._kept_out_until_s = -math.inf  # a carrot kept out of a boundary was said until
-        self.targets_kept_out = 0  # frames whose carrot was kept out of a boundary
         self.tracking = TrackingMonitor(self.pipeline.envelope_config.margin_m)
         self._flown_target: np.ndarray | None = None  # the previous frame's command
 
@@ -145,11 +144,10 @@ class Mission:
 
     def _report_kept_out(self, out: PipelineOutput, capture_ns: int, notices, events) -> None:
         """Say once per episode (quiet for ``_KEPT_OUT_QUIET_S`` between) that a carrot was
-        kept out of a boundary (invariant 3, :func:`~companion.guidance.hold.keep_target_out`);
-        every such frame is counted."""
+        kept out of a boundary (invariant 3, :func:`~companion.guidance.hold.keep_target_out`;
+        the core counts every such frame)."""
         if out.target_kept_out is None:
             return
-        self.targets_kept_out += 1
         now_s = capture_ns * 1e-9
         quiet = now_s >= self._kept_out_until_s
         self._kept_out_until_s = now_s + _KEPT_OUT_QUIET_S
