@@ -22,7 +22,7 @@ import numpy as np
 from companion.depth_source import DepthSource
 from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput, Mode
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
-from companion.guidance.hold import hold_point, inside_any
+from companion.guidance.hold import HoldPlacement, hold_point, inside_any, keep_target_out
 from companion.guidance.known_path import KnownPath, KnownPathConfig, plan_known_path, warm_up
 from companion.guidance.map_boundaries import (
     MapBoundary,
@@ -73,6 +73,9 @@ class PipelineOutput:
     # guidance held, and its hold target was moved out of a boundary the vehicle (or the
     # target) was found inside of this frame (drift, wind, a jump of the estimate)
     hold_escape: bool = False
+    # guidance steered (not a hold) and the envelope's carrot lay inside a boundary: where
+    # it was put instead (companion.guidance.hold.keep_target_out), None when it stood
+    target_kept_out: HoldPlacement | None = None
 
     @property
     def setpoint_ned_m(self) -> np.ndarray:
@@ -182,9 +185,19 @@ class AvoidancePipeline:
             latency_s=latency_s,
             heading_rad=pose.yaw_rad,
         )
-        escape = None
+        escape, kept_out = None, None
         if decision.mode is Mode.HOLD:
             escape = self._hold_outside(pose, bounded, boundaries)
+        else:
+            kept_out = keep_target_out(
+                pose.pos_ned_m,
+                bounded.setpoint_ned_m,
+                boundaries,
+                free_m=bounded.free_distance_m,
+                clearance_m=self.guidance.config.escape_clearance_m,
+            )
+            if kept_out is not None:
+                escape = _read_only(kept_out.pos_ned_m)
         if escape is not None:
             bounded = dataclasses.replace(bounded, setpoint_ned_m=escape)
         return PipelineOutput(
@@ -192,7 +205,8 @@ class AvoidancePipeline:
             guidance=decision,
             envelope=bounded,
             boundaries=boundaries,
-            hold_escape=escape is not None,
+            hold_escape=escape is not None and kept_out is None,
+            target_kept_out=None if kept_out is None else kept_out.placement,
         )
 
     def _known_path(self, pos_ned_m, goal_ned_m, spheres) -> KnownPath | None:
@@ -238,6 +252,10 @@ class AvoidancePipeline:
             accel_mps2=self.envelope_config.accel_mps2,
             clearance_m=self.guidance.config.escape_clearance_m,
         )
-        target = np.array(point.pos_ned_m)
-        target.setflags(write=False)
-        return target
+        return _read_only(point.pos_ned_m)
+
+
+def _read_only(point) -> np.ndarray:
+    target = np.array(point, dtype=float)
+    target.setflags(write=False)
+    return target

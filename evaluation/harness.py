@@ -26,6 +26,7 @@ import numpy as np
 from companion.core.mission import Mission, MissionStep
 from companion.guidance import GuidanceConfig, Mode
 from companion.guidance.envelope import EnvelopeConfig
+from companion.guidance.hold import inside_any
 from companion.known_space import KnownSpaceConfig
 from companion.perception import PerceptionConfig
 from companion.pipeline import PoseAtCapture
@@ -130,6 +131,9 @@ class Verdict:
     # frames on which the companion's overspeed warning would fire: measured speed above
     # the envelope's stated limit by more than its tolerance (CompanionCore._check_overspeed)
     overspeed_frames: int = 0
+    # frames whose target (carrot or hold) lay inside one of the boundaries guidance had
+    # that frame (invariant 3 of the envelope: never)
+    targets_inside_boundary: int = 0
 
     @property
     def passed(self) -> bool:
@@ -241,6 +245,7 @@ def run_scene(
             out.setpoint_ned_m, out.yaw_rad, out.envelope.speed_limit_mps, state.time_s
         )
         tally.overspeed_frames += bool(out.envelope.overspeed)
+        tally.targets_inside_boundary += inside_any(out.setpoint_ned_m, out.boundaries)
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
         if record_history:
             _record(history, state, surface, out, len(out.perception.obstacles), mission)
@@ -403,6 +408,7 @@ class _Tally:
     failure: str | None = None
     hold_reason: str | None = None
     overspeed_frames: int = 0
+    targets_inside_boundary: int = 0
 
     def ends_run(self, cfg: RunConfig, mission: Mission, decision, state, surface: float) -> bool:
         """A collision, the goal, a reported stop come to rest for 2 s (the world is static)
@@ -451,6 +457,7 @@ class _Tally:
             failure=self.failure,
             hold_reason=self.hold_reason,
             overspeed_frames=self.overspeed_frames,
+            targets_inside_boundary=self.targets_inside_boundary,
         )
 
 

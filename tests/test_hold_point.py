@@ -1,5 +1,6 @@
-"""``companion.guidance.hold.nearest_outside``: the nearest point out of overlapping
-boundaries, against closed forms (a ball, two balls, a wall of pieces)."""
+"""``companion.guidance.hold``: the nearest point out of overlapping boundaries
+(``nearest_outside``) and any target kept out of them (``keep_target_out``), against
+closed forms (a ball, two balls, a wall of pieces) and over random clusters."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from companion.guidance.hold import (
     HoldPlacement,
     hold_point,
     inside_any,
+    keep_target_out,
     nearest_outside,
 )
 
@@ -85,3 +87,88 @@ def test_hold_targets_from_inside_random_clusters_are_outside_or_where_it_is(see
     hp = hold_point(pos, (0.0, 0.0, 0.0), balls, latency_s=0.15, accel_mps2=2.0, clearance_m=0.2)
     assert hp.placement in (HoldPlacement.ESCAPE, HoldPlacement.NEAREST_OUT)
     assert not inside_any(hp.pos_ned_m, balls)
+
+
+# --- keep_target_out: every target guidance sends, outside every boundary (invariant 3) ---
+
+UNIT = Ball((0.0, 0.0, 0.0), 1.0)
+
+
+def test_a_target_outside_every_boundary_stands():
+    assert keep_target_out([-3.0, 0, 0], [-1.2, 0.5, 0], [UNIT], free_m=5.0) is None
+
+
+def test_a_target_inside_is_shortened_to_the_standoff_before_the_entry_point():
+    # closed form: the segment from x = -3 enters the unit ball at x = -1
+    kept = keep_target_out([-3.0, 0, 0], [0.5, 0, 0], [UNIT], free_m=5.0, standoff_m=0.05)
+    assert kept.placement is HoldPlacement.SHORTENED
+    np.testing.assert_allclose(kept.pos_ned_m, [-1.05, 0, 0], atol=1e-9)
+
+
+def test_shortening_stops_before_the_first_of_two_boundaries_on_the_way():
+    near = Ball((0.0, 0.0, 0.0), 1.0)
+    far = Ball((2.5, 0.0, 0.0), 1.0)  # the target lies in the far one, the path crosses near
+    kept = keep_target_out([-3.0, 0, 0], [2.5, 0, 0], [far, near], free_m=9.0, standoff_m=0.05)
+    np.testing.assert_allclose(kept.pos_ned_m, [-1.05, 0, 0], atol=1e-9)
+
+
+def test_from_inside_the_carrot_is_carried_on_along_its_ray_to_the_outside():
+    # vehicle 0.5 m from the centre of the unit ball, carrot shortened to 0.8: the ray
+    # leaves the ball at x = 1; the target is the standoff beyond, within the march step
+    kept = keep_target_out([0.5, 0, 0], [0.8, 0, 0], [UNIT], free_m=2.0, standoff_m=0.05)
+    assert kept.placement is HoldPlacement.EXTENDED
+    x, y, z = kept.pos_ned_m
+    assert 1.05 - 1e-9 <= x <= 1.05 + 0.02 + 1e-9 and y == z == 0.0, kept
+
+
+def test_from_inside_without_free_space_to_the_outside_the_way_out_is_the_escape():
+    # the ray's exit (1.05 m) is beyond the 0.4 m seen free along it: the radial escape
+    kept = keep_target_out(
+        [0.0, 0.5, 0], [0.0, 0.6, 0], [UNIT], free_m=0.4, clearance_m=0.2, standoff_m=0.05
+    )
+    assert kept.placement is HoldPlacement.ESCAPE
+    np.testing.assert_allclose(kept.pos_ned_m, [0.0, 1.2, 0.0], atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_kept_targets_are_outside_and_their_straight_path_too_over_random_clusters(seed):
+    rng = np.random.default_rng([seed, 32])
+    balls = [Ball(tuple(rng.uniform(-2.0, 2.0, 3)), float(rng.uniform(0.4, 1.2))) for _ in range(5)]
+    for _ in range(50):
+        pos, target = rng.uniform(-4.0, 4.0, 3), rng.uniform(-4.0, 4.0, 3)
+        kept = keep_target_out(pos, target, balls, free_m=float(rng.uniform(0.0, 6.0)))
+        if kept is None:
+            assert not inside_any(target, balls)
+            continue
+        point = np.array(kept.pos_ned_m)
+        if kept.placement is HoldPlacement.CURRENT:
+            np.testing.assert_allclose(point, pos)  # no way out: never deeper
+            continue
+        assert not inside_any(point, balls), (seed, kept)
+        if kept.placement is HoldPlacement.SHORTENED:  # the line flown stays out as well
+            assert not any(
+                inside_any(pos + t * (point - pos), balls) for t in np.linspace(0, 1, 41)
+            )
+
+
+def test_a_kept_out_target_is_said_once_per_episode():
+    from types import SimpleNamespace
+
+    from companion.core.mission import Mission
+
+    mission = Mission([(0.0, 0.0, -7.0)], goal_tolerance_m=0.5)
+    said = []
+    for k, placement in enumerate(
+        [HoldPlacement.SHORTENED] * 30 + [None] * 200 + [HoldPlacement.EXTENDED]
+    ):
+        out = SimpleNamespace(target_kept_out=placement, setpoint_ned_m=np.zeros(3))
+        notices, events = [], []
+        mission._report_kept_out(out, int(k / 30 * 1e9), notices, events)  # 30 Hz
+        said += [
+            (k, n.text, e.name, e.fields["placement"]) for n, e in zip(notices, events, strict=True)
+        ]
+    # the first of 30 consecutive frames, and again after more than 5 s without one
+    assert said == [
+        (0, "Target kept out of a boundary (shortened)", "target_kept_out", "shortened"),
+        (230, "Target kept out of a boundary (extended)", "target_kept_out", "extended"),
+    ]

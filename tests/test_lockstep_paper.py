@@ -22,6 +22,7 @@ def test_goal_reached_without_collision(paper_run):
     assert v.final_goal_distance_m < 0.5
     assert not v.collided
     assert v.overspeed_frames == 0, v  # the companion's overspeed warning never fires
+    assert v.targets_inside_boundary == 0, v  # invariant 3: no target inside a boundary
     # vehicle centre to the true obstacle surface: at least the vehicle's radius with
     # propellers (0.35 m, the collision distance) plus the 0.3 m safety margin
     assert v.min_surface_distance_m >= RunConfig().collision_distance_m + 0.3, v

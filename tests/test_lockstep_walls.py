@@ -47,6 +47,7 @@ def goal_beyond_wall():
 def test_a_low_wall_is_passed_with_a_bounded_climb(low_wall):
     v, h = low_wall.verdict, low_wall.history
     assert v.reached_goal and not v.collided, v
+    assert v.targets_inside_boundary == 0, v  # invariant 3
     assert v.min_surface_distance_m >= SAFE_M, v
     # climb above the start: at most the wall's top above the path plus what a piece's
     # sphere adds (the old single growing sphere climbed 8 m)
@@ -60,5 +61,6 @@ def test_a_low_wall_is_passed_with_a_bounded_climb(low_wall):
 def test_a_goal_two_metres_beyond_a_wall_is_reached_or_reported(goal_beyond_wall):
     v, h = goal_beyond_wall.verdict, goal_beyond_wall.history
     assert not v.collided and v.min_surface_distance_m >= SAFE_M, v
+    assert v.targets_inside_boundary == 0, v  # invariant 3
     assert v.reached_goal or (v.failure == "hold" and v.hold_reason == "goal_unreachable"), v
     assert START_NED_M[2] - h.column("down_m").min() <= SPHERE_REACH_M

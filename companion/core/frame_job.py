@@ -66,6 +66,7 @@ class FrameJob:
                 sent = True
             self._state_speed_limit(out.envelope.speed_limit_mps, self._now_s)
         self._check_overspeed(out)
+        self.counters.targets_kept_out += out.target_kept_out is not None
         for notice in result.notices:
             self.out.notice(notice.text, SEV_WARNING if notice.warning else SEV_INFO)
         self.out.extend(result.events)

@@ -26,6 +26,9 @@ from protocols.stereo_frame import StereoFrame
 
 __all__ = ["Mission", "MissionStep", "Notice"]
 
+#: a carrot kept out of a boundary is said again only after this long without one [s]
+_KEPT_OUT_QUIET_S = 5.0
+
 
 class Mission:
     """Fly ``waypoints_ned_m`` in order with the avoidance pipeline (one call per frame).
@@ -71,6 +74,7 @@ class Mission:
         self._guidance_state: tuple[Mode, Reason] | None = None
         self._avoiding = False
         self._hold_escaped = False  # this hold already said its target was moved out
+        self._kept_out_until_s = -math.inf  # a carrot kept out of a boundary was said until
         self.tracking = TrackingMonitor(self.pipeline.envelope_config.margin_m)
         self._flown_target: np.ndarray | None = None  # the previous frame's command
 
@@ -108,6 +112,7 @@ class Mission:
         self._check_goal(pose.pos_ned_m, frame.capture_ns, notices, events)
         self._report_changes(out, frame.capture_ns, notices, events)
         self._check_tracking(pose, frame.capture_ns, notices, events)
+        self._report_kept_out(out, frame.capture_ns, notices, events)
         self._flown_target = np.array(out.setpoint_ned_m) if steering else None
         return MissionStep(out, self.waypoint, tuple(notices), tuple(events))
 
@@ -133,6 +138,30 @@ class Mission:
                     "margin_m": report.margin_m,
                     "target_ned_m": list(report.target_ned_m),
                     "capture_s": capture_ns * 1e-9,
+                },
+            )
+        )
+
+    def _report_kept_out(self, out: PipelineOutput, capture_ns: int, notices, events) -> None:
+        """Say once per episode (quiet for ``_KEPT_OUT_QUIET_S`` between) that a carrot was
+        kept out of a boundary (invariant 3, :func:`~companion.guidance.hold.keep_target_out`;
+        the core counts every such frame)."""
+        if out.target_kept_out is None:
+            return
+        now_s = capture_ns * 1e-9
+        quiet = now_s >= self._kept_out_until_s
+        self._kept_out_until_s = now_s + _KEPT_OUT_QUIET_S
+        if not quiet:
+            return
+        placement = out.target_kept_out.value
+        notices.append(Notice(f"Target kept out of a boundary ({placement})", warning=True))
+        events.append(
+            Event(
+                "target_kept_out",
+                {
+                    "placement": placement,
+                    "setpoint_ned_m": [float(x) for x in out.setpoint_ned_m],
+                    "capture_s": now_s,
                 },
             )
         )

@@ -38,7 +38,14 @@ import numpy as np
 from companion.guidance.cone import SphereLike, escape_point
 from companion.guidance.envelope import stopping_distance_m
 
-__all__ = ["HoldPlacement", "HoldPoint", "hold_point", "inside_any", "nearest_outside"]
+__all__ = [
+    "HoldPlacement",
+    "HoldPoint",
+    "hold_point",
+    "inside_any",
+    "keep_target_out",
+    "nearest_outside",
+]
 
 
 class HoldPlacement(enum.Enum):
@@ -49,6 +56,7 @@ class HoldPlacement(enum.Enum):
     ESCAPE = "escape"  # vehicle inside a boundary: out of it
     NEAREST_OUT = "nearest_out"  # the way out of one leads into another: nearest point out
     CURRENT = "current"  # vehicle inside and no way out found: where it is
+    EXTENDED = "extended"  # vehicle inside: the carrot carried on along its ray to the outside
 
 
 @dataclass(frozen=True)
@@ -220,6 +228,75 @@ def nearest_outside(
                 pick = clear[0] if along is None else clear[np.argmax(along[clear])]
                 return points[pick].copy()
     return None
+
+
+def keep_target_out(
+    pos_ned_m,
+    target_ned_m,
+    boundaries: Sequence[SphereLike],
+    *,
+    free_m: float,
+    clearance_m: float = 0.0,
+    standoff_m: float = 0.05,
+    step_m: float = 0.02,
+) -> HoldPoint | None:
+    """Any target guidance sends, moved out of the boundaries (invariant 3), or None.
+
+    The safety envelope shortens guidance's carrot to space seen free and pitches it into
+    the camera's view; either can leave it inside an inflated boundary although guidance's
+    own setpoint was outside (a carrot shortened on the way out of a boundary the vehicle
+    strayed into, a known-space path pitched against a sphere). So, for a ``target_ned_m``
+    inside a boundary:
+
+    * the vehicle is outside every boundary: the farthest point of the segment from the
+      vehicle to the target that is ``standoff_m`` before the first boundary it enters
+      (:attr:`HoldPlacement.SHORTENED`): the autopilot flies a straight line to it, and
+      that line stays out;
+    * the vehicle is inside: the target carried on along the same ray to ``standoff_m``
+      past the point where it leaves every boundary, provided that point is within
+      ``free_m``, the known-free distance the envelope measured along the ray
+      (:attr:`HoldPlacement.EXTENDED`); else the way out of :func:`hold_point` (the deepest
+      boundary's radial escape or the nearest point outside all of them), never deeper.
+
+    ``None`` when the target is outside every boundary (it stands as it is).
+
+    Parameters
+    ----------
+    pos_ned_m, target_ned_m : array_like, shape (3,)
+        Vehicle position and the target after the envelope [m, NED].
+    boundaries : sequence of SphereLike
+        Inflated collision safety boundaries [m, NED].
+    free_m : float
+        Known-free distance along the ray to the target [m] (the envelope's).
+    clearance_m : float
+        Escape distance beyond a boundary's surface for :func:`hold_point` [m].
+    standoff_m : float
+        Distance kept from a boundary's surface along the ray [m].
+    step_m : float
+        Resolution of the march along the ray out of the boundaries [m].
+    """
+    pos = np.asarray(pos_ned_m, dtype=float)
+    target = np.asarray(target_ned_m, dtype=float)
+    if not inside_any(target, boundaries):
+        return None
+    length = float(np.linalg.norm(target - pos))
+    if not inside_any(pos, boundaries):
+        t = min((_entry_fraction(pos, target, b) for b in boundaries), default=1.0)
+        t = max(0.0, t - standoff_m / length) if length > 0.0 else 0.0
+        return HoldPoint(_tuple(pos + t * (target - pos)), HoldPlacement.SHORTENED)
+    if length > 1e-6 and math.isfinite(free_m):
+        unit = (target - pos) / length
+        s = length
+        while s + standoff_m <= free_m:
+            if not (
+                inside_any(pos + unit * s, boundaries)
+                or inside_any(pos + unit * (s + standoff_m), boundaries)
+            ):
+                return HoldPoint(_tuple(pos + unit * (s + standoff_m)), HoldPlacement.EXTENDED)
+            s += step_m
+    return hold_point(
+        pos, np.zeros(3), boundaries, latency_s=0.0, accel_mps2=1.0, clearance_m=clearance_m
+    )
 
 
 def _tuple(p: np.ndarray) -> tuple[float, float, float]:
