@@ -375,6 +375,11 @@ class FlightModeMachine:
             return f"Change speed: not in GUIDED (mode {self.mode.name})"
         field = {"ne": "speed_ne_mps", "up": "speed_up_mps", "down": "speed_down_mps"}[kind]
         self.speed_override[field] = float(speed_mps)
+        # ArduCopter's set_speed_up_cms restores the default descent speed, and
+        # set_speed_down_cms the default climb speed (mode_guided.cpp): one at a time
+        other = {"up": "speed_down_mps", "down": "speed_up_mps"}.get(kind)
+        if other is not None:
+            self.speed_override.pop(other, None)
         self.shaper.set_limits(self._guided_limits())
         return None
 
