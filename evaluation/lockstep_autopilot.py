@@ -106,8 +106,12 @@ class LockstepAutopilot:
         pos = state.pos_ned_m
         self._start_ned_m = (float(pos[0]), float(pos[1]), float(pos[2]))
         home = (float(pos[0]), float(pos[1]), 0.0 if ground_down_m is None else ground_down_m)
+        timings = timings_from_params(ModeTimings(), params)
+        # ArduCopter's velocity integrator (PSC_VELXY_I) on the plant's LQ loop, as
+        # plant-sim's service puts it
+        timings.velocity_integrator.apply_to(quad)
         self.machine = FlightModeMachine(
-            timings_from_params(ModeTimings(), params),
+            timings,
             home_ned_m=home,
             ground_down_m=ground_down_m,
             mode=FlightMode.GUIDED,
