@@ -134,6 +134,7 @@ def _advance(
                     state,
                     pos_sp_m,
                     vel_sp_mps,
+                    acc_sp_mps2,
                     gains_pos,
                     vel_i,
                     vel_i_gain,
