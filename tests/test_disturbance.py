@@ -10,7 +10,7 @@ import pytest
 from plant_sim.autopilot.modes import VelocityIntegrator
 from plant_sim.disturbance import DisturbanceConfig, Disturbances, EstimateConfig, WindConfig
 from plant_sim.params import QuadrotorParams
-from plant_sim.vehicle import Quadrotor
+from plant_sim.vehicle import Quadrotor, Setpoint
 
 
 def test_steady_wind_leaves_the_lq_loops_closed_form_offset():
@@ -82,6 +82,28 @@ def test_the_integrator_is_limited_to_imax_and_off_on_the_ground():
     assert not np.any(q.velocity_integrator_ned_mps2)
     with pytest.raises(ValueError):
         q.set_velocity_integrator(math.nan, 1.0)
+
+
+def test_the_integrator_holds_while_the_reference_accelerates():
+    """The paper's slow tilt loop trails an accelerating reference; the sum must not wind
+    up on that lag (plant_sim.flight_control._I_HOLD_ACCEL_MPS2), only on what stays."""
+    q = Quadrotor(pos_ned_m=(0.0, 0.0, -7.0), yaw_rad=0.0)
+    VelocityIntegrator().apply_to(q)
+    accel = 1.0  # a reference speeding up at 1 m/s² northward, for 2 s
+    for i in range(100):
+        t = 0.02 * i
+        q.set_setpoint(
+            Setpoint(
+                pos_ned_m=(0.5 * accel * t * t, 0.0, -7.0),
+                vel_ned_mps=(accel * t, 0.0, 0.0),
+                acc_ned_mps2=(accel, 0.0, 0.0),
+                yaw_rad=0.0,
+            )
+        )
+        q.run_until(t + 0.02)
+    assert not np.any(q.velocity_integrator_ned_mps2)
+    # it trailed the 2 m/s reference by more than 0.5 m/s: there was lag to integrate
+    assert 0.0 < q.vel_ned_mps[0] < 2.0 * accel - 0.5
 
 
 def test_still_air_is_the_papers_model_bit_for_bit():
