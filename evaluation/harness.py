@@ -241,8 +241,14 @@ def run_scene(
         if on_step is not None:
             on_step(frame, pose, step, mission)
         out = step.output
+        env = out.envelope
         autopilot.command(
-            out.setpoint_ned_m, out.yaw_rad, out.envelope.speed_limit_mps, state.time_s
+            out.setpoint_ned_m,
+            out.yaw_rad,
+            env.speed_limit_mps,
+            state.time_s,
+            path_dir_ned=env.path_dir_ned,
+            speed_mps=env.speed_mps,
         )
         tally.overspeed_frames += bool(out.envelope.overspeed)
         tally.targets_inside_boundary += inside_any(out.setpoint_ned_m, out.boundaries)

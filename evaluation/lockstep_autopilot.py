@@ -14,11 +14,13 @@ What the companion sends, and when, mirrors :class:`companion.core.CompanionCore
 an ArduPilot autopilot: a target on change (> 2 cm or 0.5°) and every 0.5 s
 (:class:`companion.link.setpoints.SetpointPolicy`), then the envelope's speed limit,
 no higher than the autopilot's own WPNAV_SPEED, rounded down to 0.25 m/s, lowered at once,
-raised at most every 0.5 s, re-stated every 2 s
-(:class:`companion.link.speed_limit.SpeedLimitPolicy`). The companion's clock is the
-frame's capture time; the autopilot takes what was sent at its next tick, as plant-sim
-takes its inbox. The estimate error of a disturbed scene is the autopilot's: it closes
-its loop on truth + error, so the plant tracks the setpoint less the error.
+raised at most every 0.5 s, re-stated every 2 s, and the climb or descent speed that keeps
+the flown slope within the path's
+(:class:`companion.link.speed_limit.SpeedLimitPolicy`, DO_CHANGE_SPEED types 1, 2 and 3).
+The companion's clock is the frame's capture time; the autopilot takes what was sent at
+its next tick, as plant-sim takes its inbox. The estimate error of a disturbed scene is
+the autopilot's: it closes its loop on truth + error, so the plant tracks the setpoint
+less the error.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ import numpy as np
 
 from companion.link.flavour import Flavour
 from companion.link.setpoints import PositionTarget, SetpointPolicy
-from companion.link.speed_limit import SpeedLimitPolicy
+from companion.link.speed_limit import SPEED_TYPE_CLIMB, SpeedLimitPolicy
 from plant_sim.autopilot.modes import (
     FlightMode,
     FlightModeMachine,
@@ -104,8 +106,12 @@ class LockstepAutopilot:
         pos = state.pos_ned_m
         self._start_ned_m = (float(pos[0]), float(pos[1]), float(pos[2]))
         home = (float(pos[0]), float(pos[1]), 0.0 if ground_down_m is None else ground_down_m)
+        timings = timings_from_params(ModeTimings(), params)
+        # ArduCopter's velocity integrator (PSC_VELXY_I) on the plant's LQ loop, as
+        # plant-sim's service puts it
+        timings.velocity_integrator.apply_to(quad)
         self.machine = FlightModeMachine(
-            timings_from_params(ModeTimings(), params),
+            timings,
             home_ned_m=home,
             ground_down_m=ground_down_m,
             mode=FlightMode.GUIDED,
@@ -116,16 +122,25 @@ class LockstepAutopilot:
         self.stats = AutopilotStats()
         self._targets = SetpointPolicy(Flavour.ARDUPILOT)
         self._speed = SpeedLimitPolicy()
-        self._inbox: list[PositionTarget | float] = []  # what was sent since the last tick
+        # what was sent since the last tick: targets, and DO_CHANGE_SPEED as (kind, m/s)
+        self._inbox: list[PositionTarget | tuple[str, float]] = []
         self._error_ned_m = np.zeros(3)
         self._next_tick_step = 0
         quad.set_setpoint(self.machine.setpoint)
 
     # ---- the companion's side -------------------------------------------------------
     def command(
-        self, target_ned_m, yaw_rad: float, speed_limit_mps: float, capture_s: float
+        self,
+        target_ned_m,
+        yaw_rad: float,
+        speed_limit_mps: float,
+        capture_s: float,
+        path_dir_ned=None,
+        speed_mps: float | None = None,
     ) -> None:
-        """A frame's output, as the companion sends it at ``capture_s`` (its clock)."""
+        """A frame's output, as the companion sends it at ``capture_s`` (its clock): the
+        target, the envelope's speed limit and, given its path ``path_dir_ned`` and the
+        speed flown ``speed_mps``, the path's climb or descent speed."""
         target = PositionTarget(tuple(float(x) for x in target_ned_m), float(yaw_rad))
         if self._targets.on_new_target(target, capture_s):
             self._inbox.append(target)
@@ -133,12 +148,23 @@ class LockstepAutopilot:
             self.stats.targets_sent += 1
         if not self.state_speed_limit:
             return
-        speed = self._speed.due(min(float(speed_limit_mps), self.wpnav_speed_mps), capture_s)
+        horizontal_mps = min(float(speed_limit_mps), self.wpnav_speed_mps)
+        speed = self._speed.due(horizontal_mps, capture_s)
         if speed is not None:
-            self._inbox.append(speed)
+            self._inbox.append(("ne", speed))
             self._speed.sent(speed, capture_s)
             self.stats.speed_limits_sent += 1
             self.stats.lowest_speed_stated_mps = min(self.stats.lowest_speed_stated_mps, speed)
+        if path_dir_ned is None:
+            return
+        climb = self._speed.climb
+        stated_mps = self._speed.quantize(horizontal_mps)
+        vertical = climb.due(path_dir_ned, stated_mps, speed_mps, capture_s)
+        if vertical is not None:
+            kind, vertical_mps = vertical
+            self._inbox.append(("up" if kind == SPEED_TYPE_CLIMB else "down", vertical_mps))
+            climb.sent(kind, vertical_mps, capture_s)
+            self.stats.speed_limits_sent += 1
 
     # ---- the autopilot's side -------------------------------------------------------
     def next_tick_step(self) -> int:
@@ -157,7 +183,7 @@ class LockstepAutopilot:
                 self.machine.guided_target(
                     GuidedTarget(pos_ned_m=what.pos_ned_m, yaw_rad=what.yaw_rad), kin
                 )
-            elif self.machine.change_speed("ne", what) is not None:  # DO_CHANGE_SPEED
+            elif self.machine.change_speed(*what) is not None:  # DO_CHANGE_SPEED
                 self.stats.speed_limits_refused += 1
         self.machine.update(kin)
         quad.set_setpoint(shifted(self.machine.setpoint, self._error_ned_m))

@@ -16,6 +16,19 @@ Attitude subsystem: Eq. (16) is linearized by choosing the body torque
 Eq. 31) gives ``v``; the torques and total thrust become rotor thrusts by inverting
 Eq. (14), clamped to the rotor limits.
 
+Velocity-loop integrator (not in the paper; ArduCopter's, off by default): the LQ tracker
+is a PD on position, so a steady disturbance (wind: the FL cancels the drag of the ground
+velocity, not of the air velocity) leaves a constant offset ``d/k_p``. ArduCopter's
+position controller (``AC_PosControl::update_xy_controller``) is a cascade, position P →
+velocity PID → acceleration, whose velocity integrator (``PSC_VELXY_I``, default 1.0, its
+sum limited to ``PSC_VELXY_IMAX``, default 1000 cm/s², as a 2-D vector: ``AC_PID_2D``)
+removes that offset. The LQ tracker ``a = u_d − k_p e − k_d (v − v_d)`` is the same
+cascade with a velocity target ``v_t = v_d − (k_p/k_d) e`` and velocity gain ``k_d``;
+:func:`velocity_integrator` adds ``I``, ``İ = k_i (v_t − v)``, limited to ``imax`` and not
+grown while the tilt is saturated (ArduCopter's ``limit`` flag). Closed loop per axis
+(attitude lag neglected): ``s³ + k_d s² + (k_p + k_i) s + k_i k_p / k_d``. With the gains
+zero (the paper flavour) the law is the paper's exactly.
+
 Frames are the paper's (z up) throughout; the caller converts from NED.
 """
 
@@ -39,6 +52,7 @@ __all__ = [
     "OUT_TOTAL_THRUST",
     "control_law",
     "mix",
+    "velocity_integrator",
 ]
 
 # Layout of the controller's output vector.
@@ -124,6 +138,58 @@ def _drag_lag_lead(axis: int, gains_att: np.ndarray, k: PhysicsConstants) -> flo
     return 1.0 + drag_per_s * gains_att[axis, 1] / gains_att[axis, 0]
 
 
+#: The integrator holds its sum while the shaped reference accelerates faster than this
+#: [m/s²]. The paper's attitude loop lags ~5x ArduCopter's (τ = k_d/k_p = 0.89 s, see
+#: _drag_lag_lead), so while the reference speeds up the vehicle trails it by decimetres
+#: ArduCopter's airframes do not, and integrating that lag wound the sum up: the fast
+#: airframe then overshot its stated 3.5 m/s limit by 0.3 m/s (0.16 m/s at PSC_VELXY_I
+#: 0.5). A steady disturbance (wind) is still integrated in cruise and in the hover, where
+#: the reference's acceleration is zero.
+_I_HOLD_ACCEL_MPS2 = 0.05
+
+
+@numba.njit(cache=True)
+def velocity_integrator(
+    state: np.ndarray,
+    pos_sp_m: np.ndarray,
+    vel_sp_mps: np.ndarray,
+    acc_sp_mps2: np.ndarray,
+    gains_pos: np.ndarray,
+    vel_i: np.ndarray,
+    vel_i_gain: np.ndarray,
+    vel_i_max: np.ndarray,
+    dt_s: float,
+    tilt_saturated: bool,
+) -> None:
+    """Advance the velocity-loop integrator ``vel_i`` (3,) [m/s²] by ``dt_s`` (see the module
+    docstring). ``vel_i_gain`` and ``vel_i_max`` are ``[horizontal, vertical]`` [1/s², m/s²];
+    the horizontal sum is limited as a vector. While ``tilt_saturated`` the horizontal sum
+    may only shrink, and while the reference accelerates (``acc_sp_mps2`` above
+    ``_I_HOLD_ACCEL_MPS2`` on an axis) that axis's sum is held (see below)."""
+    new = np.zeros(3)
+    for i in range(3):
+        gain = vel_i_gain[0] if i < 2 else vel_i_gain[1]
+        if gain <= 0.0 or math.isnan(pos_sp_m[i]) or gains_pos[i, 1] <= 0.0:
+            new[i] = 0.0
+            continue
+        if not math.isnan(acc_sp_mps2[i]) and abs(acc_sp_mps2[i]) > _I_HOLD_ACCEL_MPS2:
+            new[i] = vel_i[i]
+            continue
+        e = state[i] - pos_sp_m[i]
+        v_d = 0.0 if math.isnan(vel_sp_mps[i]) else vel_sp_mps[i]
+        v_target = v_d - gains_pos[i, 0] / gains_pos[i, 1] * e
+        new[i] = vel_i[i] + gain * (v_target - state[3 + i]) * dt_s
+    horizontal = math.sqrt(new[0] * new[0] + new[1] * new[1])
+    if horizontal > vel_i_max[0]:
+        new[0] *= vel_i_max[0] / horizontal
+        new[1] *= vel_i_max[0] / horizontal
+        horizontal = vel_i_max[0]
+    if not tilt_saturated or horizontal <= math.sqrt(vel_i[0] * vel_i[0] + vel_i[1] * vel_i[1]):
+        vel_i[0] = new[0]
+        vel_i[1] = new[1]
+    vel_i[2] = max(-vel_i_max[1], min(vel_i_max[1], new[2]))
+
+
 @numba.njit(cache=True)
 def control_law(
     state: np.ndarray,
@@ -137,6 +203,7 @@ def control_law(
     min_vertical_accel_mps2: float,
     k: PhysicsConstants,
     out: np.ndarray,
+    vel_i: np.ndarray,
 ) -> None:
     """One controller update; writes rotor thrusts and internals into ``out`` (OUT_* layout).
 
@@ -150,6 +217,8 @@ def control_law(
         commanded through :func:`_drag_lag_lead`.
     yaw_sp_ned_rad : MAVLink NED heading to hold.
     gains_pos, gains_att : (3, 2) per-axis ``[k_angle_or_pos, k_rate]`` from the LQ design.
+    vel_i : (3,) the velocity-loop integrator's sum [m/s², paper frame], added to the
+        position loop's acceleration (:func:`velocity_integrator`; zeros: the paper's law).
     """
     phi, theta, psi = state[6], state[7], state[8]
     dphi, dtheta, dpsi = state[9], state[10], state[11]
@@ -166,6 +235,8 @@ def control_law(
         if i < 2:
             u_d *= _drag_lag_lead(i, gains_att, k)
         a_des[i] = u_d - gains_pos[i, 0] * e - gains_pos[i, 1] * (state[3 + i] - v_d)
+        if vel_i[i] != 0.0 and not math.isnan(pos_sp_m[i]):
+            a_des[i] += vel_i[i]
 
     # feedback linearization of Eq. (12): add back G and (1/m) R K_t Rᵀ ξ̇
     r00, r01, r02 = ct * cp, -ct * sp, st

@@ -177,8 +177,10 @@ class PlantService:
         home = (float(pos[0]), float(pos[1]), ground if ground is not None else 0.0)
         self.disturbances = Disturbances(sc.disturbance) if sc.disturbance.active else None
         kin = self._kinematics(self._estimated(self.quad.snapshot()))
+        timings = self._timings()
+        timings.velocity_integrator.apply_to(self.quad)  # the position controller's
         self.machine = FlightModeMachine(
-            self._timings(),
+            timings,
             home_ned_m=home,
             ground_down_m=ground,
             mode=sc.start.mode,
@@ -741,6 +743,7 @@ class PlantService:
             self._param_value(index)  # echo: the new value, or the unchanged one if refused
         if reason is None:
             self.machine.timings = self._timings()
+            self.machine.timings.velocity_integrator.apply_to(self.quad)
             self.flavour.params_changed(self.params)
             _log.info("param %s set to %g", name, self.params.value(name))
 

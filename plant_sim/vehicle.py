@@ -96,8 +96,10 @@ def _advance(
     Returns the new state, the control phase, the (possibly turning) yaw target and
     whether the vehicle rests on the ground. The controller is
     :func:`plant_sim.flight_control.control_law`, its acceleration feed-forward through
-    the drag-lag lead (issue 31). (numba caches this loop, callees compiled in, by this
-    file's stamp: a change to the controller or the dynamics must touch this file.)
+    the drag-lag lead (issue 31) and the velocity-loop integrator (off unless set:
+    :meth:`Quadrotor.set_velocity_integrator`). (numba caches this loop, callees compiled
+    in, by this file's stamp: a change to the controller or the dynamics must touch this
+    file.)
     Ground contact is inelastic: the vehicle stops on the plane ``z = ground_z_m`` (paper
     frame) and sits level there. ``loop`` holds what the steps do not change
     (:meth:`Quadrotor._loop_args`).
@@ -116,12 +118,30 @@ def _advance(
         k,
         armed,
         ground_z_m,
+        vel_i,
+        vel_i_gain,
+        vel_i_max,
     ) = loop
     on_ground = False
     for _ in range(n_steps):
         if phase == 0:
             if not math.isnan(yaw_rate_sp_radps):
                 yaw_sp_ned_rad += yaw_rate_sp_radps * dt_s * steps_per_control
+            if not armed or on_ground:
+                vel_i[:] = 0.0  # ArduCopter resets its integrators on the ground
+            elif vel_i_gain[0] > 0.0 or vel_i_gain[1] > 0.0:
+                fc.velocity_integrator(
+                    state,
+                    pos_sp_m,
+                    vel_sp_mps,
+                    acc_sp_mps2,
+                    gains_pos,
+                    vel_i,
+                    vel_i_gain,
+                    vel_i_max,
+                    dt_s * steps_per_control,
+                    ctrl_out[fc.OUT_TILT_SAT] > 0.5,
+                )
             if armed:
                 fc.control_law(
                     state,
@@ -135,6 +155,7 @@ def _advance(
                     min_vertical_accel_mps2,
                     k,
                     ctrl_out,
+                    vel_i,
                 )
             else:
                 for i in range(fc.OUT_SIZE):
@@ -237,6 +258,9 @@ class Quadrotor:
         self._acc_sp = np.full(3, np.nan)
         self._yaw_sp_rad = float(yaw_rad)
         self._yaw_rate_sp = math.nan
+        self._vel_i = np.zeros(3)  # velocity-loop integrator sum [m/s², paper frame]
+        self._vel_i_gain = np.zeros(2)  # [horizontal, vertical] [1/s²]; 0: the paper's law
+        self._vel_i_max = np.zeros(2)  # [horizontal, vertical] [m/s²]
         self.set_setpoint(Setpoint(pos_ned_m=tuple(pos_ned_m), yaw_rad=float(yaw_rad)))
 
     # ---- commands ----------------------------------------------------------------------
@@ -257,6 +281,31 @@ class Quadrotor:
             raise ValueError(f"wind must be finite, got {wind_ned_mps!r}")
         x, y, z = (float(v) for v in paper_frames.paper_from_ned(wind_ned))
         self._k = self._k._replace(wind_x=x, wind_y=y, wind_z=z)
+
+    def set_velocity_integrator(
+        self,
+        gain_xy_per_s2: float,
+        imax_xy_mps2: float,
+        gain_z_per_s2: float = 0.0,
+        imax_z_mps2: float = 0.0,
+    ) -> None:
+        """An ArduCopter-like velocity-loop integrator from now on (PSC_VELXY_I and
+        PSC_VELXY_IMAX in SI units; :func:`plant_sim.flight_control.velocity_integrator`);
+        all zero (the default): the paper's law. A gain of 0 clears that sum."""
+        values = (gain_xy_per_s2, imax_xy_mps2, gain_z_per_s2, imax_z_mps2)
+        if not all(math.isfinite(v) and v >= 0.0 for v in values):
+            raise ValueError(f"integrator gains and limits must be finite and >= 0: {values}")
+        self._vel_i_gain = np.array([gain_xy_per_s2, gain_z_per_s2], dtype=float)
+        self._vel_i_max = np.array([imax_xy_mps2, imax_z_mps2], dtype=float)
+        if gain_xy_per_s2 == 0.0:
+            self._vel_i[0:2] = 0.0
+        if gain_z_per_s2 == 0.0:
+            self._vel_i[2] = 0.0
+
+    @property
+    def velocity_integrator_ned_mps2(self) -> np.ndarray:
+        """The velocity-loop integrator's sum, NED [m/s²] (zeros without one)."""
+        return paper_frames.ned_from_paper(self._vel_i.copy())
 
     def set_setpoint(self, sp: Setpoint) -> None:
         """Track ``sp`` from the next controller update on."""
@@ -306,7 +355,8 @@ class Quadrotor:
 
     def _loop_args(self) -> tuple:
         """What the compiled loop does not change: control rate, step, setpoints, gains,
-        limits, parameters, arming and ground (``loop`` of :func:`_advance`)."""
+        limits, parameters, arming, ground, and the velocity integrator (its sum, changed
+        in place, gains and limits) (``loop`` of :func:`_advance`)."""
         return (
             self.control.steps_per_control,
             self._dt_s,
@@ -321,6 +371,9 @@ class Quadrotor:
             self._k,
             self._armed,
             self._ground_z_m,
+            self._vel_i,
+            self._vel_i_gain,
+            self._vel_i_max,
         )
 
     def step(self, n_steps: int = 1) -> None:

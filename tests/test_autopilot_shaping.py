@@ -255,10 +255,18 @@ def test_do_change_speed_is_refused_outside_guided_and_for_bad_values():
 
 def test_climb_and_descent_speeds_follow_do_change_speed_types_2_and_3():
     m = _guided()
+    default = m.timings.guided_limits
     assert _change_speed(m, 2.0, 0.5).result is MavResult.ACCEPTED
     assert m.shaper.limits.speed_up_mps == 0.5
     assert _change_speed(m, 3.0, 0.7).result is MavResult.ACCEPTED
     assert m.shaper.limits.speed_down_mps == 0.7
+    # ArduCopter's set_speed_down_cms restores WPNAV_SPEED_UP (and set_speed_up_cms
+    # WPNAV_SPEED_DN): one vertical limit stated at a time (mode_guided.cpp)
+    assert m.shaper.limits.speed_up_mps == default.speed_up_mps
+    assert _change_speed(m, 2.0, 0.4).result is MavResult.ACCEPTED
+    assert m.shaper.limits.speed_down_mps == default.speed_down_mps
+    assert _change_speed(m, 1.0, 2.0).result is MavResult.ACCEPTED  # ground speed: no reset
+    assert (m.shaper.limits.speed_up_mps, m.shaper.limits.speed_ne_mps) == (0.4, 2.0)
 
 
 def test_brake_mode_decelerates_at_most_at_the_airframe_tilt_limit():

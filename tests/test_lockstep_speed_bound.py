@@ -41,24 +41,16 @@ def _fast_run(scene: Scene):
     return run_scene(scene, cfg)
 
 
-# Known, not fixed (issue 31 finding): plant-sim's ArduCopter GUIDED shapes north/east and
-# down separately, as ArduCopter's position controller does, so in the climb scene of seed
-# 101 the vehicle climbs at 28° (0.50 m/s up, 0.92 m/s level) though the carrot's
-# elevation is within guidance's limit; braking, the envelope looks along that velocity,
-# above the camera's view, finds only its 0.3 m bubble known free and states 0 m/s for
-# 3 frames (t = 6.67-6.90 s, up to 1.49 m/s). The companion would have to state the climb
-# and descent limits too (DO_CHANGE_SPEED types 2, 3). (Seed 104's one-frame map flicker
-# (issue 36) does not occur with the autopilot in the loop and issue 36's path rule: its
-# flight passes, measured on the merged code.)
-_STEEP_CLIMB = pytest.mark.xfail(
-    strict=True, reason="the autopilot climbs steeper than the camera sees (seed 101)"
-)
-
-
+# The steep climb of seed 101 (issue 31): ArduCopter shapes north/east and down apart, so
+# it climbed at 28° toward a carrot within guidance's 12° and, braking, the envelope looked
+# along a velocity above the camera's view and stated 0 m/s. The companion now states the
+# climb and descent speeds too (companion.link.speed_limit.climb_limit); this scene runs
+# with the others. (Seed 104's one-frame map flicker (issue 36) does not occur with the
+# autopilot in the loop and issue 36's path rule.)
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "name",
-    [pytest.param(n, marks=_STEEP_CLIMB) if n == "mc-101" else n for n in sorted(SCENES)],
+    sorted(SCENES),
 )
 def test_speed_never_exceeds_the_stated_limit_at_the_fast_airframe(name):
     result = _fast_run(SCENES[name]())

@@ -64,7 +64,7 @@ class FrameJob:
             if self.policy.on_new_target(target, self._now_s):
                 self._send_target(target, self._now_s, frame.capture_ns)
                 sent = True
-            self._state_speed_limit(out.envelope.speed_limit_mps, self._now_s)
+            self._state_speed_limit(out.envelope, self._now_s)
         self._check_overspeed(out)
         self.counters.targets_kept_out += out.target_kept_out is not None
         for notice in result.notices:

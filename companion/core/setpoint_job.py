@@ -3,7 +3,8 @@
 A mixin of :class:`~companion.core.CompanionCore`. Targets follow the profile's setpoint
 policy (:mod:`companion.link.setpoints`: persisting targets re-sent as a keep-alive, or a
 stream); the envelope's speed limit goes out as DO_CHANGE_SPEED below the autopilot's own
-WPNAV_SPEED (:mod:`companion.link.speed_limit`), and telemetry above it is reported.
+WPNAV_SPEED, with the climb or descent speed that keeps the flown slope within the path's
+(:mod:`companion.link.speed_limit`), and telemetry above it is reported.
 """
 
 from __future__ import annotations
@@ -82,9 +83,11 @@ class SetpointJob:
         if target is not None:
             self._send_target(target, now_s, None)
 
-    def _state_speed_limit(self, limit_mps: float, now_s: float) -> None:
-        """ArduPilot: the envelope's speed limit as MAV_CMD_DO_CHANGE_SPEED (see
-        :mod:`companion.link.speed_limit`); other autopilots: the carrot alone."""
+    def _state_speed_limit(self, envelope, now_s: float) -> None:
+        """ArduPilot: the ``envelope``'s speed limit as MAV_CMD_DO_CHANGE_SPEED, and the
+        climb or descent speed for its path (see :mod:`companion.link.speed_limit`); other
+        autopilots: the carrot alone."""
+        limit_mps = envelope.speed_limit_mps
         flavour = self.modes.flavour
         if flavour is None or not profile_for(flavour).states_speed_limit:
             return
@@ -108,13 +111,23 @@ class SetpointJob:
                     )
                 )
             return
-        speed = self.speed_policy.due(min(limit_mps, self._wpnav_speed_mps), now_s)
-        if speed is None:
-            return
         cfg = self.config.link
-        self.out.send(change_speed_command(speed, cfg.target_system, cfg.target_component))
-        self.speed_policy.sent(speed, now_s)
-        self.counters.speed_limits_sent += 1
+        horizontal_mps = min(limit_mps, self._wpnav_speed_mps)
+        speed = self.speed_policy.due(horizontal_mps, now_s)
+        if speed is not None:
+            self.out.send(change_speed_command(speed, cfg.target_system, cfg.target_component))
+            self.speed_policy.sent(speed, now_s)
+            self.counters.speed_limits_sent += 1
+        climb = self.speed_policy.climb
+        stated_mps = self.speed_policy.quantize(horizontal_mps)
+        vertical = climb.due(envelope.path_dir_ned, stated_mps, envelope.speed_mps, now_s)
+        if vertical is not None:
+            kind, vertical_mps = vertical
+            self.out.send(
+                change_speed_command(vertical_mps, cfg.target_system, cfg.target_component, kind)
+            )
+            climb.sent(kind, vertical_mps, now_s)
+            self.counters.speed_limits_sent += 1
 
     def _check_overspeed(self, out) -> None:
         """Warn (log + STATUSTEXT, at most every 5 s) when telemetry exceeds the limit."""

@@ -29,6 +29,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from plant_sim.autopilot import commands as cmds
 from plant_sim.autopilot.collision_prevention import CP_PARAM_SPECS
 from plant_sim.autopilot.modes import (
+    NO_VELOCITY_INTEGRATOR,
     FlightMode,
     FlightModeMachine,
     GuidedTarget,
@@ -139,8 +140,11 @@ class Px4Flavour(AutopilotFlavour):
         MPC_JERK_AUTO shape its Auto modes, not OFFBOARD) and in OFFBOARD overrides the
         speed constraints with MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP/DN
         (src/modules/mc_pos_control/MulticopterPositionControl.cpp, Run()); its P-PID
-        cascade is the paper's LQ loop here."""
-        return dataclasses.replace(timings, guided_shaping=False)
+        cascade is the paper's LQ loop here, without its velocity integrator
+        (MPC_XY_VEL_I_ACC is not modelled)."""
+        return dataclasses.replace(
+            timings, guided_shaping=False, velocity_integrator=NO_VELOCITY_INTEGRATOR
+        )
 
     def __init__(
         self, machine: FlightModeMachine, kin: Kinematics, home_amsl_m: float, params: ParamTable

@@ -53,6 +53,7 @@ __all__ = [
     "Kinematics",
     "LandedState",
     "ModeTimings",
+    "VelocityIntegrator",
 ]
 
 #: COMPONENT_ARM_DISARM param2 that bypasses the arming and disarming checks (ArduPilot).
@@ -103,6 +104,26 @@ class _Phase(enum.Enum):
 
 
 @dataclass(frozen=True)
+class VelocityIntegrator:
+    """ArduCopter's horizontal velocity-loop integrator, put on the paper's LQ loop
+    (:func:`plant_sim.flight_control.velocity_integrator`): ``PSC_VELXY_I`` and
+    ``PSC_VELXY_IMAX`` (``AC_PosControl.cpp`` defaults 1.0 and 1000 cm/s²) in SI units.
+    It removes the steady offset a wind leaves (the LQ loop has none of its own)."""
+
+    gain_xy_per_s2: float = 1.0  # PSC_VELXY_I [(m/s²)/(m/s)/s]
+    imax_xy_mps2: float = 10.0  # PSC_VELXY_IMAX 1000 cm/s²
+
+    def apply_to(self, quad) -> None:
+        """Put this integrator on ``quad`` (:class:`plant_sim.vehicle.Quadrotor`)."""
+        quad.set_velocity_integrator(self.gain_xy_per_s2, self.imax_xy_mps2)
+
+
+#: no integrator: the paper's LQ loop as it is (the PX4 flavour: its MPC_XY_VEL_I_ACC
+#: is not modelled)
+NO_VELOCITY_INTEGRATOR = VelocityIntegrator(0.0, 0.0)
+
+
+@dataclass(frozen=True)
 class ModeTimings:
     """Speeds and timeouts of the mode logic (ArduCopter parameter equivalents)."""
 
@@ -143,6 +164,9 @@ class ModeTimings:
     # as ArduCopter flies them; the lockstep harness flies the same) or straight to the LQ
     # loop (0: the airframe's own limits, DO_CHANGE_SPEED refused)
     guided_shaping: bool = True
+    # the position controller's velocity integrator (not mode logic: the service and the
+    # lockstep put it on the plant whenever the timings are derived from the parameters)
+    velocity_integrator: VelocityIntegrator = VelocityIntegrator()
 
 
 @dataclass(frozen=True)
@@ -380,6 +404,11 @@ class FlightModeMachine:
             return f"Change speed: not in GUIDED (mode {self.mode.name})"
         field = {"ne": "speed_ne_mps", "up": "speed_up_mps", "down": "speed_down_mps"}[kind]
         self.speed_override[field] = float(speed_mps)
+        # ArduCopter's set_speed_up_cms restores the default descent speed, and
+        # set_speed_down_cms the default climb speed (mode_guided.cpp): one at a time
+        other = {"up": "speed_down_mps", "down": "speed_up_mps"}.get(kind)
+        if other is not None:
+            self.speed_override.pop(other, None)
         self.shaper.set_limits(self._guided_limits())
         return None
 

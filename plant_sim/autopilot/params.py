@@ -11,7 +11,7 @@ import enum
 import math
 from dataclasses import dataclass, replace
 
-from plant_sim.autopilot.modes import ModeTimings
+from plant_sim.autopilot.modes import ModeTimings, VelocityIntegrator
 from plant_sim.autopilot.shaping import BrakeProfile, ShapingLimits
 
 #: g for the airframe's deceleration bound g·tan(ANGLE_MAX) [m/s²]
@@ -78,6 +78,8 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("WPNAV_ACCEL_Z", ParamType.REAL32, 100.0, 50.0, 500.0),  # cm/s²
     ParamSpec("PSC_JERK_XY", ParamType.REAL32, 5.0, 1.0, 20.0),  # m/s³
     ParamSpec("PSC_JERK_Z", ParamType.REAL32, 5.0, 5.0, 50.0),  # m/s³
+    ParamSpec("PSC_VELXY_I", ParamType.REAL32, 1.0, 0.0, 1.0),  # (cm/s²)/(cm/s)/s
+    ParamSpec("PSC_VELXY_IMAX", ParamType.REAL32, 1000.0, 0.0, 4500.0),  # cm/s²
     ParamSpec("LOIT_SPEED", ParamType.REAL32, 1250.0, 20.0, 3500.0),  # cm/s
     ParamSpec("LOIT_ACC_MAX", ParamType.REAL32, 500.0, 100.0, 981.0),  # cm/s²
     ParamSpec("LOIT_BRK_DECEL", ParamType.REAL32, 250.0, 25.0, 250.0),  # cm/s²
@@ -178,6 +180,10 @@ def timings_from_params(base: ModeTimings, table: ParamTable) -> ModeTimings:
             jerk_mps3=table.value("LOIT_BRK_JERK") / 100.0,
             delay_s=table.value("LOIT_BRK_DELAY"),
             drag_per_s=table.value("LOIT_ACC_MAX") / table.value("LOIT_SPEED"),
+        ),
+        velocity_integrator=VelocityIntegrator(
+            gain_xy_per_s2=table.value("PSC_VELXY_I"),
+            imax_xy_mps2=table.value("PSC_VELXY_IMAX") / 100.0,
         ),
         max_decel_mps2=0.8
         * GRAVITY_MPS2
