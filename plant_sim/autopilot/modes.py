@@ -40,6 +40,7 @@ from dataclasses import dataclass, replace
 
 from plant_sim.autopilot.shaping import BrakeProfile, ShapingLimits, TargetShaper
 from plant_sim.vehicle import Setpoint, VehicleState
+from protocols.config import Checked, bounded
 from protocols.mavlink_modes import ArduCopterMode
 
 __all__ = [
@@ -98,17 +99,17 @@ class _Phase(enum.Enum):
 
 
 @dataclass(frozen=True)
-class ModeTimings:
+class ModeTimings(Checked):
     """Speeds and timeouts of the mode logic (ArduCopter parameter equivalents)."""
 
-    guided_velocity_timeout_s: float = 3.0  # GUID_TIMEOUT [s]
-    disarm_delay_s: float = 10.0  # DISARM_DELAY [s]
-    land_speed_mps: float = 0.5  # LAND_SPEED [m/s]
-    takeoff_climb_mps: float = 1.5  # [m/s]
-    rtl_alt_m: float = 15.0  # RTL_ALT [m above home]
-    land_detect_s: float = 1.0  # ground contact this long → landed [s]
-    face_target_min_dist_m: float = 2.0  # turn to face a target farther than this
-    face_velocity_min_mps: float = 0.5  # turn to face a velocity faster than this
+    guided_velocity_timeout_s: float = bounded(3.0, "s", gt=0)  # GUID_TIMEOUT
+    disarm_delay_s: float = bounded(10.0, "s", gt=0, finite=False)  # DISARM_DELAY; inf: never
+    land_speed_mps: float = bounded(0.5, "m/s", gt=0)  # LAND_SPEED
+    takeoff_climb_mps: float = bounded(1.5, "m/s", gt=0)
+    rtl_alt_m: float = bounded(15.0, "m", ge=0)  # RTL_ALT [m above home]
+    land_detect_s: float = bounded(1.0, "s", gt=0)  # ground contact this long → landed
+    face_target_min_dist_m: float = bounded(2.0, "m", ge=0)  # face a target farther than this
+    face_velocity_min_mps: float = bounded(0.5, "m/s", ge=0)  # face a velocity faster than this
     # GUIDED position-target shaping (ArduCopter defaults; parameters in comments)
     guided_limits: ShapingLimits = ShapingLimits(  # noqa: RUF009 (frozen: shared is safe)
         speed_ne_mps=10.0,  # WPNAV_SPEED 1000 cm/s
@@ -126,14 +127,17 @@ class ModeTimings:
         delay_s=1.0,  # LOIT_BRK_DELAY 1 s
         drag_per_s=0.4,  # LOIT_ACC_MAX / LOIT_SPEED = 500 / 1250 1/s
     )
-    max_decel_mps2: float = math.inf  # what the airframe can do: 0.8·g·tan(ANGLE_MAX)
+    max_decel_mps2: float = bounded(
+        math.inf, "m/s²", gt=0, finite=False
+    )  # what the airframe can do: 0.8·g·tan(ANGLE_MAX)
     # The jerk the airframe follows [m/s³]: the paper's attitude loop (Eq. 31, dominant
     # pole ≈ −1.4 1/s) tilts ~5× slower than ArduCopter's, so a reference whose
     # acceleration changes faster is not followed and the vehicle overshoots its speed.
     # Calibrated on ArduCopter SITL's WPNAV_SPEED 100 leg (top speed 1.01–1.10 m/s;
     # plant-sim 1.07): the reference's jerk is min(PSC_JERK_XY, this).
-    airframe_jerk_mps3: float = 2.0
-    saturated_lead_m: float = 0.5  # a tilt-saturated vehicle this far behind holds the path
+    airframe_jerk_mps3: float = bounded(2.0, "m/s³", gt=0)
+    # a tilt-saturated vehicle this far behind holds the path
+    saturated_lead_m: float = bounded(0.5, "m", ge=0)
     # GUIDED position targets through the shaping above (SIM_GUID_SHAPE 1, the default,
     # as ArduCopter flies them; the lockstep harness flies the same) or straight to the LQ
     # loop (0: the airframe's own limits, DO_CHANGE_SPEED refused)
