@@ -173,7 +173,7 @@ class PlantService(MessageHandlers):
         self.flavour = flavour_for(
             config.autopilot_flavour, self.machine, kin, self._home_amsl_m(), self.params
         )
-        self.pilot = PilotFlight(px4=self.flavour.px4_pilot)  # sticks + proximity avoidance
+        self.pilot = PilotFlight(self.flavour.pilot_rules)  # sticks + proximity avoidance
         self._apply_machine()
         self.telemetry = TelemetryBuilder(
             VehicleIdentity(sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.alt_amsl_m)
