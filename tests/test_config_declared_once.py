@@ -161,3 +161,54 @@ def test_a_scenario_file_error_names_the_file_the_key_and_the_bound(tmp_path):
         path.write_text(text, encoding="utf-8")
         with pytest.raises(ConfigError, match=f"^{re.escape(str(path))}: {message}"):
             load_scenario(path)
+
+
+@pytest.mark.parametrize(
+    ("name", "kwargs", "key"),
+    [
+        ("companion.guidance.config:GuidanceConfig", {"confirm_n": 3, "confirm_m": 2}, "confirm_n"),
+        (
+            "companion.guidance.config:GuidanceConfig",
+            {"min_setpoint_distance_m": 5.0, "max_setpoint_distance_m": 4.0},
+            "max_setpoint_distance_m",
+        ),
+        (
+            "companion.link.takeoff:TakeoffSettings",
+            {"alt_m": 1.0, "tolerance_m": 1.0},
+            "tolerance_m",
+        ),
+        ("companion.camera.config:CameraConfig", {"alpha": -0.5}, "alpha"),
+        ("plant_sim.depth_camera:DepthNoiseParams", {"max_range_m": 1.0}, "max_range_m"),
+        (
+            "plant_sim.depth_camera:DepthNoiseParams",
+            {"max_range_m": 70.0, "depth_scale_m": 0.001},
+            "max_range_m",
+        ),
+    ],
+)
+def test_a_rule_between_fields_names_the_field_it_refuses(name, kwargs, key):
+    """What one field's bounds cannot say (an order between two fields, a gap in a range,
+    a product that must fit 16 bits) stays in the class, and its error is keyed the same
+    way (the loader then prefixes the section and the file)."""
+    cls = _load(name)
+    with pytest.raises(ConfigError) as err:
+        cls(**{**_required(name), **kwargs})
+    assert err.value.key == key, str(err.value)
+
+
+def test_a_companion_file_error_names_the_file_the_guidance_key_and_the_bound(tmp_path):
+    from companion.config import build_parser, config_from_args
+
+    path = tmp_path / "companion.toml"
+    for text, message in (
+        ("[guidance]\nn_candidates = 0\n", r"guidance\.n_candidates: must be an integer >= 1"),
+        (
+            "[guidance]\ndetour_cell_m = 0\n",
+            r"guidance\.detour_cell_m: must be a finite number > 0 m",
+        ),
+        ("[guidance]\nconfirm_n = 4\n", r"guidance\.confirm_n: must be <= confirm_m \(3\), got 4"),
+    ):
+        path.write_text(text, encoding="utf-8")
+        args = build_parser().parse_args(["--config", str(path)])
+        with pytest.raises(ConfigError, match=f"^{re.escape(str(path))}: {message}"):
+            config_from_args(args, environ={})
