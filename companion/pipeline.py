@@ -78,6 +78,15 @@ class PipelineOutput:
     target_kept_out: HoldPlacement | None = None
 
     @property
+    def obstacles(self) -> tuple[MapBoundary, ...]:
+        """The obstacles of this frame, as guidance, the envelope, the status, the viewer and
+        OBSTACLE_DISTANCE see them: the known-space map's pieces within the detection range,
+        each a collision safety boundary (:mod:`companion.guidance.map_boundaries`). Not
+        perception's per-frame spheres (``perception.obstacles``: what one frame's depth
+        showed, a diagnostic)."""
+        return self.boundaries
+
+    @property
     def setpoint_ned_m(self) -> np.ndarray:
         """Position target to send [m, NED]."""
         return self.envelope.setpoint_ned_m

@@ -1,17 +1,23 @@
 """The companion's status on Zenoh: one JSON document per processed frame.
 
 Key ``stereo_avoid/<vehicle_id>/companion/status`` (:func:`protocols.keys.companion_status_key`).
-``obstacles`` are the spheres perception fitted in this frame; ``boundaries`` the
-collision safety boundaries guidance avoided (pieces of the known-space map,
-:mod:`companion.guidance.map_boundaries`).
+``obstacles`` is the one obstacle model guidance steers on, the envelope bounds by and
+OBSTACLE_DISTANCE reports: the known-space map's pieces within the detection range, each a
+collision safety boundary (:attr:`companion.pipeline.PipelineOutput.obstacles`,
+:mod:`companion.guidance.map_boundaries`), with its stable ``key`` and ``range_m`` from
+the vehicle to its nearest voxel.
 :func:`status_document` is pure; :class:`StatusPublisher` puts it on the wire.
+
+Schema versions (``schema``): 1 (no ``schema`` key) had perception's per-frame spheres in
+``obstacles``; 2 has the map's boundaries there, with the same keys plus ``key``.
+``boundaries`` (the same spheres without ``range_m``) is kept for version-1 readers.
 
 Document (NED, SI units; latencies in ms of the host's monotonic clock)::
 
     {"sequence": 12, "capture_ns": 400000000, "state": "active", "phase": "active",
      "autopilot_mode": "GUIDED", "mode": "avoid", "reason": "critical", "avoidance_flag": true,
      "setpoint_ned_m": [..], "yaw_rad": .., "aiming_point_ned_m": [..] | null,
-     "obstacles": [{"center_ned_m": [..], "radius_m": .., "range_m": ..}],
+     "schema": 2, "obstacles": [{"center_ned_m": [..], "radius_m": .., "range_m": .., "key": ..}],
      "boundaries": [{"center_ned_m": [..], "radius_m": .., "key": ..}],
      "pos_ned_m": [..], "pose": "ok", "health": "healthy", "waypoint": 0,
      "latency_ms": {"receive_to_send": .., "compute": ..}, "counters": {...}}
@@ -27,7 +33,10 @@ import zenoh
 
 from companion.pipeline import PipelineOutput
 
-__all__ = ["StatusPublisher", "status_document"]
+__all__ = ["STATUS_SCHEMA", "StatusPublisher", "status_document"]
+
+#: the status document's schema version (module docstring)
+STATUS_SCHEMA = 2
 
 _log = logging.getLogger("companion.status")
 
@@ -40,6 +49,7 @@ def status_document(out: PipelineOutput, **extra: Any) -> dict[str, Any]:
     """JSON-ready status of one frame's pipeline output plus ``extra`` fields."""
     g = out.guidance
     doc: dict[str, Any] = {
+        "schema": STATUS_SCHEMA,
         "sequence": out.perception.sequence,
         "capture_ns": out.perception.capture_ns,
         "mode": g.mode.value,
@@ -61,9 +71,10 @@ def status_document(out: PipelineOutput, **extra: Any) -> dict[str, Any]:
             {
                 "center_ned_m": _vec(o.center_ned_m),
                 "radius_m": round(float(o.radius_m), 4),
-                "range_m": round(float(o.nearest_range_m), 4),
+                "range_m": round(float(o.nearest_m), 4),
+                "key": int(o.track_key),
             }
-            for o in out.perception.obstacles
+            for o in out.obstacles
         ],
         "boundaries": [
             {

@@ -42,7 +42,7 @@ from plant_sim.stereo_camera import RenderParams, StereoCameraRenderer
 from plant_sim.vehicle import Quadrotor, VehicleState
 from plant_sim.world import World
 from protocols.camera import CameraModel
-from protocols.config import check_numbers
+from protocols.config import Checked, bounded
 from protocols.stereo_frame import DepthFrame, StereoFrame
 
 __all__ = [
@@ -64,16 +64,17 @@ HOLD_REST_S = 2.0
 
 
 @dataclass(frozen=True)
-class RunConfig:
+class RunConfig(Checked):
     """How a lockstep run is set up and judged."""
 
-    camera_rate_hz: float = 30.0
-    max_time_s: float = 90.0  # simulation time before the run is declared a timeout
-    goal_tolerance_m: float = 0.5  # §6 test: goal reached within 0.5 m
+    camera_rate_hz: float = bounded(30.0, "Hz", gt=0)
+    # simulation time before the run is declared a timeout
+    max_time_s: float = bounded(90.0, "s", gt=0)
+    goal_tolerance_m: float = bounded(0.5, "m", gt=0)  # §6 test: goal reached within 0.5 m
     # Collision: the body touching a surface, i.e. the vehicle centre nearer the true
     # surface than its radius with propellers (arm d = 0.25 m of Table 2 plus a rotor:
     # 0.35 m, the radius perception inflates boundaries by)
-    collision_distance_m: float = 0.35
+    collision_distance_m: float = bounded(0.35, "m", ge=0)
     camera: CameraModel = field(default_factory=CameraModel)
     render: RenderParams = field(default_factory=RenderParams)
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
@@ -85,7 +86,7 @@ class RunConfig:
     # The companion's death (SIGKILL) in lockstep: from this simulation time on, no frame
     # is processed and the autopilot keeps tracking the last setpoint; the run ends once
     # the vehicle has stopped (speed below 0.05 m/s for 1 s) or at max_time_s.
-    companion_stop_s: float | None = None
+    companion_stop_s: float | None = bounded(None, "s", ge=0, optional=True)
     # Ground-truth perception: the renderer's exact depth instead of the stereo matcher
     # (evaluation.truth_perception); guidance, envelope and known space unchanged.
     truth_perception: bool = False
@@ -97,16 +98,9 @@ class RunConfig:
     # rate [Hz of simulation time], its parameters (ArduCopter names and units, e.g.
     # {"WPNAV_SPEED": 100.0}) and whether the companion states the envelope's speed limit
     # with DO_CHANGE_SPEED, as it does to ArduPilot (False: the carrot alone bounds it)
-    autopilot_rate_hz: float = 50.0
+    autopilot_rate_hz: float = bounded(50.0, "Hz", gt=0)
     autopilot_params: Mapping[str, float] = field(default_factory=dict)
     state_speed_limit: bool = True
-
-    def __post_init__(self) -> None:
-        check_numbers(
-            self,
-            ("camera_rate_hz", "max_time_s", "goal_tolerance_m", "autopilot_rate_hz"),
-            positive=True,
-        )
 
 
 @dataclass(frozen=True)
@@ -250,14 +244,10 @@ def run_scene(
             path_dir_ned=env.path_dir_ned,
             speed_mps=env.speed_mps,
         )
-        tally.overspeed_frames += bool(out.envelope.overspeed)
-        tally.targets_inside_boundary += inside_any(out.setpoint_ned_m, out.boundaries)
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
         if record_history:
             _record(history, state, surface, out, len(out.perception.obstacles), mission)
-        tally.min_surface = min(tally.min_surface, surface)
-        if out.guidance.avoidance_flag:
-            tally.avoid_time += frame_period_s
+        tally.note_frame(out, surface, frame_period_s)
         if progress is not None and state.time_s >= next_progress_s:
             progress(state.time_s, math.dist(state.pos_ned_m, goal))
             next_progress_s += 1.0
@@ -415,6 +405,14 @@ class _Tally:
     hold_reason: str | None = None
     overspeed_frames: int = 0
     targets_inside_boundary: int = 0
+
+    def note_frame(self, out, surface_m: float, frame_period_s: float) -> None:
+        """What one frame's output and the true clearance add to the tally."""
+        self.overspeed_frames += bool(out.envelope.overspeed)
+        self.targets_inside_boundary += inside_any(out.setpoint_ned_m, out.boundaries)
+        self.min_surface = min(self.min_surface, surface_m)
+        if out.guidance.avoidance_flag:
+            self.avoid_time += frame_period_s
 
     def ends_run(self, cfg: RunConfig, mission: Mission, decision, state, surface: float) -> bool:
         """A collision, the goal, a reported stop come to rest for 2 s (the world is static)

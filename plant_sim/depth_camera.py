@@ -31,7 +31,7 @@ import numba
 import numpy as np
 
 from protocols.camera import StereoIntrinsics
-from protocols.config import check_numbers
+from protocols.config import ConfigError, bounded, check_fields
 from protocols.stereo_frame import DEPTH16_SCALE_RANGE_M, DepthFrame, PixelEncoding
 
 __all__ = ["CameraEncoding", "DepthNoiseParams", "depth16_from_truth", "depth_frame"]
@@ -60,30 +60,26 @@ class DepthNoiseParams:
         Metres per DEPTH16 unit (RealSense's default depth units: 1 mm).
     """
 
-    subpixel_rms_px: float = 0.08
-    min_range_m: float = 1.0
-    max_range_m: float = 30.0
-    edge_rel_step: float = 0.05
-    edge_hole_px: int = 1
-    depth_scale_m: float = 0.001
+    subpixel_rms_px: float = bounded(0.08, "px", ge=0)
+    min_range_m: float = bounded(1.0, "m", gt=0)
+    max_range_m: float = bounded(30.0, "m", gt=0)
+    edge_rel_step: float = bounded(0.05, gt=0)
+    edge_hole_px: int = bounded(1, "px", integer=True, ge=0)
+    depth_scale_m: float = bounded(
+        0.001, "m", ge=DEPTH16_SCALE_RANGE_M[0], le=DEPTH16_SCALE_RANGE_M[1]
+    )
 
     def __post_init__(self) -> None:
-        check_numbers(self, ("subpixel_rms_px", "edge_hole_px"))
-        check_numbers(
-            self, ("min_range_m", "max_range_m", "edge_rel_step", "depth_scale_m"), positive=True
-        )
+        check_fields(self)
         if self.max_range_m <= self.min_range_m:
-            raise ValueError(
-                f"max_range_m {self.max_range_m} must be above min_range_m {self.min_range_m}"
+            raise ConfigError(
+                f"must be above min_range_m ({self.min_range_m}), got {self.max_range_m}",
+                key="max_range_m",
             )
-        if not isinstance(self.edge_hole_px, int):
-            raise ValueError(f"edge_hole_px must be an integer, got {self.edge_hole_px!r}")
-        low, high = DEPTH16_SCALE_RANGE_M
-        if not low <= self.depth_scale_m <= high:
-            raise ValueError(f"depth_scale_m must be in [{low}, {high}], got {self.depth_scale_m}")
         if self.max_range_m / self.depth_scale_m > 65535:
-            raise ValueError(
-                f"max_range_m {self.max_range_m} does not fit 16 bits of {self.depth_scale_m} m"
+            raise ConfigError(
+                f"{self.max_range_m} does not fit 16 bits of {self.depth_scale_m} m",
+                key="max_range_m",
             )
 
 

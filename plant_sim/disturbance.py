@@ -27,12 +27,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+
+from protocols.config import Checked, bounded, check_fields, vec3
 
 __all__ = ["DisturbanceConfig", "Disturbances", "EstimateConfig", "WindConfig"]
 
 _STEP_S = 0.02  # the processes' internal step [s]: the autopilot's 50 Hz
+
+
+def _check_vectors(obj: Any, names: tuple[str, ...]) -> None:
+    """Each of ``obj``'s fields ``names``: three finite numbers, stored as floats."""
+    for name in names:
+        object.__setattr__(obj, name, vec3(getattr(obj, name), name))
 
 
 @dataclass(frozen=True)
@@ -40,61 +49,39 @@ class WindConfig:
     """Steady wind and gusts (LOCAL_NED)."""
 
     mean_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)  # steady wind [m/s]
-    gust_std_mps: float = 0.0  # horizontal gust standard deviation [m/s]
-    gust_vertical_std_mps: float = 0.0  # vertical gust standard deviation [m/s]
-    gust_tau_s: float = 2.0  # gust correlation time [s]
+    gust_std_mps: float = bounded(0.0, "m/s", ge=0)  # horizontal gust standard deviation
+    gust_vertical_std_mps: float = bounded(0.0, "m/s", ge=0)  # vertical gust standard deviation
+    gust_tau_s: float = bounded(2.0, "s", gt=0)  # gust correlation time
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        _check_vectors(self, ("mean_ned_mps",))
 
 
 @dataclass(frozen=True)
 class EstimateConfig:
     """How the reported position wanders from the truth (LOCAL_NED)."""
 
-    wander_std_m: float = 0.0  # horizontal wander standard deviation [m]
-    wander_vertical_std_m: float = 0.0  # vertical wander standard deviation [m]
-    wander_tau_s: float = 30.0  # wander correlation time [s]
+    wander_std_m: float = bounded(0.0, "m", ge=0)  # horizontal wander standard deviation
+    wander_vertical_std_m: float = bounded(0.0, "m", ge=0)  # vertical wander standard deviation
+    wander_tau_s: float = bounded(30.0, "s", gt=0)  # wander correlation time
     drift_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)  # steady error drift [m/s]
-    jump_m: float = 0.0  # size of a jump [m], horizontal
-    jump_every_s: float = math.inf  # mean time between jumps [s]; inf: none
+    jump_m: float = bounded(0.0, "m", ge=0)  # size of a jump, horizontal
+    # mean time between jumps; inf: none
+    jump_every_s: float = bounded(math.inf, "s", gt=0, finite=False)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        _check_vectors(self, ("drift_ned_mps",))
 
 
 @dataclass(frozen=True)
-class DisturbanceConfig:
+class DisturbanceConfig(Checked):
     """Wind and estimate error of a flight; ``seed`` makes them repeatable."""
 
     wind: WindConfig = field(default_factory=WindConfig)
     estimate: EstimateConfig = field(default_factory=EstimateConfig)
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ValueError(f"disturbance.seed must be an integer >= 0, got {self.seed!r}")
-        w, e = self.wind, self.estimate
-        checks = {
-            "wind.gust_std_mps": w.gust_std_mps,
-            "wind.gust_vertical_std_mps": w.gust_vertical_std_mps,
-            "estimate.wander_std_m": e.wander_std_m,
-            "estimate.wander_vertical_std_m": e.wander_vertical_std_m,
-            "estimate.jump_m": e.jump_m,
-        }
-        for name, value in checks.items():
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"disturbance.{name} must be finite and >= 0, got {value!r}")
-        for name, value in (
-            ("wind.gust_tau_s", w.gust_tau_s),
-            ("estimate.wander_tau_s", e.wander_tau_s),
-        ):
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"disturbance.{name} must be finite and > 0, got {value!r}")
-        if not e.jump_every_s > 0.0:
-            raise ValueError(
-                f"disturbance.estimate.jump_every_s must be > 0, got {e.jump_every_s!r}"
-            )
-        for name, vec in (
-            ("wind.mean_ned_mps", w.mean_ned_mps),
-            ("estimate.drift_ned_mps", e.drift_ned_mps),
-        ):
-            if len(vec) != 3 or not all(math.isfinite(v) for v in vec):
-                raise ValueError(f"disturbance.{name} must be 3 finite numbers, got {vec!r}")
+    seed: int = bounded(0, integer=True, ge=0)
 
     @property
     def active(self) -> bool:

@@ -386,26 +386,17 @@ def _disturbance(d: Any) -> DisturbanceConfig:
     """``[disturbance]``: ``seed``, ``[disturbance.wind]``, ``[disturbance.estimate]``
     (:mod:`plant_sim.disturbance`; every field optional, unknown keys named)."""
     d = check_keys(d, {"seed", "wind", "estimate"}, "disturbance")
-    parts: dict[str, Any] = {}
+    parts: dict[str, Any] = {"seed": d["seed"]} if "seed" in d else {}
     for name, cls in (("wind", WindConfig), ("estimate", EstimateConfig)):
-        if name not in d:
-            continue
-        where = f"disturbance.{name}"
-        section = check_keys(d[name], _dataclass_fields(cls), where)
-        kw = {}
-        for key, value in section.items():
-            if key.endswith("_ned_mps"):
-                kw[key] = vec3(value, f"{where}.{key}")
-            else:
-                kw[key] = _number(value, f"{where}.{key}") if value != "inf" else math.inf
-        parts[name] = cls(**kw)
-    seed = d.get("seed", 0)
-    if isinstance(seed, bool) or not isinstance(seed, int):
-        raise ScenarioError(f"disturbance.seed must be an integer, got {seed!r}")
-    try:
-        return DisturbanceConfig(**parts, seed=seed)
-    except ValueError as exc:
-        raise ScenarioError(str(exc)) from None
+        if name in d:
+            inf = {"jump_every_s": _inf_or_value}
+            parts[name] = dataclass_from_mapping(cls, d[name], f"disturbance.{name}", inf)
+    return dataclass_from_mapping(DisturbanceConfig, parts, "disturbance")
+
+
+def _inf_or_value(value: Any) -> Any:
+    """``"inf"`` (a TOML string some files use) as ``math.inf``; anything else as is."""
+    return math.inf if value == "inf" else value
 
 
 _TOP_KEYS = {

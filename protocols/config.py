@@ -233,8 +233,10 @@ def bounded(
     optional: bool = False,
 ) -> Any:
     """A dataclass field with ``default`` and its :class:`Bounds` (checked by
-    :func:`check_fields`)."""
+    :func:`check_fields`); ``dataclasses.MISSING`` declares a required field."""
     spec = Bounds(unit, ge, gt, le, lt, integer, finite, optional)
+    if default is dataclasses.MISSING:
+        return dataclasses.field(metadata={_BOUNDS: spec})
     if spec.violation(default) is not None:
         raise ValueError(f"default {default!r} outside its own bounds ({spec.describe()})")
     return dataclasses.field(default=default, metadata={_BOUNDS: spec})

@@ -1,14 +1,16 @@
 #!/usr/bin/env bash
 # The project's test command (README): set up .venv, lint, then run the whole suite.
 # Extra arguments go to pytest, e.g. `bash scripts/test.sh -k frames`.
-# `bash scripts/test.sh --fast`: the fast loop, tiers `unit` and `contracts` only (no process,
-# SITL, Dask cluster or lockstep flight; tiers in tests/_tiers.py and docs/testing.md).
+# `bash scripts/test.sh --fast`: the fast loop, tiers `unit`, `contracts` and the quick part of
+# `lockstep` (the paper's §6, walls, waypoints, the envelope's kills, the views): no process,
+# SITL or Dask cluster, and none of the `slow` lockstep flights (the Monte Carlo samples,
+# the speed bound at the fast airframe; tiers in tests/_tiers.py and docs/testing.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 select=()
 if [ "${1:-}" = "--fast" ]; then
     shift
-    select=(-m "not processes and not lockstep")
+    select=(-m "not processes and not (lockstep and slow)")
 fi
 bash scripts/setup.sh
 export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1

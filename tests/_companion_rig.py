@@ -87,3 +87,27 @@ def companion_rig(companion_args: Sequence[str] = ()) -> Iterator[CompanionRig]:
             child.stop()
         for child in children:
             child.close()
+
+
+def sees_sphere(doc: dict, start_ned_m, sphere) -> str | None:
+    """Why the status ``doc``'s obstacles (the known-space map's safety boundaries,
+    schema 2) do not show ``sphere`` seen from ``start_ned_m``, or None when they do: the
+    true surface point nearest the start lies inside one of the reported spheres, and the
+    nearest reported range is the true distance to that surface within 0.3 m (half a
+    0.2 m voxel's diagonal plus the matcher's error at 3 m)."""
+    import numpy as np
+
+    if doc.get("schema") != 2 or not doc["obstacles"]:
+        return f"no schema-2 obstacles in {doc}"
+    to_centre = np.subtract(sphere.center_ned_m, start_ned_m)
+    distance = float(np.linalg.norm(to_centre)) - sphere.radius_m
+    surface = np.asarray(start_ned_m) + to_centre / np.linalg.norm(to_centre) * distance
+    obstacles = doc["obstacles"]
+    if not any(
+        np.linalg.norm(surface - np.asarray(o["center_ned_m"])) <= o["radius_m"] for o in obstacles
+    ):
+        return f"surface point {surface} outside every reported sphere {obstacles}"
+    nearest = min(o["range_m"] for o in obstacles)
+    if abs(nearest - distance) > 0.3:
+        return f"nearest range {nearest} m, the surface is {distance} m away"
+    return None

@@ -30,9 +30,6 @@ OVERSIZED = {
     "bags, RealSense); issue 35 works in it now: one module per source family",
     "companion/camera/__main__.py": "the stereo-camera CLI with one sub-command per source; "
     "issue 35 works in it now: the argument shapes belong beside each source",
-    "plant_sim/service.py": "the plant-sim process loop; the autopilot flavours are "
-    "strategies now (plant_sim/autopilot/flavours.py); the parameter protocol and the "
-    "message dispatch are the next to move out",
 }
 
 

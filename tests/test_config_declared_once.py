@@ -5,8 +5,7 @@ Config classes are found by discovery (a ``@dataclass`` whose name ends in ``Con
 ``Params``, ``Settings``, ``Rules`` or ``Timings`` in the product's packages), not by a
 list. Each must declare every numeric field with :func:`protocols.config.bounded` (unit and
 bounds), and a value outside a declared bound must raise :class:`ConfigError` naming the
-field. Classes not converted yet are listed in :data:`NOT_YET` with the reason; the list
-may only shrink (an entry that conforms fails too).
+field. There are no exceptions: a new config class that checks its numbers by hand fails.
 """
 
 from __future__ import annotations
@@ -28,28 +27,10 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("companion", "plant_sim", "protocols", "evaluation")
 SUFFIXES = ("Config", "Params", "Settings", "Rules", "Timings")
 
-#: config classes still checked by hand: "module:Class" -> why not converted yet
-NOT_YET = {
-    "companion.guidance.config:GuidanceConfig": "issue 36 is reworking guidance now; its "
-    "own integer/number loop stays until that lands",
-    "companion.guidance.map_boundaries:MapBoundaryConfig": "issue 36 is reworking guidance",
-    "companion.link.takeoff:TakeoffSettings": "built from LinkConfig's checked fields",
-    "companion.camera.config:SourceConfig": "issue 35 works on the camera sources now",
-    "companion.camera.config:CameraConfig": "issue 35 works on the camera sources now",
-    "plant_sim.disturbance:WindConfig": "issue 31 works on disturbances now",
-    "plant_sim.disturbance:EstimateConfig": "issue 31 works on disturbances now",
-    "plant_sim.disturbance:DisturbanceConfig": "issue 31 works on disturbances now",
-    "plant_sim.depth_camera:DepthNoiseParams": "issue 35 (depth cameras): not yet converted",
-    "plant_sim.autopilot.modes:ModeTimings": "issue 31 works on the autopilot now",
-    "plant_sim.autopilot.simple_avoid:AvoidParams": "issue 31 works on the autopilot now",
-    "plant_sim.autopilot.collision_prevention:CpParams": "built from the parameter table",
-    "plant_sim.autopilot.px4:Px4Rules": "built from the parameter table (its own bounds)",
-    "evaluation.harness:RunConfig": "issue 31 works on the harness now",
-}
-
 
 def _required(name: str) -> dict:
     """Values for the fields without a default (what a process builds from its CLI)."""
+    from companion.camera.config import SourceConfig, SourceKind
     from plant_sim.autopilot.link import parse_endpoint
     from plant_sim.scenario import Scenario
 
@@ -62,6 +43,9 @@ def _required(name: str) -> dict:
             "scenario": Scenario(),
             "pose_from": "udpin:127.0.0.1:14550",
         },
+        "companion.link.takeoff:TakeoffSettings": {"alt_m": 7.0},
+        "companion.camera.config:SourceConfig": {"kind": SourceKind.REPLAY},
+        "companion.camera.config:CameraConfig": {"source": SourceConfig(SourceKind.REPLAY)},
     }.get(name, {})
 
 
@@ -118,11 +102,11 @@ def _outside(spec: Bounds):
 def test_discovery_finds_the_configs_and_the_exceptions_exist():
     assert "companion.config:LinkConfig" in CLASSES
     assert "companion.perception:PerceptionConfig" in CLASSES
-    stale = sorted(set(NOT_YET) - set(CLASSES))
-    assert not stale, f"NOT_YET names classes that do not exist: {stale}"
+    assert "companion.guidance.config:GuidanceConfig" in CLASSES
+    assert "plant_sim.autopilot.px4:Px4Rules" in CLASSES
 
 
-@pytest.mark.parametrize("name", [c for c in CLASSES if c not in NOT_YET])
+@pytest.mark.parametrize("name", CLASSES)
 def test_every_numeric_field_is_declared_and_checked(name):
     cls = _load(name)
     specs = field_bounds(cls)
@@ -133,17 +117,8 @@ def test_every_numeric_field_is_declared_and_checked(name):
     for field, spec in specs.items():
         for bad in _outside(spec):
             with pytest.raises(ConfigError) as err:
-                cls(**required, **{field: bad})
+                cls(**{**required, field: bad})
             assert err.value.key == field, (field, bad, str(err.value))
-
-
-@pytest.mark.parametrize("name", sorted(NOT_YET))
-def test_the_exceptions_are_still_exceptions(name):
-    cls = _load(name)
-    numeric = _numeric_fields(cls)
-    assert numeric and set(numeric) - set(field_bounds(cls)), (
-        f"{name} declares all its fields now: remove it from NOT_YET"
-    )
 
 
 def test_bounds_read_as_words_and_refuse_what_they_say():
@@ -186,3 +161,54 @@ def test_a_scenario_file_error_names_the_file_the_key_and_the_bound(tmp_path):
         path.write_text(text, encoding="utf-8")
         with pytest.raises(ConfigError, match=f"^{re.escape(str(path))}: {message}"):
             load_scenario(path)
+
+
+@pytest.mark.parametrize(
+    ("name", "kwargs", "key"),
+    [
+        ("companion.guidance.config:GuidanceConfig", {"confirm_n": 3, "confirm_m": 2}, "confirm_n"),
+        (
+            "companion.guidance.config:GuidanceConfig",
+            {"min_setpoint_distance_m": 5.0, "max_setpoint_distance_m": 4.0},
+            "max_setpoint_distance_m",
+        ),
+        (
+            "companion.link.takeoff:TakeoffSettings",
+            {"alt_m": 1.0, "tolerance_m": 1.0},
+            "tolerance_m",
+        ),
+        ("companion.camera.config:CameraConfig", {"alpha": -0.5}, "alpha"),
+        ("plant_sim.depth_camera:DepthNoiseParams", {"max_range_m": 1.0}, "max_range_m"),
+        (
+            "plant_sim.depth_camera:DepthNoiseParams",
+            {"max_range_m": 70.0, "depth_scale_m": 0.001},
+            "max_range_m",
+        ),
+    ],
+)
+def test_a_rule_between_fields_names_the_field_it_refuses(name, kwargs, key):
+    """What one field's bounds cannot say (an order between two fields, a gap in a range,
+    a product that must fit 16 bits) stays in the class, and its error is keyed the same
+    way (the loader then prefixes the section and the file)."""
+    cls = _load(name)
+    with pytest.raises(ConfigError) as err:
+        cls(**{**_required(name), **kwargs})
+    assert err.value.key == key, str(err.value)
+
+
+def test_a_companion_file_error_names_the_file_the_guidance_key_and_the_bound(tmp_path):
+    from companion.config import build_parser, config_from_args
+
+    path = tmp_path / "companion.toml"
+    for text, message in (
+        ("[guidance]\nn_candidates = 0\n", r"guidance\.n_candidates: must be an integer >= 1"),
+        (
+            "[guidance]\ndetour_cell_m = 0\n",
+            r"guidance\.detour_cell_m: must be a finite number > 0 m",
+        ),
+        ("[guidance]\nconfirm_n = 4\n", r"guidance\.confirm_n: must be <= confirm_m \(3\), got 4"),
+    ):
+        path.write_text(text, encoding="utf-8")
+        args = build_parser().parse_args(["--config", str(path)])
+        with pytest.raises(ConfigError, match=f"^{re.escape(str(path))}: {message}"):
+            config_from_args(args, environ={})

@@ -7,10 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from plant_sim.autopilot.modes import VelocityIntegrator
+from plant_sim.autopilot.velocity_integrator import VelocityIntegrator
 from plant_sim.disturbance import DisturbanceConfig, Disturbances, EstimateConfig, WindConfig
 from plant_sim.params import QuadrotorParams
 from plant_sim.vehicle import Quadrotor, Setpoint
+from protocols.config import ConfigError
 
 
 def test_steady_wind_leaves_the_lq_loops_closed_form_offset():
@@ -175,16 +176,28 @@ def test_the_same_seed_gives_the_same_flight():
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "says"),
+    ("cls", "kwargs", "says"),
     [
-        ({"wind": WindConfig(gust_std_mps=-1.0)}, "gust_std_mps"),
-        ({"wind": WindConfig(gust_tau_s=0.0)}, "gust_tau_s"),
-        ({"estimate": EstimateConfig(wander_std_m=math.nan)}, "wander_std_m"),
-        ({"estimate": EstimateConfig(jump_every_s=0.0)}, "jump_every_s"),
-        ({"wind": WindConfig(mean_ned_mps=(1.0, math.inf, 0.0))}, "mean_ned_mps"),
-        ({"seed": -1}, "seed"),
+        (WindConfig, {"gust_std_mps": -1.0}, "gust_std_mps"),
+        (WindConfig, {"gust_tau_s": 0.0}, "gust_tau_s"),
+        (EstimateConfig, {"wander_std_m": math.nan}, "wander_std_m"),
+        (EstimateConfig, {"jump_every_s": 0.0}, "jump_every_s"),
+        (WindConfig, {"mean_ned_mps": (1.0, math.inf, 0.0)}, "mean_ned_mps"),
+        (DisturbanceConfig, {"seed": -1}, "seed"),
     ],
 )
-def test_a_bad_disturbance_is_refused_by_name(kwargs, says):
-    with pytest.raises(ValueError, match=says):
-        DisturbanceConfig(**kwargs)
+def test_a_bad_disturbance_is_refused_by_name(cls, kwargs, says):
+    with pytest.raises(ConfigError, match=says) as err:
+        cls(**kwargs)
+    assert err.value.key == says
+
+
+def test_a_scenario_file_names_the_disturbance_key(tmp_path):
+    from plant_sim.scenario import load_scenario
+
+    path = tmp_path / "gusty.toml"
+    path.write_text("[disturbance.wind]\ngust_tau_s = 0\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"disturbance\.wind\.gust_tau_s: must be .* > 0 s"):
+        load_scenario(path)
+    path.write_text('[disturbance.estimate]\njump_every_s = "inf"\njump_m = 1\n', encoding="utf-8")
+    assert math.isinf(load_scenario(path).disturbance.estimate.jump_every_s)

@@ -276,10 +276,6 @@ def config_from_args(args: argparse.Namespace) -> CameraConfig:
         raise ValueError("cameras need --calibration FILE (or --intrinsics if pre-rectified)")
     if args.output_size is not None and not args.calibration:
         raise ValueError("--output-size needs --calibration (it rescales the rectification)")
-    if not (args.alpha == -1.0 or 0.0 <= args.alpha <= 1.0):
-        raise ValueError(f"--alpha must be -1 or in [0, 1], got {args.alpha}")
-    if args.max_frames is not None and args.max_frames < 1:
-        raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
     intrinsics = _parse_intrinsics(args.intrinsics) if args.intrinsics else None
     listen = default_listen(args.zenoh_listen, args.zenoh_connect, args.zenoh_config)
     if args.zenoh_config is not None and not args.zenoh_config.is_file():

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from protocols.config import ConfigError, bounded, check_fields
 from protocols.process import default_listen
 from protocols.zenoh_session import ZenohSettings
 
@@ -70,9 +71,9 @@ class SourceConfig:
     devices: tuple[str, ...] = ()
     folder: Path | None = None
     size_px: tuple[int, int] | None = None
-    fps: float | None = None
+    fps: float | None = bounded(None, "Hz", gt=0, optional=True)
     fourcc: str | None = None
-    rate_hz: float | None = None
+    rate_hz: float | None = bounded(None, "Hz", gt=0, optional=True)
     left_topic: str | None = None
     right_topic: str | None = None
     left_info_topic: str | None = None
@@ -80,8 +81,11 @@ class SourceConfig:
     depth_topic: str | None = None
     depth_info_topic: str | None = None
     image_topic: str | None = None
-    baseline_m: float | None = None
+    baseline_m: float | None = bounded(None, "m", gt=0, optional=True)
     with_image: bool = True
+
+    def __post_init__(self) -> None:
+        check_fields(self)
 
 
 @dataclass(frozen=True)
@@ -101,7 +105,8 @@ class CameraConfig:
     intrinsics : StereoIntrinsics or None
         Intrinsics of an already rectified input (no remap).
     alpha : float
-        ``cv2.stereoRectify`` free scaling (0 = valid pixels only).
+        ``cv2.stereoRectify`` free scaling (0 = valid pixels only, 1 = all; -1 = OpenCV's
+        default).
     output_size_px : (int, int) or None
         Rectified ``(width, height)``; default the input size.
     wait_subscriber_s : float
@@ -117,10 +122,15 @@ class CameraConfig:
     calibration_files: tuple[Path, ...] = ()
     calibration_units: str | None = None
     intrinsics: StereoIntrinsics | None = None
-    alpha: float = 0.0
+    alpha: float = bounded(0.0, ge=-1, le=1)
     output_size_px: tuple[int, int] | None = None
-    wait_subscriber_s: float = 0.0
-    max_frames: int | None = None
+    wait_subscriber_s: float = bounded(0.0, "s", ge=0, finite=False)
+    max_frames: int | None = bounded(None, integer=True, ge=1, optional=True)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        if -1.0 < self.alpha < 0.0:
+            raise ConfigError(f"must be -1 or in [0, 1], got {self.alpha!r}", key="alpha")
 
 
 def depth_camera_config(kind: SourceKind, args: argparse.Namespace) -> CameraConfig:
@@ -165,8 +175,6 @@ def depth_camera_config(kind: SourceKind, args: argparse.Namespace) -> CameraCon
     wait = args.wait_subscriber
     if wait is None:
         wait = math.inf if replay else 0.0
-    if args.max_frames is not None and args.max_frames < 1:
-        raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
     from protocols.keys import validate_vehicle_id
 
     listen = default_listen(args.zenoh_listen, args.zenoh_connect, args.zenoh_config)

@@ -233,7 +233,7 @@ class Mission:
                 Event("avoidance", {"active": self._avoiding, "capture_s": capture_ns * 1e-9})
             )
             if self._avoiding:
-                near = min((o.nearest_range_m for o in out.perception.obstacles), default=math.nan)
+                near = min((o.nearest_m for o in out.obstacles), default=math.nan)
                 where = f" at {near:.1f} m" if math.isfinite(near) else " (remembered)"
                 notices.append(Notice(f"Avoiding obstacle{where}", warning=True))
             else:

@@ -7,22 +7,24 @@ margin), and the detection threshold (4 m in §6) is perception's parameter, not
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from protocols.config import UnknownKeyError, check_numbers, dataclass_from_mapping
+from protocols.config import (
+    ConfigError,
+    UnknownKeyError,
+    bounded,
+    check_fields,
+    dataclass_from_mapping,
+)
 
 __all__ = ["GuidanceConfig", "UnknownGuidanceKeyError"]
 
 
 #: a guidance configuration mapping named a key that does not exist (also a TypeError)
 UnknownGuidanceKeyError = UnknownKeyError
-
-
-_INT_FIELDS = frozenset({"n_candidates", "max_tracks", "confirm_n", "confirm_m"})
 
 
 @dataclass(frozen=True)
@@ -126,62 +128,47 @@ class GuidanceConfig:
         than the vehicle [m] (1.0: twice ``stall_progress_m``, so flying it is progress).
     """
 
-    n_candidates: int = 72
-    tie_angle_rad: float = math.radians(5.0)
-    cone_margin_rad: float = 0.0
-    min_speed_mps: float = 0.2
-    exit_margin_rad: float = math.radians(5.0)
-    min_clear_time_s: float = 0.3
-    setpoint_extension_m: float = 1.0
-    min_setpoint_distance_m: float = 2.0
-    max_setpoint_distance_m: float = 10.0
-    escape_clearance_m: float = 0.5
-    goal_clearance_m: float = 0.0
-    goal_standoff_m: float = 0.5
-    yaw_min_distance_m: float = 0.5
-    merge_distance_m: float = 1.0
-    memory_timeout_s: float = 10.0
-    forget_distance_m: float = 2.0
-    max_tracks: int = 16
-    confirm_n: int = 2
-    confirm_m: int = 3
-    confirm_immediate_m: float = 2.0
-    max_aim_elevation_rad: float = math.radians(12.0)
-    vertical_weight: float = 3.0
-    stall_timeout_s: float = 30.0
-    stall_progress_m: float = 0.5
-    near_goal_stall_s: float = 10.0
-    detour_cell_m: float = 1.0
-    max_detour_s: float = 120.0
-    known_path_progress_m: float = 1.0
+    n_candidates: int = bounded(72, integer=True, ge=1)
+    tie_angle_rad: float = bounded(math.radians(5.0), "rad", ge=0, lt=0.5 * math.pi)
+    cone_margin_rad: float = bounded(0.0, "rad", ge=0)
+    min_speed_mps: float = bounded(0.2, "m/s", ge=0)
+    exit_margin_rad: float = bounded(math.radians(5.0), "rad", ge=0)
+    min_clear_time_s: float = bounded(0.3, "s", ge=0)
+    setpoint_extension_m: float = bounded(1.0, "m", ge=0)
+    min_setpoint_distance_m: float = bounded(2.0, "m", ge=0)
+    max_setpoint_distance_m: float = bounded(10.0, "m", ge=0)
+    escape_clearance_m: float = bounded(0.5, "m", ge=0)
+    goal_clearance_m: float = bounded(0.0, "m", ge=0)
+    goal_standoff_m: float = bounded(0.5, "m", ge=0)
+    yaw_min_distance_m: float = bounded(0.5, "m", ge=0)
+    merge_distance_m: float = bounded(1.0, "m", ge=0)
+    memory_timeout_s: float = bounded(10.0, "s", ge=0)
+    forget_distance_m: float = bounded(2.0, "m", ge=0)
+    max_tracks: int = bounded(16, integer=True, ge=1)
+    confirm_n: int = bounded(2, integer=True, ge=1, le=30)
+    confirm_m: int = bounded(3, integer=True, ge=1, le=30)
+    confirm_immediate_m: float = bounded(2.0, "m", ge=0)
+    # also the safety envelope's path-elevation clamp: it must clamp something
+    max_aim_elevation_rad: float = bounded(math.radians(12.0), "rad", gt=0, le=0.5 * math.pi)
+    vertical_weight: float = bounded(3.0, gt=0)
+    stall_timeout_s: float = bounded(30.0, "s", ge=0)
+    stall_progress_m: float = bounded(0.5, "m", ge=0)
+    near_goal_stall_s: float = bounded(10.0, "s", ge=0)
+    detour_cell_m: float = bounded(1.0, "m", gt=0)
+    max_detour_s: float = bounded(120.0, "s", ge=0)
+    known_path_progress_m: float = bounded(1.0, "m", ge=0)
 
     def __post_init__(self) -> None:
-        for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
-            if field.name in _INT_FIELDS:
-                if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                    raise ValueError(f"{field.name} must be an integer >= 1, got {value!r}")
-                continue
-            check_numbers(self, (field.name,), as_float=True)
-        if self.detour_cell_m <= 0.0:
-            raise ValueError(f"detour_cell_m must be > 0, got {self.detour_cell_m!r}")
-        if self.vertical_weight <= 0.0:
-            raise ValueError(f"vertical_weight must be > 0, got {self.vertical_weight!r}")
-        if not 0.0 < self.max_aim_elevation_rad <= 0.5 * math.pi:
-            # also the safety envelope's path-elevation clamp: it must clamp something
-            raise ValueError(
-                f"max_aim_elevation_rad must be in (0, π/2], got {self.max_aim_elevation_rad!r}"
-            )
-        if self.tie_angle_rad >= 0.5 * math.pi:
-            raise ValueError(f"tie_angle_rad must be < π/2, got {self.tie_angle_rad!r}")
-        if self.confirm_n > self.confirm_m or self.confirm_m > 30:
-            raise ValueError(
-                f"need 1 <= confirm_n <= confirm_m <= 30, got {self.confirm_n} of {self.confirm_m}"
+        check_fields(self)
+        if self.confirm_n > self.confirm_m:
+            raise ConfigError(
+                f"must be <= confirm_m ({self.confirm_m}), got {self.confirm_n}", key="confirm_n"
             )
         if self.max_setpoint_distance_m < self.min_setpoint_distance_m:
-            raise ValueError(
-                "max_setpoint_distance_m must be >= min_setpoint_distance_m, got "
-                f"{self.max_setpoint_distance_m!r} < {self.min_setpoint_distance_m!r}"
+            raise ConfigError(
+                f"must be >= min_setpoint_distance_m ({self.min_setpoint_distance_m!r}), "
+                f"got {self.max_setpoint_distance_m!r}",
+                key="max_setpoint_distance_m",
             )
 
     @classmethod
@@ -193,7 +180,8 @@ class GuidanceConfig:
         UnknownGuidanceKeyError
             If ``values`` names a key that is not a field; the message names it and lists
             the valid keys.
-        ValueError
-            If a value is out of range.
+        ConfigError
+            If a value is out of its declared bounds (the message names ``guidance.<key>``
+            and the bound).
         """
         return dataclass_from_mapping(cls, values, "guidance")

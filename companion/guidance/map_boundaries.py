@@ -83,7 +83,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.known_space import FREE, KnownSpace, Pieces
-from protocols.config import check_numbers
+from protocols.config import Checked, bounded
 
 __all__ = [
     "MapBoundary",
@@ -108,7 +108,7 @@ def track_key(level: int, cube: np.ndarray) -> int:
 
 
 @dataclass(frozen=True)
-class MapBoundaryConfig:
+class MapBoundaryConfig(Checked):
     """Which pieces are boundaries and how they are inflated.
 
     Attributes
@@ -121,11 +121,8 @@ class MapBoundaryConfig:
         ``vehicle_radius_m + safety_margin_m``, 0.35 + 0.3).
     """
 
-    detect_range_m: float = 4.0
-    inflate_m: float = 0.65
-
-    def __post_init__(self) -> None:
-        check_numbers(self, ("detect_range_m", "inflate_m"), positive=True)
+    detect_range_m: float = bounded(4.0, "m", gt=0)
+    inflate_m: float = bounded(0.65, "m", gt=0)
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -55,6 +55,7 @@ from companion.link.flavour import (
     profile_for,
     same_mode,
 )
+from protocols.config import ConfigError, bounded, check_fields
 
 __all__ = [
     "TakeoffCommand",
@@ -93,30 +94,29 @@ class TakeoffStep(enum.Enum):
 class TakeoffSettings:
     """Bounds of the sequence (times in wall seconds unless noted)."""
 
-    alt_m: float  # takeoff height above the ground position [m]
-    tolerance_m: float = 0.5  # climb done within this of alt_m [m]
-    climb_timeout_s: float = 0.0  # [s autopilot time]; 0: alt_m / 0.5 m/s + 15 s
-    climb_timeout_wall_s: float = 300.0  # backstop if autopilot time stops advancing
-    ack_timeout_s: float = 1.5  # per attempt, no ACK → resend
-    max_attempts: int = 4  # sends per step
-    max_refusals: int = 3  # DENIED / FAILED answers per step before giving up
-    refusal_retry_s: float = 2.0  # pause after a refusal
-    in_progress_timeout_s: float = 10.0  # IN_PROGRESS: wait this long for the final ACK
-    probe_timeout_s: float = 3.0  # armed without landed state this long → airborne
-    ready_timeout_s: float = 180.0  # on the ground: wait this long for position/frames/pre-arm
-    progress_period_s: float = 5.0  # say what it waits for this often
+    alt_m: float = bounded(MISSING, "m", gt=0)  # takeoff height above the ground position
+    tolerance_m: float = bounded(0.5, "m", gt=0)  # climb done within this of alt_m
+    # [s autopilot time]; 0: alt_m / 0.5 m/s + 15 s
+    climb_timeout_s: float = bounded(0.0, "s", ge=0)
+    climb_timeout_wall_s: float = bounded(300.0, "s", gt=0)  # if autopilot time stops advancing
+    ack_timeout_s: float = bounded(1.5, "s", gt=0)  # per attempt, no ACK → resend
+    max_attempts: int = bounded(4, integer=True, ge=1)  # sends per step
+    max_refusals: int = bounded(3, integer=True, ge=1)  # DENIED / FAILED answers per step
+    refusal_retry_s: float = bounded(2.0, "s", ge=0)  # pause after a refusal
+    in_progress_timeout_s: float = bounded(10.0, "s", gt=0)  # IN_PROGRESS: wait for final ACK
+    probe_timeout_s: float = bounded(3.0, "s", gt=0)  # armed, no landed state this long → airborne
+    # on the ground: wait this long for position/frames/pre-arm
+    ready_timeout_s: float = bounded(180.0, "s", gt=0)
+    progress_period_s: float = bounded(5.0, "s", gt=0)  # say what it waits for this often
     require_frames: bool = True  # never take off without camera frames
-    grace_s: float = 2.5  # heartbeats this soon after an ACK may predate it
+    grace_s: float = bounded(2.5, "s", ge=0)  # heartbeats this soon after an ACK may predate it
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.alt_m) and self.alt_m > 0):
-            raise ValueError(f"takeoff altitude must be > 0, got {self.alt_m!r}")
-        if not self.tolerance_m > 0 or self.tolerance_m >= self.alt_m:
-            raise ValueError(f"takeoff tolerance must be in (0, alt), got {self.tolerance_m!r}")
-        if self.max_attempts < 1 or self.max_refusals < 1:
-            raise ValueError("max_attempts and max_refusals must be >= 1")
-        if not (self.ready_timeout_s > 0 and self.progress_period_s > 0):
-            raise ValueError("ready_timeout_s and progress_period_s must be > 0")
+        check_fields(self)
+        if self.tolerance_m >= self.alt_m:
+            raise ConfigError(
+                f"must be < alt_m ({self.alt_m!r}), got {self.tolerance_m!r}", key="tolerance_m"
+            )
 
     @property
     def climb_limit_s(self) -> float:

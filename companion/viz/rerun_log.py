@@ -259,7 +259,7 @@ class RerunLogger:
         self._log_vehicle(pos, vel, R)
         if heavy:
             self._log_images(frame, out.perception.depth_m, pos, R)
-        obstacles = out.perception.obstacles
+        obstacles = out.obstacles  # the map's boundaries: what guidance steers on
         rec.log(
             "world/boundaries",
             rr.Ellipsoids3D(

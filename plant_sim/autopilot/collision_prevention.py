@@ -40,6 +40,7 @@ import numpy as np
 
 from plant_sim.autopilot.params import ParamSpec, ParamTable, ParamType
 from plant_sim.autopilot.proximity import PX4_BINS
+from protocols.config import Checked, bounded
 
 __all__ = [
     "CP_PARAM_SPECS",
@@ -65,15 +66,15 @@ CP_PARAM_SPECS: tuple[ParamSpec, ...] = (
 
 
 @dataclass(frozen=True)
-class CpParams:
+class CpParams(Checked):
     """:data:`CP_PARAM_SPECS` in SI units."""
 
-    dist_m: float = -1.0  # CP_DIST; <= 0: Collision Prevention off
-    delay_s: float = 0.4
-    guide_deg: float = 30.0
+    dist_m: float = bounded(-1.0, "m")  # CP_DIST; <= 0: Collision Prevention off
+    delay_s: float = bounded(0.4, "s", ge=0)  # CP_DELAY
+    guide_deg: float = bounded(30.0, "deg", ge=0, le=180)  # CP_GUIDE_ANG
     go_no_data: bool = False
-    accel_mps2: float = 3.0  # MPC_ACC_HOR
-    jerk_mps3: float = 8.0  # MPC_JERK_MAX
+    accel_mps2: float = bounded(3.0, "m/s²", gt=0)  # MPC_ACC_HOR
+    jerk_mps3: float = bounded(8.0, "m/s³", gt=0)  # MPC_JERK_MAX
 
     @property
     def active(self) -> bool:

@@ -15,7 +15,9 @@ logic); a flavour owns:
 * setpoints (ArduCopter flies them in GUIDED; PX4 counts them for the offboard stream
   and flies them in OFFBOARD only) and the per-tick rules (PX4's offboard loss);
 * which pilot mode the sticks fly (:class:`~plant_sim.autopilot.pilot_flight.PilotFlight`
-  reads PX4's main mode, None for ArduCopter).
+  reads PX4's main mode, None for ArduCopter) and how they are flown: limits, stick
+  expiry, proximity pre-arm and avoidance (``pilot_rules``,
+  :mod:`plant_sim.autopilot.pilot_rules`).
 """
 
 from __future__ import annotations
@@ -29,7 +31,6 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from plant_sim.autopilot import commands as cmds
 from plant_sim.autopilot.collision_prevention import CP_PARAM_SPECS
 from plant_sim.autopilot.modes import (
-    NO_VELOCITY_INTEGRATOR,
     FlightMode,
     FlightModeMachine,
     GuidedTarget,
@@ -37,9 +38,11 @@ from plant_sim.autopilot.modes import (
     ModeTimings,
 )
 from plant_sim.autopilot.params import ParamSpec, ParamTable
+from plant_sim.autopilot.pilot_rules import ArduCopterPilotRules, PilotRules, Px4PilotRules
 from plant_sim.autopilot.px4 import PX4_PARAM_SPECS, Px4Main, Px4Modes, rules_from_params
 from plant_sim.autopilot.simple_avoid import AVOID_PARAM_SPECS
 from plant_sim.autopilot.telemetry import TelemetryBuilder
+from plant_sim.autopilot.velocity_integrator import NO_VELOCITY_INTEGRATOR
 from protocols.mavlink_modes import px4_custom_mode
 
 __all__ = [
@@ -65,8 +68,8 @@ class AutopilotFlavour:
     name = "ardupilot"
     #: parameters beside the common ArduCopter-named ones
     param_specs: tuple[ParamSpec, ...] = AVOID_PARAM_SPECS
-    #: the pilot's sticks and proximity follow PX4's rules (Position mode, CP_*)
-    px4_pilot = False
+    #: how the pilot's sticks are flown and avoided (LOITER, simple avoidance)
+    pilot_rules: PilotRules = ArduCopterPilotRules()
 
     def __init__(self, machine: FlightModeMachine) -> None:
         self.machine = machine
@@ -131,7 +134,7 @@ class Px4Flavour(AutopilotFlavour):
 
     name = "px4"
     param_specs = PX4_PARAM_SPECS + CP_PARAM_SPECS
-    px4_pilot = True
+    pilot_rules: PilotRules = Px4PilotRules()  # Position mode, Collision Prevention
 
     @classmethod
     def timings(cls, timings: ModeTimings) -> ModeTimings:

@@ -25,10 +25,9 @@ Physical meaning of each mode in the SIL (there is no RC transmitter):
   then holds.
 * Every deceleration is at most what the airframe can do at its tilt limit (ANGLE_MAX):
   ``0.8·g·tan(ANGLE_MAX)``.
-* STABILIZE — centred sticks: level attitude at hover throttle, which in this drag-only
-  world decays to zero velocity; modelled as zero-velocity hold.
-* ALT_HOLD — the pilot's lean angles with the altitude held, flown by
-  :mod:`plant_sim.autopilot.pilot_flight` whenever armed and airborne; here, as STABILIZE.
+* STABILIZE — level at hover throttle, decaying to rest in this drag-only world: a
+  zero-velocity hold. ALT_HOLD — the pilot's lean angles at a held altitude
+  (:mod:`plant_sim.autopilot.pilot_flight`, armed and airborne); else as STABILIZE.
 * LAND — descend at ``land_speed_mps`` over the current north/east; disarm on touchdown.
 * RTL — climb to ``rtl_alt_m`` above home (if lower), fly to home, then LAND.
 * AUTO — refused: the mission is always empty.
@@ -38,10 +37,12 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 from plant_sim.autopilot.shaping import BrakeProfile, ShapingLimits, TargetShaper
+from plant_sim.autopilot.velocity_integrator import VelocityIntegrator
 from plant_sim.vehicle import Setpoint, VehicleState
+from protocols.config import Checked, bounded
 from protocols.mavlink_modes import ArduCopterMode
 
 __all__ = [
@@ -53,7 +54,6 @@ __all__ = [
     "Kinematics",
     "LandedState",
     "ModeTimings",
-    "VelocityIntegrator",
 ]
 
 #: COMPONENT_ARM_DISARM param2 that bypasses the arming and disarming checks (ArduPilot).
@@ -104,37 +104,17 @@ class _Phase(enum.Enum):
 
 
 @dataclass(frozen=True)
-class VelocityIntegrator:
-    """ArduCopter's horizontal velocity-loop integrator, put on the paper's LQ loop
-    (:func:`plant_sim.flight_control.velocity_integrator`): ``PSC_VELXY_I`` and
-    ``PSC_VELXY_IMAX`` (``AC_PosControl.cpp`` defaults 1.0 and 1000 cm/s²) in SI units.
-    It removes the steady offset a wind leaves (the LQ loop has none of its own)."""
-
-    gain_xy_per_s2: float = 1.0  # PSC_VELXY_I [(m/s²)/(m/s)/s]
-    imax_xy_mps2: float = 10.0  # PSC_VELXY_IMAX 1000 cm/s²
-
-    def apply_to(self, quad) -> None:
-        """Put this integrator on ``quad`` (:class:`plant_sim.vehicle.Quadrotor`)."""
-        quad.set_velocity_integrator(self.gain_xy_per_s2, self.imax_xy_mps2)
-
-
-#: no integrator: the paper's LQ loop as it is (the PX4 flavour: its MPC_XY_VEL_I_ACC
-#: is not modelled)
-NO_VELOCITY_INTEGRATOR = VelocityIntegrator(0.0, 0.0)
-
-
-@dataclass(frozen=True)
-class ModeTimings:
+class ModeTimings(Checked):
     """Speeds and timeouts of the mode logic (ArduCopter parameter equivalents)."""
 
-    guided_velocity_timeout_s: float = 3.0  # GUID_TIMEOUT [s]
-    disarm_delay_s: float = 10.0  # DISARM_DELAY [s]
-    land_speed_mps: float = 0.5  # LAND_SPEED [m/s]
-    takeoff_climb_mps: float = 1.5  # [m/s]
-    rtl_alt_m: float = 15.0  # RTL_ALT [m above home]
-    land_detect_s: float = 1.0  # ground contact this long → landed [s]
-    face_target_min_dist_m: float = 2.0  # turn to face a target farther than this
-    face_velocity_min_mps: float = 0.5  # turn to face a velocity faster than this
+    guided_velocity_timeout_s: float = bounded(3.0, "s", gt=0)  # GUID_TIMEOUT
+    disarm_delay_s: float = bounded(10.0, "s", gt=0, finite=False)  # DISARM_DELAY; inf: never
+    land_speed_mps: float = bounded(0.5, "m/s", gt=0)  # LAND_SPEED
+    takeoff_climb_mps: float = bounded(1.5, "m/s", gt=0)
+    rtl_alt_m: float = bounded(15.0, "m", ge=0)  # RTL_ALT [m above home]
+    land_detect_s: float = bounded(1.0, "s", gt=0)  # ground contact this long → landed
+    face_target_min_dist_m: float = bounded(2.0, "m", ge=0)  # face a target farther than this
+    face_velocity_min_mps: float = bounded(0.5, "m/s", ge=0)  # face a velocity faster than this
     # GUIDED position-target shaping (ArduCopter defaults; parameters in comments)
     guided_limits: ShapingLimits = ShapingLimits(  # noqa: RUF009 (frozen: shared is safe)
         speed_ne_mps=10.0,  # WPNAV_SPEED 1000 cm/s
@@ -152,21 +132,22 @@ class ModeTimings:
         delay_s=1.0,  # LOIT_BRK_DELAY 1 s
         drag_per_s=0.4,  # LOIT_ACC_MAX / LOIT_SPEED = 500 / 1250 1/s
     )
-    max_decel_mps2: float = math.inf  # what the airframe can do: 0.8·g·tan(ANGLE_MAX)
+    max_decel_mps2: float = bounded(
+        math.inf, "m/s²", gt=0, finite=False
+    )  # what the airframe can do: 0.8·g·tan(ANGLE_MAX)
     # The jerk the airframe follows [m/s³]: the paper's attitude loop (Eq. 31, dominant
     # pole ≈ −1.4 1/s) tilts ~5× slower than ArduCopter's, so a reference whose
     # acceleration changes faster is not followed and the vehicle overshoots its speed.
     # Calibrated on ArduCopter SITL's WPNAV_SPEED 100 leg (top speed 1.01–1.10 m/s;
     # plant-sim 1.07): the reference's jerk is min(PSC_JERK_XY, this).
-    airframe_jerk_mps3: float = 2.0
-    saturated_lead_m: float = 0.5  # a tilt-saturated vehicle this far behind holds the path
-    # GUIDED position targets through the shaping above (SIM_GUID_SHAPE 1, the default,
-    # as ArduCopter flies them; the lockstep harness flies the same) or straight to the LQ
-    # loop (0: the airframe's own limits, DO_CHANGE_SPEED refused)
+    airframe_jerk_mps3: float = bounded(2.0, "m/s³", gt=0)
+    # a tilt-saturated vehicle this far behind holds the path
+    saturated_lead_m: float = bounded(0.5, "m", ge=0)
+    # GUIDED targets shaped as above (SIM_GUID_SHAPE 1, as ArduCopter flies them; lockstep
+    # too) or straight to the LQ loop (0: the airframe's limits, DO_CHANGE_SPEED refused)
     guided_shaping: bool = True
-    # the position controller's velocity integrator (not mode logic: the service and the
-    # lockstep put it on the plant whenever the timings are derived from the parameters)
-    velocity_integrator: VelocityIntegrator = VelocityIntegrator()
+    # the position controller's (the service and the lockstep put it on the plant)
+    velocity_integrator: VelocityIntegrator = field(default_factory=VelocityIntegrator)
 
 
 @dataclass(frozen=True)

@@ -11,8 +11,9 @@ import enum
 import math
 from dataclasses import dataclass, replace
 
-from plant_sim.autopilot.modes import ModeTimings, VelocityIntegrator
+from plant_sim.autopilot.modes import ModeTimings
 from plant_sim.autopilot.shaping import BrakeProfile, ShapingLimits
+from plant_sim.autopilot.velocity_integrator import VelocityIntegrator
 
 #: g for the airframe's deceleration bound g·tan(ANGLE_MAX) [m/s²]
 GRAVITY_MPS2 = 9.81

@@ -50,10 +50,10 @@ from __future__ import annotations
 
 import math
 
-from plant_sim.autopilot.collision_prevention import constrain_velocity, cp_params
 from plant_sim.autopilot.modes import FlightMode, FlightModeMachine, Kinematics
 from plant_sim.autopilot.params import ParamTable
 from plant_sim.autopilot.pilot_input import PilotInput, Sticks
+from plant_sim.autopilot.pilot_rules import PilotRules
 from plant_sim.autopilot.proximity import ProximityReceiver
 from plant_sim.autopilot.simple_avoid import SimpleAvoid, adjust_roll_pitch, avoid_params
 from plant_sim.vehicle import Setpoint
@@ -64,8 +64,6 @@ __all__ = ["PRX_NO_DATA_TEXT", "PilotFlight"]
 PRX_NO_DATA_TEXT = "PRX1: No Data"
 _LEASH_M = 1.0
 _YAW_RATE_RADPS = math.radians(90.0)
-_PX4_CLIMB_MPS = 3.0  # MPC_Z_VEL_MAX_UP
-_PX4_SINK_MPS = 1.0  # MPC_Z_VEL_MAX_DN
 _G_MPS2 = 9.80665
 
 
@@ -74,14 +72,16 @@ class PilotFlight:
 
     Parameters
     ----------
-    px4 : bool
-        PX4 flavour (Position mode, Collision Prevention) instead of ArduCopter's.
+    rules : PilotRules
+        The flavour's limits, stick expiry and avoidance
+        (:mod:`plant_sim.autopilot.pilot_rules`: ArduCopter's LOITER with simple avoidance,
+        PX4's Position mode with Collision Prevention).
     drag_per_s : float
         The airframe's horizontal drag over its mass [1/s] (ALT_HOLD's lean).
     """
 
-    def __init__(self, px4: bool, drag_per_s: float = 0.0) -> None:
-        self.px4 = px4
+    def __init__(self, rules: PilotRules, drag_per_s: float = 0.0) -> None:
+        self.rules = rules
         self.drag_per_s = drag_per_s
         self.sticks_in = PilotInput()
         self.proximity = ProximityReceiver()
@@ -106,18 +106,18 @@ class PilotFlight:
 
     def prearm_failure(self, params: ParamTable, now_wall_s: float) -> str | None:
         """ArduCopter's proximity pre-arm check: the reason, or None when it passes."""
-        if self.px4 or params.value("PRX1_TYPE") == 0 or params.value("ARMING_CHECK") == 0:
+        if not self.rules.prearm_checks_proximity(params):
             return None
         return None if self.proximity.fresh(now_wall_s) else PRX_NO_DATA_TEXT
 
     # ---- flight --------------------------------------------------------------------
     def pilot_mode(self, machine: FlightModeMachine, px4_main: Px4Main | None) -> bool:
-        """The mode takes the pilot's sticks (LOITER, ALT_HOLD; PX4: POSCTL), armed and
-        flying."""
+        """The mode takes the pilot's sticks (LOITER, ALT_HOLD where the rules fly it; PX4:
+        POSCTL), armed and flying."""
         if not machine.armed or machine.landed:
             return False
         if machine.mode is FlightMode.ALT_HOLD:
-            return not self.px4
+            return self.rules.flies_alt_hold
         return machine.mode is FlightMode.LOITER and (
             px4_main is None or px4_main is Px4Main.POSCTL
         )
@@ -132,9 +132,7 @@ class PilotFlight:
         dt: float,
     ) -> None:
         """One autopilot tick: update :attr:`setpoint` (None: the mode's own)."""
-        self.sticks_in.timeout_s = 3.0 if self.px4 else params.value("RC_OVERRIDE_TIME")
-        if not self.px4:
-            self.proximity.filter_hz = params.value("PRX_FILT")
+        self.rules.configure(self.sticks_in, self.proximity, params)
         sticks = self.sticks_in.sticks(now_wall_s)
         if not self.pilot_mode(machine, px4_main):
             self.setpoint = None
@@ -156,14 +154,7 @@ class PilotFlight:
         self._fly(kin, sticks, machine, params, now_wall_s, dt)
 
     def _fly(self, kin, sticks: Sticks, machine, params: ParamTable, now_wall_s, dt) -> None:
-        if self.px4:
-            speed, accel = params.value("MPC_VEL_MANUAL"), params.value("MPC_ACC_HOR")
-            climb = _PX4_CLIMB_MPS if sticks.up > 0 else _PX4_SINK_MPS
-        else:
-            speed, accel = params.value("LOIT_SPEED") / 100.0, params.value("LOIT_ACC_MAX") / 100.0
-            up = params.value("PILOT_SPEED_UP") / 100.0
-            down = params.value("PILOT_SPEED_DN") / 100.0 or up
-            climb = up if sticks.up > 0 else down
+        speed, accel, climb = self.rules.limits(params, sticks)
         accel = min(accel, machine.timings.max_decel_mps2)
         c, s = math.cos(kin.yaw_rad), math.sin(kin.yaw_rad)
         target = (
@@ -231,15 +222,7 @@ class PilotFlight:
     def _avoid(self, vel, kin: Kinematics, params: ParamTable, now_wall_s: float, dt: float):
         if not self.proximity.fresh(now_wall_s):
             self.stale_ticks += 1
-        if self.px4:
-            cp = cp_params(params)
-            bins, range_m = self.proximity.px4_bins(now_wall_s, kin.yaw_rad)
-            age_s = self.proximity.age_s(now_wall_s)
-            fov = self.proximity.px4_fov
-            out = constrain_velocity(vel, kin.yaw_rad, bins, range_m, age_s, cp, fov)
-        else:
-            faces = self.proximity.ardupilot_faces(now_wall_s)
-            out = self.avoid.adjust(vel, kin.yaw_rad, faces, avoid_params(params), kin.time_s, dt)
+        out = self.rules.avoid(vel, kin, self.proximity, self.avoid, params, now_wall_s, dt)
         if out != tuple(vel):
             self.limited_ticks += 1
         return (float(out[0]), float(out[1]))

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 
 from plant_sim.autopilot.modes import FlightMode, FlightModeMachine, GuidedTarget, Kinematics
 from plant_sim.autopilot.params import ParamSpec, ParamTable, ParamType
+from protocols.config import Checked, bounded
 from protocols.mavlink_modes import Px4Main, Px4Sub, px4_custom_mode, px4_split
 
 __all__ = [
@@ -59,13 +60,13 @@ PX4_OFFBOARD_LOST_TEXT = "Failsafe: offboard lost, holding"
 
 
 @dataclass(frozen=True)
-class Px4Rules:
+class Px4Rules(Checked):
     """PX4 parameters behind the offboard and takeoff rules."""
 
-    loss_timeout_s: float = 1.0  # COM_OF_LOSS_T [s]
-    min_stream_hz: float = 2.0  # OFFBOARD needs more than this
-    stream_window_s: float = 1.0  # over this window [s]
-    takeoff_alt_m: float = 2.5  # MIS_TAKEOFF_ALT [m above home]
+    loss_timeout_s: float = bounded(1.0, "s", ge=0)  # COM_OF_LOSS_T
+    min_stream_hz: float = bounded(2.0, "Hz", gt=0)  # OFFBOARD needs more than this
+    stream_window_s: float = bounded(1.0, "s", gt=0)  # over this window
+    takeoff_alt_m: float = bounded(2.5, "m", gt=0)  # MIS_TAKEOFF_ALT [m above home]
 
 
 #: PX4's parameters behind :class:`Px4Rules` (ground stations and MAVSDK set them).

@@ -47,6 +47,7 @@ from dataclasses import dataclass
 
 from plant_sim.autopilot.params import ParamSpec, ParamTable, ParamType
 from plant_sim.autopilot.proximity import Face
+from protocols.config import Checked, bounded
 
 __all__ = [
     "AVOID_PARAM_SPECS",
@@ -85,19 +86,19 @@ AVOID_PARAM_SPECS: tuple[ParamSpec, ...] = (
 
 
 @dataclass(frozen=True)
-class AvoidParams:
+class AvoidParams(Checked):
     """:data:`AVOID_PARAM_SPECS` in SI units."""
 
     proximity: bool = False  # PRX1_TYPE == 2 and AVOID_ENABLE has the proximity bit
-    margin_m: float = 2.0
+    margin_m: float = bounded(2.0, "m", gt=0)  # AVOID_MARGIN
     stop: bool = False  # AVOID_BEHAVE 1
-    backup_speed_mps: float = 0.75
-    accel_max_mps2: float = 3.0  # 0: no limit
-    backup_deadzone_m: float = 0.1
-    kp: float = 1.0  # PSC_POSXY_P [1/s]
-    loiter_accel_mps2: float = 5.0  # LOIT_ACC_MAX
-    angle_max_rad: float = math.radians(10.0)  # AVOID_ANGLE_MAX (ALT_HOLD)
-    dist_max_m: float = 5.0  # AVOID_DIST_MAX (ALT_HOLD)
+    backup_speed_mps: float = bounded(0.75, "m/s", ge=0)  # AVOID_BACKUP_SPD
+    accel_max_mps2: float = bounded(3.0, "m/s²", ge=0)  # AVOID_ACCEL_MAX; 0: no limit
+    backup_deadzone_m: float = bounded(0.1, "m", ge=0)  # AVOID_BACKUP_DZ
+    kp: float = bounded(1.0, "1/s", gt=0)  # PSC_POSXY_P
+    loiter_accel_mps2: float = bounded(5.0, "m/s²", gt=0)  # LOIT_ACC_MAX
+    angle_max_rad: float = bounded(math.radians(10.0), "rad", ge=0)  # AVOID_ANGLE_MAX (ALT_HOLD)
+    dist_max_m: float = bounded(5.0, "m", gt=0)  # AVOID_DIST_MAX (ALT_HOLD)
 
 
 def avoid_params(table: ParamTable) -> AvoidParams:
