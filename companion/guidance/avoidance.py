@@ -133,6 +133,10 @@ KnownPathFn = Callable[[np.ndarray, np.ndarray, list], KnownPath | None]
 """``(pos_ned_m, goal_ned_m, spheres) → KnownPath or None``: a search of the known-space map
 (:func:`companion.guidance.known_path.plan_known_path` with the map bound)."""
 
+WayBlockedFn = Callable[[np.ndarray, np.ndarray], bool]
+"""``(start_ned_m, end_ned_m) → bool``: the vehicle's body moving straight between them
+meets a surface the map has seen (:func:`companion.guidance.known_path.way_blocked`)."""
+
 
 def guidance_step(
     state: GuidanceState,
@@ -147,6 +151,7 @@ def guidance_step(
     steering: bool = True,
     goal_surely_blocked: bool = True,
     known_path: KnownPathFn | None = None,
+    way_blocked: WayBlockedFn | None = None,
 ) -> tuple[GuidanceState, GuidanceOutput]:
     """Advance guidance by one perception frame.
 
@@ -171,8 +176,9 @@ def guidance_step(
     goal_surely_blocked : bool
         A sphere holds the goal for certain, not by a blind spot only: a ``GOAL_UNREACHABLE``
         hold is latched (``progress.watch_progress``, ``map_boundaries.goal_surely_blocked``).
-    known_path : callable, optional
-        Search for a path through known-free space (step 7); None: the cone rule alone.
+    known_path, way_blocked : callable, optional
+        The known-space map's path search and its "surface in the way" (step 7); None:
+        the cone rule alone.
 
     Returns
     -------
@@ -192,15 +198,13 @@ def guidance_step(
         goal_ned_m=goal, config=cfg,
     )  # fmt: skip
     tracks = tuple(t for t in memory.tracks if t.confirmed)
-    apex = pos.copy()  # one read-only apex shared by this step's cones
-    cones = [_collision_cone(apex, t.sphere) for t in tracks]
-    # Unreachable goal (inside a confirmed boundary): the goal becomes the stop point just
-    # outside its obstacle; once there (or once held for this reason) the vehicle holds.
-    stop = stop_point(pos, goal, tracks, cfg)
+    cones = _cones(pos, tracks)
+    stop = stop_point(pos, goal, tracks, cfg)  # unreachable goal: the stop point instead
     unreachable = stop is not None
     if unreachable:
         goal = stop
-    f = _Frame(time_s, pos, goal, _reference(pos, vel, goal, cfg), tracks, cones, known_path)
+    ref = _reference(pos, vel, goal, cfg)
+    f = _Frame(time_s, pos, goal, ref, tracks, cones, known_path, way_blocked)
     live_ids = {t.track_id for t in tracks}
     d = _Decision(setpoint=goal, cleared={i for i in state.cleared_ids if i in live_ids})
     inside = [i for i, c in enumerate(cones) if c.apex_inside]
@@ -214,6 +218,11 @@ def guidance_step(
     hold = _latch_hold(state, f, d)
     yaw = _yaw(state, f, d, yaw_rad, cfg)
     return _outputs(f, d, memory, hold, yaw, progress)
+
+
+def _cones(pos: np.ndarray, tracks) -> list:
+    apex = pos.copy()  # one read-only apex shared by this step's cones
+    return [_collision_cone(apex, t.sphere) for t in tracks]
 
 
 def _check_time(state: GuidanceState, time_s: float) -> float:
@@ -236,6 +245,7 @@ class _Frame:
     tracks: tuple[TrackedObstacle, ...]
     cones: list
     plan: KnownPathFn | None = None
+    blocked: WayBlockedFn | None = None
 
     _blocked: dict[int, bool] = field(default_factory=dict, repr=False)
 
@@ -390,7 +400,14 @@ def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
         vertical_weight=cfg.vertical_weight,
         cluster_tie=plan_ref is f.ref,
     )
-    if _fly_known_path(state, f, cluster, choice, d, cfg):
+    carrot = None
+    if choice is not None:
+        reach = min(
+            max(choice.distance_m + cfg.setpoint_extension_m, cfg.min_setpoint_distance_m),
+            cfg.max_setpoint_distance_m,
+        )
+        carrot = f.pos + choice.direction_ned * reach
+    if _fly_known_path(state, f, cluster, choice, carrot, d, cfg):
         return
     if choice is None:
         d.mode, d.reason = Mode.HOLD, Reason.NO_FREE_DIRECTION
@@ -398,17 +415,14 @@ def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
     d.mode = Mode.AVOID
     d.aim = choice.aiming_point_ned_m
     d.aim_dir = tuple(float(x) for x in choice.direction_ned)
-    reach = min(
-        max(choice.distance_m + cfg.setpoint_extension_m, cfg.min_setpoint_distance_m),
-        cfg.max_setpoint_distance_m,
-    )
-    d.setpoint = f.pos + choice.direction_ned * reach
+    d.setpoint = carrot
 
 
-def _fly_known_path(state, f: _Frame, cluster, choice, d, cfg) -> bool:
-    """Step 7's second guess: the first leg of a path through known-free space, when the
-    cone rule has no admissible direction (``choice`` None) or closes a way the map shows
-    open."""
+def _fly_known_path(state, f: _Frame, cluster, choice, carrot, d, cfg) -> bool:
+    """Step 7's second guess: the first leg of a path through known-free space, where the
+    cone rule fails (:func:`~companion.guidance.known_path.prefer_known_path`): no
+    admissible direction (``choice`` None), its ``carrot`` blocked in known space, or a
+    way the map shows open closed by the cones."""
     if f.plan is None:
         return False
     cone_has_direction = choice is not None
@@ -417,13 +431,17 @@ def _fly_known_path(state, f: _Frame, cluster, choice, d, cfg) -> bool:
         aim = np.asarray(choice.aiming_point_ned_m)
         cone_way_m = norm3(aim - f.pos) + norm3(f.goal - aim)
     kept = state.on_known_path and state.mode is Mode.AVOID
-    if cone_has_direction and not kept and not any(f.goal_blocked(i) for i in cluster):
+    goal_blocked = any(f.goal_blocked(i) for i in cluster)
+    blocked = carrot is not None and f.blocked is not None and f.blocked(f.pos, carrot)
+    if cone_has_direction and not (kept or goal_blocked or blocked):
         return False
     path = f.plan(f.pos, f.goal, [t.sphere for t in f.tracks])
     if not prefer_known_path(
         path, f.pos, f.goal, cone_has_direction=cone_has_direction,
         cones=[f.cones[i] for i in cluster], kept=kept,
         min_progress_m=cfg.known_path_progress_m, cone_way_m=cone_way_m,
+        cone_blocked=blocked,
+        cone_dir_ned=None if choice is None else np.asarray(choice.direction_ned),
     ):  # fmt: skip
         return False
     leg = np.array(path.leg_end_ned_m, dtype=float)
@@ -525,6 +543,7 @@ class Guidance:
         steering: bool = True,
         goal_surely_blocked: bool = True,
         known_path: KnownPathFn | None = None,
+        way_blocked: WayBlockedFn | None = None,
     ) -> GuidanceOutput:
         """Run :func:`guidance_step` on the held state; returns the output."""
         self.state, output = guidance_step(
@@ -539,5 +558,6 @@ class Guidance:
             steering=steering,
             goal_surely_blocked=goal_surely_blocked,
             known_path=known_path,
+            way_blocked=way_blocked,
         )
         return output
