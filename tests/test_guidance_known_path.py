@@ -337,6 +337,13 @@ def test_the_path_leads_where_the_cone_is_blocked_or_leads_away_from_it():
     beside = _fake_path((0.0, 3.0, 0.0), (12.0, 0.0, 0.0), GOAL)  # leg outside every cone
     assert not prefer_known_path(beside, pos, goal, **common)
     assert prefer_known_path(beside, pos, goal, cone_blocked=True, **common)
+    # blocked, but the path leads the cone's way (within 45°): the paper's rule stays
+    leg = np.asarray(beside.leg_end_ned_m) / 3.0
+    turn = np.array([math.sin(math.radians(40.0)), math.cos(math.radians(40.0)), 0.0])
+    assert not prefer_known_path(beside, pos, goal, cone_blocked=True, cone_dir_ned=leg, **common)
+    assert not prefer_known_path(beside, pos, goal, cone_blocked=True, cone_dir_ned=turn, **common)
+    turn = np.array([math.sin(math.radians(50.0)), math.cos(math.radians(50.0)), 0.0])
+    assert prefer_known_path(beside, pos, goal, cone_blocked=True, cone_dir_ned=turn, **common)
     # a blocked cone does not make a path that gets no nearer worth flying
     short = _fake_path((0.4, 0.0, 0.0), (0.5, 0.0, 0.0), GOAL)
     assert not prefer_known_path(short, pos, goal, cone_blocked=True, **common)

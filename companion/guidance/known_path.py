@@ -60,10 +60,12 @@ leads when
 * the cone rule found **no admissible direction** (else guidance holds, as before);
 * the cone rule's direction is **blocked in known space** (:func:`way_blocked`): the
   vehicle's body, moving straight to the cone's carrot, would meet a surface the map has
-  seen (OCCUPIED; its radius, no margin). The cone rule sees only the boundaries within
+  seen (OCCUPIED; its radius, no margin), and the path leads another way (its first leg
+  more than 45° from the cone's direction). The cone rule sees only the boundaries within
   the detection threshold (4 m, the paper's); the map has seen the wall beyond them, so
-  a carrot that leads out of a corridor, or along a gap's wall into its far side, is
-  known to end in a surface;
+  a carrot that leads out of a corridor into its wall is known to end in a surface. When
+  both lead the same way (§6: the carrot grazes the far part of the one sphere, not yet
+  a boundary, and the path goes round the same side) the paper's rule stays;
 * the straight path to the goal is blocked by the obstacle avoided, the path's first leg
   points **into a cone** of that obstacle (the cone closes a way the map shows open) and
   the path ends **past that obstacle** (nearer the goal than every one of its spheres'
@@ -97,6 +99,9 @@ import numpy as np
 
 from companion.known_space import FREE, OCCUPIED, TENTATIVE, UNKNOWN
 from protocols.config import bounded, check_fields, dataclass_from_mapping
+
+#: the path's first leg and the cone's direction lead different ways beyond this angle
+_APART_RAD = math.radians(45.0)
 
 __all__ = [
     "KnownPath",
@@ -735,7 +740,8 @@ def prefer_known_path(
         Length of the cone rule's way: vehicle → aiming point → goal [m] (a lower bound on
         it; the path must be ``min_progress_m`` shorter).
     cone_blocked : bool
-        The cone rule's carrot is blocked in known space (:func:`way_blocked`).
+        The cone rule's carrot is blocked in known space (:func:`way_blocked`): the path
+        leads if its first leg and ``cone_dir_ned`` are more than 45° apart.
     cone_dir_ned : ndarray, shape (3,), optional
         The cone rule's direction (unit): the path leads when it reaches the goal and the
         cone's direction leads away from it (no component along its first leg).
@@ -745,9 +751,11 @@ def prefer_known_path(
     progress = float(np.linalg.norm(goal_ned_m - pos_ned_m)) - path.end_to_goal_m
     if progress < min_progress_m:
         return False
-    if kept or not cone_has_direction or cone_blocked:
+    if kept or not cone_has_direction:
         return True
     leg = np.asarray(path.leg_end_ned_m) - pos_ned_m
+    if cone_blocked and (cone_dir_ned is None or _apart(leg, cone_dir_ned)):
+        return True
     cones = list(cones)
     into_cone = any(_inside_cone(c, leg) for c in cones)
     past = all(
@@ -757,6 +765,13 @@ def prefer_known_path(
     shorter = path.length_m + path.end_to_goal_m <= cone_way_m - min_progress_m
     away = cone_dir_ned is not None and path.reaches_goal and float(leg @ cone_dir_ned) <= 0.0
     return into_cone and past and (shorter or away or _between_pieces(path, cones))
+
+
+def _apart(leg: np.ndarray, direction: np.ndarray) -> bool:
+    """The path's first leg and the cone rule's direction lead different ways: more than
+    ``_APART_RAD`` apart."""
+    norm = float(np.linalg.norm(leg)) * float(np.linalg.norm(direction))
+    return norm > 0.0 and float(leg @ direction) < math.cos(_APART_RAD) * norm
 
 
 def _between_pieces(path: KnownPath, cones: list) -> bool:
