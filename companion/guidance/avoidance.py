@@ -110,6 +110,7 @@ from companion.guidance.cone import (
 )
 from companion.guidance.config import GuidanceConfig
 from companion.guidance.goal_stop import hold_at_stop_point, inside_ball, same_obstacle, stop_point
+from companion.guidance.hold import inside_any, nearest_outside
 from companion.guidance.known_path import KnownPath, prefer_known_path
 from companion.guidance.memory import TrackedObstacle, update_memory
 from companion.guidance.modes import Mode, Reason
@@ -311,6 +312,14 @@ def _escape_boundary(state, f: _Frame, inside: list[int], d: _Decision, cfg) -> 
         reference_ned=keep_going,
         slide_m=cfg.min_setpoint_distance_m,
     )
+    spheres = [t.sphere for t in tracks]
+    if inside_any(d.setpoint, spheres):
+        # out of the deepest piece into a neighbouring one (a wall is many pieces): the
+        # nearest point out of all of them, the radial way out preferred
+        out = nearest_outside(
+            f.pos, spheres, clearance_m=cfg.escape_clearance_m, prefer_ned=d.setpoint - f.pos
+        )
+        d.setpoint = d.setpoint if out is None else out
     d.aim_dir = state.aim_dir_ned if same else None
 
 
