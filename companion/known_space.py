@@ -44,13 +44,7 @@ block is matched):
   lies outside the matcher's blind band and whose ray points no lower than
   ``sky_min_elevation_deg`` below the horizon, is taken as open sky: FREE up to
   ``max_range_m`` and no farther out (horizontally) than the point of the column's
-  topmost matched pixel, but only where still UNKNOWN (it never clears OCCUPIED). It
-  does clear a TENTATIVE voxel whose centre it passes within ``clear_core_m`` of: a hit
-  seen once and then seen through as open sky was a false match (issue 36: one such
-  voxel 0.6 m ahead, hit once at the top of the view where every later frame saw only
-  sky, held the envelope's free distance at 0.4 m for 30 s in corridor seed 5, ended by
-  the no-progress stop). A real surface there is hit again in the next frame, becomes
-  OCCUPIED and stays. Without
+  topmost matched pixel, but only where still UNKNOWN (it never clears OCCUPIED). Without
   this a stereo camera could never certify the space at its own altitude (the sky above
   the horizon is textureless and never matches), and the vehicle could not fly level.
   The column rule keeps the exception away from textureless obstacles in front of the
@@ -292,8 +286,7 @@ def _cell(grid, origin, inv_voxel, x, y, z):
 def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m, free_core_m):
     """FREE in every UNKNOWN voxel whose centre the segment from (ox, oy, oz) over
     ``length`` [m] passes within ``free_core_m`` [m] of, and in every OCCUPIED or
-    TENTATIVE one whose centre it passes within ``core_m`` [m] of (0: never; negative:
-    TENTATIVE ones only, within ``-core_m``: the open sky's rays).
+    TENTATIVE one whose centre it passes within ``core_m`` [m] of (0: never).
 
     Amanatides–Woo traversal: each voxel is visited once, in order along the ray; the
     walk stops at the grid's edge. ``(dx, dy, dz)`` is a unit direction.
@@ -337,7 +330,7 @@ def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m, free_
         if i < 0 or j < 0 or k < 0 or i >= ni or j >= nj or k >= nk:
             return
         cur = grid[i, j, k]
-        if cur == 0 or (core_m > 0.0 and (cur == 2 or cur == 3)) or (core_m < 0.0 and cur == 3):
+        if cur == 0 or (core_m > 0.0 and (cur == 2 or cur == 3)):
             # only a ray through the voxel's core sees it free: one that crosses a corner
             # saw that corner free, not the rest of the voxel (the inside of an obstacle
             # whose limb it grazed; the surface point that made the voxel occupied). A
@@ -347,7 +340,7 @@ def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m, free_
             qz = (k + origin[2] + 0.5) * voxel - oz
             along = qx * dx + qy * dy + qz * dz
             off2 = qx * qx + qy * qy + qz * qz - along * along
-            core = free_core_m if cur == 0 else core_m  # squared below: its sign is gone
+            core = free_core_m if cur == 0 else core_m
             if off2 <= core * core:
                 grid[i, j, k] = 1
         if tx <= ty and tx <= tz:
@@ -471,9 +464,7 @@ def _integrate_depth(
                         segments[n_seg, 1] = dy
                         segments[n_seg, 2] = dz
                         segments[n_seg, 3] = length
-                        # sky: never clears an obstacle, but a TENTATIVE voxel (one
-                        # frame's hit) seen through is a false match
-                        segments[n_seg, 4] = -clear_core
+                        segments[n_seg, 4] = 0.0  # sky: never clears an obstacle
                         n_seg += 1
                         n_rays += 1
                 continue

@@ -162,50 +162,6 @@ def test_open_sky_reaches_no_farther_than_the_columns_topmost_matched_point():
     assert 2.0 < reach <= 4.0, reach
 
 
-def _block_point(v: float, u: float, depth_m: float, pos: np.ndarray) -> np.ndarray:
-    """Where the ray through pixel (``v``, ``u``) of the left eye meets depth ``depth_m``
-    (the camera looking level north from ``pos``)."""
-    cam = pos + LEVEL_NORTH @ np.array([0.0, -K.baseline_m / 2, 0.0])
-    ray_cam = np.array([(u - K.cx_px) / K.fx_px, (v - K.cy_px) / K.fy_px, 1.0])
-    return cam + (LEVEL_NORTH @ R_FRD_FROM_CAM) @ ray_cam * depth_m
-
-
-def test_a_single_hit_seen_through_as_open_sky_is_forgotten_a_surface_is_not():
-    """A false match against the sky (one block, one frame) is TENTATIVE; the next frame's
-    open sky through it frees it. A real surface hit in two frames is OCCUPIED and the sky
-    never clears it (issue 36: such a voxel 0.6 m ahead stalled corridor seed 5)."""
-    pos = np.array([0.0, 0.0, -7.0])
-    nan = np.full((K.height_px, K.width_px), np.nan, np.float32)
-    sky = nan.copy()
-    sky[-4:, :] = 50.0  # far ground matched at the bottom: the columns above are sky
-    false_hit = sky.copy()
-    false_hit[100:104, 160:164] = 3.0  # one 4 x 4 block, 3° above the horizon, 3 m
-    point = _block_point(101.5, 161.5, 3.0, pos)
-    space = KnownSpace()
-    space.integrate(false_hit, K, pos, LEVEL_NORTH)
-    assert space.state_at(point) == TENTATIVE
-    space.integrate(sky, K, pos, LEVEL_NORTH)
-    assert space.state_at(point) == FREE
-    # the same block hit in two frames: a surface, which the open sky never clears
-    surface = KnownSpace()
-    for _ in range(2):
-        surface.integrate(false_hit, K, pos, LEVEL_NORTH)
-    assert surface.state_at(point) == OCCUPIED
-    for _ in range(5):
-        surface.integrate(sky, K, pos, LEVEL_NORTH)
-    assert surface.state_at(point) == OCCUPIED
-    # a near obstacle does not slip either: a wall 1.5 m ahead is OCCUPIED after two frames
-    # and stays with sky seen above it
-    near = KnownSpace()
-    wall = sky.copy()
-    wall[90:, :] = 1.5
-    for _ in range(2):
-        near.integrate(wall, K, pos, LEVEL_NORTH)
-    near.integrate(sky, K, pos, LEVEL_NORTH)
-    assert near.state_at(_block_point(121.5, 161.5, 1.5, pos)) == OCCUPIED
-    assert near.free_distance_m(pos, (1.0, 0.0, 0.0), 0.35, 10.0) < 1.5
-
-
 def test_occupied_persists_until_seen_free_again():
     space = KnownSpace()
     pos = np.array([0.0, 0.0, -7.0])
