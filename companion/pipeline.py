@@ -23,7 +23,14 @@ from companion.depth_source import DepthSource
 from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput, Mode
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
 from companion.guidance.hold import HoldPlacement, hold_point, inside_any, keep_target_out
-from companion.guidance.known_path import KnownPath, KnownPathConfig, plan_known_path, warm_up
+from companion.guidance.known_path import (
+    KnownPath,
+    KnownPathConfig,
+    follow_known_path,
+    plan_known_path,
+    warm_up,
+    way_blocked,
+)
 from companion.guidance.map_boundaries import (
     MapBoundary,
     MapBoundaryConfig,
@@ -38,8 +45,7 @@ from protocols.stereo_frame import StereoFrame
 
 __all__ = ["AvoidancePipeline", "PipelineOutput", "PoseAtCapture"]
 
-_REPLAN_FRAMES = 2  # the known-space path is searched at most every second frame
-_REUSE_AHEAD_M = 1.0  # ... and reused only while its first leg ends this far ahead
+_RETRY_FRAMES = 2  # a search that found no path is not repeated on the next frame
 
 
 @dataclass(frozen=True, eq=False)
@@ -180,6 +186,7 @@ class AvoidancePipeline:
                 boundaries, self.goal_ned_m, self.boundary_config
             ),
             known_path=self._known_path,
+            way_blocked=self._way_blocked,
         )
         bounded = envelope_step(
             pos_ned_m=pose.pos_ned_m,
@@ -220,27 +227,40 @@ class AvoidancePipeline:
 
     def _known_path(self, pos_ned_m, goal_ned_m, spheres) -> KnownPath | None:
         """Guidance's search of the known-space map (:mod:`companion.guidance.known_path`),
-        at most every ``_REPLAN_FRAMES`` frames toward one goal: in between the last path
-        stands while its first leg still ends ``_REUSE_AHEAD_M`` or more away (the search
-        costs 1–5 ms, more on a loaded machine; the map changes little in 66 ms)."""
-        last = self._last_path
-        if last is not None:
-            frame, goal, path = last
-            ahead = 0.0 if path is None else float(np.linalg.norm(path.leg_end_ned_m - pos_ned_m))
-            fresh = self.known_space.frames - frame < _REPLAN_FRAMES
-            if (
-                fresh
-                and np.array_equal(goal, goal_ned_m)
-                and (path is None or ahead >= _REUSE_AHEAD_M)
-            ):
-                return path
+        bounded per frame: a path found is followed, not searched again, for up to
+        ``replan_frames`` map frames while it stays valid
+        (:func:`~companion.guidance.known_path.follow_known_path`: a check of its voxels,
+        a fraction of a search); a search that found none is not repeated on the next
+        frame (``benchmarks/bench_guidance_path.py`` prints the costs)."""
         ks = self.known_space
+        last = self._last_path
+        if last is not None and np.array_equal(last[1], goal_ned_m):
+            frame, _, path = last
+            age = ks.frames - frame
+            if path is None and age < _RETRY_FRAMES:
+                return None
+            if path is not None and age < self.known_path_config.replan_frames:
+                followed = follow_known_path(
+                    path, ks.grid, ks.origin_vox, ks.config.voxel_m, pos_ned_m, goal_ned_m,
+                    spheres=spheres, config=self.known_path_config,
+                )  # fmt: skip
+                if followed is not None:
+                    return followed
         path = plan_known_path(
             ks.grid, ks.origin_vox, ks.config.voxel_m, pos_ned_m, goal_ned_m,
             spheres=spheres, config=self.known_path_config,
         )  # fmt: skip
         self._last_path = (ks.frames, np.array(goal_ned_m, dtype=float), path)
         return path
+
+    def _way_blocked(self, start_ned_m, end_ned_m) -> bool:
+        """Guidance's question to the known-space map: a surface seen in the way
+        (:func:`~companion.guidance.known_path.way_blocked`)."""
+        ks = self.known_space
+        return way_blocked(
+            ks.grid, ks.origin_vox, ks.config.voxel_m, start_ned_m, end_ned_m,
+            config=self.known_path_config,
+        )  # fmt: skip
 
     def _hold_outside(
         self, pose: PoseAtCapture, bounded: EnvelopeOutput, boundaries

@@ -24,8 +24,6 @@ MAX_MODULE_LINES = 600
 OVERSIZED = {
     "companion/perception.py": "per-frame obstacle spheres and the near pass; perception as "
     "stages behind contracts is issue 33 item 2 (and issue 34 works in it now)",
-    "companion/guidance/avoidance.py": "the guidance step and its holds; issue 36 (guidance "
-    "that gets there) is reworking it",
     "companion/camera/sources.py": "every camera source of stereo-camera (files, V4L2, ROS 2 "
     "bags, RealSense); issue 35 works in it now: one module per source family",
     "companion/camera/__main__.py": "the stereo-camera CLI with one sub-command per source; "

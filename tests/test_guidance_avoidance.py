@@ -392,6 +392,28 @@ def test_inside_a_boundary_with_radial_velocity_escapes_radially():
     np.testing.assert_allclose(_unit(out_dir), radial, atol=1e-12)
 
 
+def test_the_way_out_of_a_boundary_never_ends_inside_a_neighbouring_one():
+    """A wall arrives as overlapping pieces: out of the deepest one and slid along the
+    travel lies inside the next; the target is then the nearest point out of all of them,
+    ``escape_clearance_m`` clear, as a hold's is (issue 36 / issue 32)."""
+    cfg = GuidanceConfig(**ONE_SHOT)
+    wall = [BoundarySphere(center_ned_m=(10.0, y, -7.0), radius_m=1.5) for y in (-2.0, 0.0, 2.0)]
+    pos = np.array([9.3, -0.8, -7.0])  # deepest in the middle piece, inside the next too
+    vel = np.array([0.0, -0.8, 0.0])  # sliding along the wall
+    _, alone = _step(GuidanceState(), 0.0, pos, vel, GOAL_NED_M, [wall[1]])
+    assert np.linalg.norm(alone.setpoint_ned_m - np.asarray(wall[0].center_ned_m)) < 1.5, (
+        "the one-sphere escape of this geometry lands in the neighbouring piece"
+    )
+    _, out = _step(GuidanceState(), 0.0, pos, vel, GOAL_NED_M, wall)
+    assert out.reason is Reason.INSIDE_BOUNDARY
+    for b in wall:
+        gap = np.linalg.norm(out.setpoint_ned_m - np.asarray(b.center_ned_m)) - b.radius_m
+        assert gap >= cfg.escape_clearance_m - 1e-9, (b, gap)
+    # the nearest such point: straight out through the wall's face is 1.13 m (x = 8.17 m
+    # on y = -0.8 is 2.0 m from the nearer centre); nothing nearer is much shorter
+    assert np.linalg.norm(out.setpoint_ned_m - pos) <= 1.13 + 0.1
+
+
 def test_goal_inside_a_boundary_ends_in_a_latched_hold_outside_it():
     """Unreachable goal: steer to the stop point goal_standoff_m before the boundary on the
     straight path, then hold there (reported) whatever the velocity does: no go-around."""

@@ -15,10 +15,12 @@ from companion.guidance.cone import BoundarySphere, collision_cone, contains_dir
 from companion.guidance.known_path import (
     KnownPath,
     KnownPathConfig,
+    follow_known_path,
     plan_known_path,
     prefer_known_path,
+    way_blocked,
 )
-from companion.known_space import FREE, OCCUPIED, UNKNOWN
+from companion.known_space import FREE, OCCUPIED, TENTATIVE, UNKNOWN
 
 VOXEL_M = 0.2
 CFG = KnownPathConfig(leg_max_m=20.0)
@@ -140,6 +142,64 @@ def test_a_vehicle_walled_in_by_unknown_space_has_no_path():
     assert plan_known_path(grid, ORIGIN, VOXEL_M, pos, _centre(30, 20, 6), config=CFG) is None
 
 
+def _round_the_wall():
+    grid = _open_grid()
+    grid[39:41, 30:50, :] = OCCUPIED
+    pos, goal = _centre(30, 40, 6), _centre(50, 40, 6)
+    pos[1] = goal[1] = 8.0
+    leg = KnownPathConfig(leg_max_m=3.0)
+    path = plan_known_path(grid, ORIGIN, VOXEL_M, pos, goal, config=leg)
+    assert path is not None and path.reaches_goal
+    return grid, goal, leg, path
+
+
+def test_a_followed_path_is_the_rest_of_the_search_and_its_leg_the_searchs_own():
+    grid, goal, leg, path = _round_the_wall()
+    rows = path.waypoints_ned_m
+    for k in (3, 10, len(rows) // 2):
+        pos = rows[k] + np.array([0.05, -0.04, 0.03])  # beside a voxel of the path
+        followed = follow_known_path(path, grid, ORIGIN, VOXEL_M, pos, goal, config=leg)
+        assert followed is not None and followed.expanded == 0 and followed.reaches_goal
+        np.testing.assert_allclose(followed.waypoints_ned_m[0], pos)
+        # the rest is the search's path from the vehicle's voxel (or the next one) on
+        tail = followed.waypoints_ned_m[1:]
+        start = len(rows) - len(tail)
+        assert start in (k, k + 1), (start, k)
+        np.testing.assert_allclose(tail, rows[start:])
+        assert followed.end_to_goal_m == pytest.approx(path.end_to_goal_m, abs=1e-9)
+        # what a new search from there finds: the same length to go, the same leg reach
+        fresh = plan_known_path(grid, ORIGIN, VOXEL_M, pos, goal, config=leg)
+        assert followed.length_m == pytest.approx(fresh.length_m, abs=2 * VOXEL_M)
+        leg_m = np.linalg.norm(np.asarray(followed.leg_end_ned_m) - pos)
+        assert 0.0 < leg_m <= leg.leg_max_m + 1e-9
+        assert leg_m >= np.linalg.norm(np.asarray(fresh.leg_end_ned_m) - pos) - 2 * VOXEL_M
+
+
+def test_a_path_is_not_followed_once_the_map_or_the_vehicle_leaves_it():
+    grid, goal, leg, path = _round_the_wall()
+    rows = path.waypoints_ned_m
+    pos = rows[5].copy()
+    assert follow_known_path(path, grid, ORIGIN, VOXEL_M, pos, goal, config=leg) is not None
+    # a surface seen within the clearance of a voxel ahead (not on the path itself)
+    ahead = np.floor(rows[-8] / VOXEL_M).astype(int)
+    blocked = grid.copy()
+    blocked[ahead[0], ahead[1] + 3, ahead[2]] = OCCUPIED
+    assert follow_known_path(path, blocked, ORIGIN, VOXEL_M, pos, goal, config=leg) is None
+    # a voxel of the rest no longer seen free
+    unseen = grid.copy()
+    unseen[tuple(ahead)] = UNKNOWN
+    assert follow_known_path(path, unseen, ORIGIN, VOXEL_M, pos, goal, config=leg) is None
+    # an inflated boundary across it
+    ball = BoundarySphere(center_ned_m=tuple(rows[-8]), radius_m=0.5)
+    assert (
+        follow_known_path(path, grid, ORIGIN, VOXEL_M, pos, goal, spheres=[ball], config=leg)
+        is None
+    )
+    # the vehicle farther than rejoin_m from every voxel of it
+    away = pos + np.array([0.0, 0.0, leg.rejoin_m + 0.3])
+    assert follow_known_path(path, grid, ORIGIN, VOXEL_M, away, goal, config=leg) is None
+
+
 def test_config_refuses_unknown_keys_and_bad_values():
     with pytest.raises(TypeError, match="nope"):
         KnownPathConfig.from_dict({"nope": 1.0})
@@ -147,6 +207,8 @@ def test_config_refuses_unknown_keys_and_bad_values():
         KnownPathConfig(vertical_weight=0.5)
     with pytest.raises(ValueError):
         KnownPathConfig(max_expansions=0)
+    with pytest.raises(ValueError):
+        KnownPathConfig(replan_frames=0)
 
 
 # --- when guidance flies the path (prefer_known_path, guidance_step's known_path) -------
@@ -243,3 +305,62 @@ def test_prefer_known_path_rules():
     assert not prefer_known_path(beside, pos, goal, cone_has_direction=True, kept=False, **common)
     assert prefer_known_path(beside, pos, goal, cone_has_direction=True, kept=True, **common)
     assert prefer_known_path(beside, pos, goal, cone_has_direction=False, kept=False, **common)
+
+
+def test_a_way_is_blocked_only_by_a_surface_seen_within_the_vehicles_radius():
+    grid = _open_grid()
+    grid[40, 30:50, :] = OCCUPIED  # a wall across x = 8.0–8.2 m, y 6–10 m
+    radius = CFG.section_radius_m
+    a = _centre(30, 40, 6)
+    # straight into it, and past its end by less than the radius (face distance)
+    assert way_blocked(grid, ORIGIN, VOXEL_M, a, a + np.array([4.0, 0.0, 0.0]), config=CFG)
+    end_y = 10.0 + radius - 0.1  # the wall ends at y = 10.0
+    b = np.array([12.0, end_y, a[2]])
+    assert way_blocked(grid, ORIGIN, VOXEL_M, np.array([4.0, end_y, a[2]]), b, config=CFG)
+    # beside its end by more than the radius plus a voxel: clear
+    clear_y = 10.0 + radius + VOXEL_M + 0.05
+    b = np.array([12.0, clear_y, a[2]])
+    assert not way_blocked(grid, ORIGIN, VOXEL_M, np.array([4.0, clear_y, a[2]]), b, config=CFG)
+    # short of it by the radius plus a voxel: clear; through unknown or one frame's hit:
+    # not blocked (not seen)
+    assert not way_blocked(grid, ORIGIN, VOXEL_M, a, a + np.array([1.2, 0.0, 0.0]), config=CFG)
+    grid[40, 30:50, :] = UNKNOWN
+    assert not way_blocked(grid, ORIGIN, VOXEL_M, a, a + np.array([4.0, 0.0, 0.0]), config=CFG)
+    grid[40, 30:50, :] = TENTATIVE
+    assert not way_blocked(grid, ORIGIN, VOXEL_M, a, a + np.array([4.0, 0.0, 0.0]), config=CFG)
+
+
+def test_the_path_leads_where_the_cone_is_blocked_or_leads_away_from_it():
+    pos, goal = np.zeros(3), np.array(GOAL)
+    cones = [collision_cone(pos, s) for s in PINCH]
+    common = {"cones": cones, "min_progress_m": 1.0, "kept": False, "cone_has_direction": True}
+    beside = _fake_path((0.0, 3.0, 0.0), (12.0, 0.0, 0.0), GOAL)  # leg outside every cone
+    assert not prefer_known_path(beside, pos, goal, **common)
+    assert prefer_known_path(beside, pos, goal, cone_blocked=True, **common)
+    # blocked, but the path leads the cone's way (within 45°): the paper's rule stays
+    leg = np.asarray(beside.leg_end_ned_m) / 3.0
+    turn = np.array([math.sin(math.radians(40.0)), math.cos(math.radians(40.0)), 0.0])
+    assert not prefer_known_path(beside, pos, goal, cone_blocked=True, cone_dir_ned=leg, **common)
+    assert not prefer_known_path(beside, pos, goal, cone_blocked=True, cone_dir_ned=turn, **common)
+    turn = np.array([math.sin(math.radians(50.0)), math.cos(math.radians(50.0)), 0.0])
+    assert prefer_known_path(beside, pos, goal, cone_blocked=True, cone_dir_ned=turn, **common)
+    # a blocked cone does not make a path that gets no nearer worth flying
+    short = _fake_path((0.4, 0.0, 0.0), (0.5, 0.0, 0.0), GOAL)
+    assert not prefer_known_path(short, pos, goal, cone_blocked=True, **common)
+    # one sphere (§6): a path round it no shorter than the cone's way round the other side
+    single = [collision_cone(pos, BoundarySphere((8.0, 0.0, 0.0), 3.2))]
+    one = {**common, "cones": single, "cone_way_m": 22.0}
+    c = single[0]
+    half = c.half_angle_rad
+    cone_dir = np.array([math.cos(half), math.sin(half), 0.0])  # its tangent to the right
+    leg = 3.0 * np.array([math.cos(half - 0.05), -math.sin(half - 0.05), 0.0])  # into it, left
+    path = dataclasses.replace(
+        _fake_path(tuple(leg), (12.0, 0.0, 0.0), GOAL), reaches_goal=True, length_m=50.0
+    )
+    assert not prefer_known_path(path, pos, goal, cone_dir_ned=cone_dir, **one)
+    # the cone's direction turned away from the known way (round the far end of a wall)
+    away = np.array([-0.1, 1.0, 0.0]) / math.hypot(0.1, 1.0)
+    assert prefer_known_path(path, pos, goal, cone_dir_ned=away, **one)
+    # ... but only a path that reaches the goal is a known way to it
+    partial = dataclasses.replace(path, reaches_goal=False)
+    assert not prefer_known_path(partial, pos, goal, cone_dir_ned=away, **one)

@@ -8,7 +8,10 @@ a mode, the avoidance flag of Fig. 11, a position setpoint and a yaw out.
 * :mod:`~companion.guidance.memory` — obstacles remembered out of the field of view.
 * :mod:`~companion.guidance.map_boundaries` — the boundary spheres cut from the
   known-space map (several bounded pieces per extended obstacle).
-* :mod:`~companion.guidance.avoidance` — NAVIGATE / AVOID / HOLD with hysteresis.
+* :mod:`~companion.guidance.avoidance` — NAVIGATE / AVOID / HOLD with hysteresis (the
+  step); its :mod:`~companion.guidance.modes`, :mod:`~companion.guidance.step_types`
+  (state and output), :mod:`~companion.guidance.goal_stop` (the stop short of an
+  unreachable goal) and :mod:`~companion.guidance.progress` (every stall reported).
 * :mod:`~companion.guidance.config` — the tuning, one frozen dataclass.
 * :mod:`~companion.guidance.envelope` — the safety envelope: the carrot inside known-free
   space (:mod:`companion.known_space`) and the stopping-distance speed limit.

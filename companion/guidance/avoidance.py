@@ -39,29 +39,7 @@ Each step
 6. Active obstacle: the threat with the nearest surface, or the kept one if nearer.
    None → NAVIGATE (setpoint = goal). A threat whose sphere holds the goal → HOLD
    (``GOAL_UNREACHABLE``): a guard only, as the goal guidance steers to is never inside
-   a confirmed boundary (below).
-
-No progress: when the distance to the goal has not fallen ``stall_progress_m`` below its
-best for ``stall_timeout_s`` outside a HOLD, guidance holds where the vehicle is
-(``NO_PROGRESS``, latched until the goal changes): a way that stays unseen or a detour
-that circles never ends in wandering until the battery runs out. The timer runs from the
-first step toward a goal, restarts in any other HOLD and stands still within
-``2 · stall_progress_m`` of the goal.
-
-Unreachable goal: when the goal lies inside a confirmed boundary sphere, guidance steers
-to the *stop point* instead, ``goal_standoff_m`` before the straight path to the goal
-enters the goal's obstacle, and holds there (``GOAL_UNREACHABLE``, latched while the
-goal stays inside): a stable, reported stop outside the obstacle, never a go-around. The
-goal's obstacle is every sphere holding the goal and, transitively, every sphere whose
-surface comes within ``goal_standoff_m`` of one of theirs: an obstacle arrives as
-several map pieces, and the piece holding the goal (its blind spot) lies behind pieces
-that do not. Stopping short of the goal's piece alone put the stop point inside a front
-piece whenever one covered it; guidance then held wherever the vehicle was with another
-reason, so the place and the reported reason of the stop hung on which pieces the last
-frames had confirmed (frame timing, CPU load). Now the stop point lies outside every
-confirmed sphere (any sphere holding it would be within ``goal_standoff_m`` of the one
-the path enters), and the reason for holding short of a goal inside an obstacle is
-always ``GOAL_UNREACHABLE``.
+   a confirmed boundary (:mod:`companion.guidance.goal_stop`).
 7. AVOID: :func:`~companion.guidance.planner.choose_aiming_point` over all remembered
    obstacles, candidates from the cluster of cones overlapping the active and threatening
    ones. Nothing free → HOLD (``NO_FREE_DIRECTION``). Eq. (28)'s reference is the
@@ -72,6 +50,12 @@ always ``GOAL_UNREACHABLE``.
    seen free leads past the obstacle through a way the cones close, guidance flies that
    path's first leg (``KNOWN_PATH``, :func:`~companion.guidance.known_path.
    prefer_known_path`); the safety envelope bounds it like any setpoint.
+
+After step 7, no progress and every stall reported: :mod:`companion.guidance.progress`.
+
+Unreachable goal (the goal inside a confirmed boundary): guidance steers to a stop
+point outside the goal's obstacle and holds there, ``GOAL_UNREACHABLE``
+(:mod:`companion.guidance.goal_stop`).
 
 Committing to a side
 --------------------
@@ -109,12 +93,10 @@ about to travel), so the forward camera looks where it goes; in HOLD and within
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from enum import Enum
 
 import numpy as np
 
@@ -127,9 +109,14 @@ from companion.guidance.cone import (
     segment_intersects_sphere,
 )
 from companion.guidance.config import GuidanceConfig
+from companion.guidance.goal_stop import hold_at_stop_point, inside_ball, same_obstacle, stop_point
+from companion.guidance.hold import inside_any, nearest_outside
 from companion.guidance.known_path import KnownPath, prefer_known_path
-from companion.guidance.memory import ObstacleMemory, TrackedObstacle, update_memory
+from companion.guidance.memory import TrackedObstacle, update_memory
+from companion.guidance.modes import Mode, Reason
 from companion.guidance.planner import choose_aiming_point, overlapping_cluster
+from companion.guidance.progress import Progress, watch_progress
+from companion.guidance.step_types import GuidanceOutput, GuidanceState
 from protocols.config import vec3
 
 __all__ = [
@@ -143,183 +130,13 @@ __all__ = [
 ]
 
 
-class Mode(Enum):
-    """What the vehicle is doing."""
-
-    NAVIGATE = "navigate"
-    """Waypoint guidance to the goal (paper Fig. 5, navigation maneuver)."""
-    AVOID = "avoid"
-    """Guidance to the aiming point (or out of a boundary sphere)."""
-    HOLD = "hold"
-    """Brake and hold position: no safe direction, or the goal is unreachable."""
-
-
-class Reason(Enum):
-    """Why the mode is what it is (for status messages, logs and failure statistics)."""
-
-    NO_THREAT = "no_threat"
-    CRITICAL = "critical"
-    HYSTERESIS = "hysteresis"
-    GOAL_BLOCKED = "goal_blocked"
-    INSIDE_BOUNDARY = "inside_boundary"
-    NO_FREE_DIRECTION = "no_free_direction"
-    GOAL_UNREACHABLE = "goal_unreachable"
-    """The goal lies inside a confirmed boundary: holding at the stop point outside it."""
-    NO_PROGRESS = "no_progress"
-    """No progress toward the goal for ``stall_timeout_s``: holding where it is."""
-    KNOWN_PATH = "known_path"
-    """Flying the first leg of a path through space seen free: the cone rule left no
-    admissible direction or closed a way the map shows open."""
-
-
-@dataclass(frozen=True)
-class GuidanceState:
-    """Everything guidance remembers between frames.
-
-    Attributes
-    ----------
-    mode : Mode
-    active_id : int or None
-        Track id of the obstacle being avoided.
-    clear_since_s : float or None
-        Simulation time since which the exit condition has held [s].
-    hold_ned_m : tuple of 3 float or None
-        Latched HOLD position [m, NED].
-    yaw_rad : float or None
-        Last commanded yaw [rad] (NED: 0 north, +π/2 east).
-    time_s : float or None
-        Simulation time of the last step [s].
-    memory : ObstacleMemory
-    cleared_ids : frozenset of int
-        Tracks released after avoidance with the straight path to the goal clear: they
-        trigger avoidance again only if that path becomes blocked by them or the vehicle
-        enters their boundary.
-    aim_dir_ned : tuple of 3 float or None
-        Unit direction to the aiming point chosen at the last step (AVOID only).
-    unreachable : bool
-        HOLD was entered because the goal is unreachable (latched while it stays so).
-    progress : Progress or None
-        The goal being flown to, the best distance to it and the time spent since without
-        getting nearer [m, s].
-    on_known_path : bool
-        The last step flew a known-space path's first leg (``KNOWN_PATH``).
-    escaped_id : int or None
-        Track the vehicle escaped from (``INSIDE_BOUNDARY``) and is not yet
-        ``escape_clearance_m`` outside of.
-    """
-
-    mode: Mode = Mode.NAVIGATE
-    active_id: int | None = None
-    clear_since_s: float | None = None
-    hold_ned_m: tuple[float, float, float] | None = None
-    yaw_rad: float | None = None
-    time_s: float | None = None
-    memory: ObstacleMemory = field(default_factory=ObstacleMemory)
-    cleared_ids: frozenset[int] = frozenset()
-    aim_dir_ned: tuple[float, float, float] | None = None
-    unreachable: bool = False
-    progress: Progress | None = None
-    on_known_path: bool = False
-    escaped_id: int | None = None
-
-
 KnownPathFn = Callable[[np.ndarray, np.ndarray, list], KnownPath | None]
 """``(pos_ned_m, goal_ned_m, spheres) → KnownPath or None``: a search of the known-space map
 (:func:`companion.guidance.known_path.plan_known_path` with the map bound)."""
 
-_MAX_STEP_GAP_S = 0.5  # a longer gap between steps is time guidance did not steer
-
-
-@dataclass(frozen=True)
-class Progress:
-    """Progress toward one goal: the best distance to it so far, the guidance time spent
-    since without getting ``stall_progress_m`` nearer, and whether guidance gave up
-    (``NO_PROGRESS``, latched until the goal changes).
-
-    ``near_best_m``/``near_stuck_s`` are the near-goal rule's best distance and count,
-    ``detour_cells`` the cells (``detour_cell_m`` cubes) visited since the best distance
-    improved, ``since_best_s`` the steering time since then, new cells or not
-    (``max_detour_s``), and ``unreachable`` the latched ``GOAL_UNREACHABLE`` hold.
-    """
-
-    goal_ned_m: tuple[float, float, float]
-    best_distance_m: float
-    stuck_s: float = 0.0
-    stalled: bool = False
-    near_best_m: float = math.inf
-    near_stuck_s: float = 0.0
-    detour_cells: frozenset[tuple[int, int, int]] = frozenset()
-    since_best_s: float = 0.0
-    unreachable: bool = False
-
-
-def _stop_point(pos: np.ndarray, goal: np.ndarray, tracks, cfg) -> np.ndarray | None:
-    """The stop point short of a goal inside a confirmed boundary (see "Unreachable goal"
-    in the module docstring), or None when the goal is outside every one."""
-    holding = [i for i, t in enumerate(tracks) if _inside_ball(goal, t.sphere)]
-    if not holding:
-        return None
-    obstacle = _same_obstacle(tracks, holding, gap_m=cfg.goal_standoff_m)
-    return _stop_short(pos, goal, [tracks[i] for i in obstacle], cfg.goal_standoff_m)
-
-
-def _stop_short(pos: np.ndarray, goal: np.ndarray, blocking, standoff_m: float) -> np.ndarray:
-    """Where to stop on the way to an unreachable goal: ``standoff_m`` before the segment
-    ``pos → goal`` first enters one of the ``blocking`` spheres (``pos`` if already in)."""
-    d = goal - pos
-    length = norm3(d)
-    if length <= 1e-9:
-        return pos.copy()
-    u = d / length
-    t_stop = length
-    for track in blocking:
-        c = np.asarray(track.sphere.center_ned_m) - pos
-        r = float(track.sphere.radius_m)
-        b = float(c @ u)
-        disc = b * b - (float(c @ c) - r * r)
-        if disc < 0.0:
-            continue
-        t_stop = min(t_stop, b - math.sqrt(disc))
-    return pos + u * max(t_stop - standoff_m, 0.0)
-
-
-@dataclass(frozen=True, eq=False)
-class GuidanceOutput:
-    """One step's decision.
-
-    Attributes
-    ----------
-    time_s : float
-        Simulation time of the step [s].
-    mode : Mode
-    reason : Reason
-    avoidance_flag : bool
-        Fig. 11: True while avoiding (AVOID or HOLD).
-    setpoint_ned_m : ndarray, shape (3,)
-        Position setpoint [m, NED]: goal, extended aiming direction, escape or hold point.
-    yaw_rad : float
-        Desired yaw [rad], NED (0 north, +π/2 east), facing the setpoint.
-    active_obstacle : TrackedObstacle or None
-        The obstacle being avoided.
-    aiming_point_ned_m : ndarray, shape (3,) or None
-        The Eq. (28) tangent point chosen (AVOID via the planner only).
-    tracks : tuple of TrackedObstacle
-        The confirmed obstacles of the memory after this step.
-    """
-
-    time_s: float
-    mode: Mode
-    reason: Reason
-    avoidance_flag: bool
-    setpoint_ned_m: np.ndarray
-    yaw_rad: float
-    active_obstacle: TrackedObstacle | None
-    aiming_point_ned_m: np.ndarray | None
-    tracks: tuple[TrackedObstacle, ...]
-
-
-def _inside_ball(point: np.ndarray, ball) -> bool:
-    return norm3(point - np.asarray(ball.center_ned_m)) < float(ball.radius_m)
+WayBlockedFn = Callable[[np.ndarray, np.ndarray], bool]
+"""``(start_ned_m, end_ned_m) → bool``: the vehicle's body moving straight between them
+meets a surface the map has seen (:func:`companion.guidance.known_path.way_blocked`)."""
 
 
 def guidance_step(
@@ -335,6 +152,7 @@ def guidance_step(
     steering: bool = True,
     goal_surely_blocked: bool = True,
     known_path: KnownPathFn | None = None,
+    way_blocked: WayBlockedFn | None = None,
 ) -> tuple[GuidanceState, GuidanceOutput]:
     """Advance guidance by one perception frame.
 
@@ -358,9 +176,10 @@ def guidance_step(
         only such time counts toward ``NO_PROGRESS``.
     goal_surely_blocked : bool
         A sphere holds the goal for certain, not by a blind spot only: a ``GOAL_UNREACHABLE``
-        hold is latched (``_watch_progress``; ``map_boundaries.goal_surely_blocked``).
-    known_path : callable, optional
-        Search for a path through known-free space (step 7); None: the cone rule alone.
+        hold is latched (``progress.watch_progress``, ``map_boundaries.goal_surely_blocked``).
+    known_path, way_blocked : callable, optional
+        The known-space map's path search and its "surface in the way" (step 7); None:
+        the cone rule alone.
 
     Returns
     -------
@@ -380,15 +199,13 @@ def guidance_step(
         goal_ned_m=goal, config=cfg,
     )  # fmt: skip
     tracks = tuple(t for t in memory.tracks if t.confirmed)
-    apex = pos.copy()  # one read-only apex shared by this step's cones
-    cones = [_collision_cone(apex, t.sphere) for t in tracks]
-    # Unreachable goal (inside a confirmed boundary): the goal becomes the stop point just
-    # outside its obstacle; once there (or once held for this reason) the vehicle holds.
-    stop = _stop_point(pos, goal, tracks, cfg)
+    cones = _cones(pos, tracks)
+    stop = stop_point(pos, goal, tracks, cfg)  # unreachable goal: the stop point instead
     unreachable = stop is not None
     if unreachable:
         goal = stop
-    f = _Frame(time_s, pos, goal, _reference(pos, vel, goal, cfg), tracks, cones, known_path)
+    ref = _reference(pos, vel, goal, cfg)
+    f = _Frame(time_s, pos, goal, ref, tracks, cones, known_path, way_blocked)
     live_ids = {t.track_id for t in tracks}
     d = _Decision(setpoint=goal, cleared={i for i in state.cleared_ids if i in live_ids})
     inside = [i for i, c in enumerate(cones) if c.apex_inside]
@@ -397,11 +214,16 @@ def guidance_step(
     else:
         _avoid_threats(state, f, d, cfg)
     if unreachable:
-        _hold_at_stop_point(state, f, d, cfg)
-    progress = _watch_progress(state, f, tuple(goal_in), d, cfg, steering, goal_surely_blocked)
+        hold_at_stop_point(state, f, d, cfg)
+    progress = watch_progress(state, f, tuple(goal_in), d, cfg, steering, goal_surely_blocked)
     hold = _latch_hold(state, f, d)
     yaw = _yaw(state, f, d, yaw_rad, cfg)
     return _outputs(f, d, memory, hold, yaw, progress)
+
+
+def _cones(pos: np.ndarray, tracks) -> list:
+    apex = pos.copy()  # one read-only apex shared by this step's cones
+    return [_collision_cone(apex, t.sphere) for t in tracks]
 
 
 def _check_time(state: GuidanceState, time_s: float) -> float:
@@ -424,6 +246,7 @@ class _Frame:
     tracks: tuple[TrackedObstacle, ...]
     cones: list
     plan: KnownPathFn | None = None
+    blocked: WayBlockedFn | None = None
 
     _blocked: dict[int, bool] = field(default_factory=dict, repr=False)
 
@@ -489,6 +312,14 @@ def _escape_boundary(state, f: _Frame, inside: list[int], d: _Decision, cfg) -> 
         reference_ned=keep_going,
         slide_m=cfg.min_setpoint_distance_m,
     )
+    spheres = [t.sphere for t in tracks]
+    if inside_any(d.setpoint, spheres):
+        # out of the deepest piece into a neighbouring one (a wall is many pieces): the
+        # nearest point out of all of them, the radial way out preferred
+        out = nearest_outside(
+            f.pos, spheres, clearance_m=cfg.escape_clearance_m, prefer_ned=d.setpoint - f.pos
+        )
+        d.setpoint = d.setpoint if out is None else out
     d.aim_dir = state.aim_dir_ned if same else None
 
 
@@ -512,8 +343,8 @@ def _avoid_threats(state, f: _Frame, d: _Decision, cfg) -> None:
     d.reason = Reason.CRITICAL if active in threats else kept_reason
     if d.reason is not Reason.HYSTERESIS:
         d.clear_since = None
-    if active in threats and _inside_ball(f.goal, cones[active]):
-        d.mode, d.reason = Mode.HOLD, Reason.GOAL_UNREACHABLE  # a guard: see _stop_point
+    if active in threats and inside_ball(f.goal, cones[active]):
+        d.mode, d.reason = Mode.HOLD, Reason.GOAL_UNREACHABLE  # a guard: see stop_point
     else:
         _plan_aim(state, f, sorted({active, *threats}), d, cfg)
 
@@ -535,7 +366,7 @@ def _keep_active(state, f: _Frame, threats: list[int], d: _Decision, cfg):
         d.escaped = state.escaped_id  # just escaped, the goal beyond: not released yet
         return kept, Reason.HYSTERESIS
     behind = not f.has_ref or float(f.ref @ cone.axis_ned) <= 0.0
-    obstacle = _same_obstacle(f.tracks, [kept])
+    obstacle = same_obstacle(f.tracks, [kept])
     if any(f.goal_blocked(i) for i in obstacle):
         kept_reason = Reason.GOAL_BLOCKED
     elif behind:
@@ -551,29 +382,6 @@ def _keep_active(state, f: _Frame, threats: list[int], d: _Decision, cfg):
         else:
             kept_reason, d.clear_since = Reason.HYSTERESIS, since
     return kept, kept_reason
-
-
-def _same_obstacle(tracks, seeds: Iterable[int], gap_m: float = 0.0) -> list[int]:
-    """Indices of the spheres touching the ``seeds``' (or within ``gap_m`` of them),
-    transitively: one obstacle's map pieces.
-
-    The active obstacle is kept while the straight path to the goal crosses any of its
-    pieces, and passing it clears all of them at once. Deciding on the active piece alone
-    released the avoidance while the goal path still crossed a neighbouring piece; the
-    velocity, turning back to the goal, entered that piece's cone and the avoidance
-    restarted (the flag of Fig. 11 chattered).
-    """
-    centers = [np.asarray(t.sphere.center_ned_m) for t in tracks]
-    radii = [float(t.sphere.radius_m) for t in tracks]
-    group = set(seeds)
-    frontier = sorted(group)
-    while frontier:
-        a = frontier.pop()
-        for j in range(len(tracks)):
-            if j not in group and norm3(centers[a] - centers[j]) <= radii[a] + radii[j] + gap_m:
-                group.add(j)
-                frontier.append(j)
-    return sorted(group)
 
 
 def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
@@ -601,7 +409,14 @@ def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
         vertical_weight=cfg.vertical_weight,
         cluster_tie=plan_ref is f.ref,
     )
-    if _fly_known_path(state, f, cluster, choice, d, cfg):
+    carrot = None
+    if choice is not None:
+        reach = min(
+            max(choice.distance_m + cfg.setpoint_extension_m, cfg.min_setpoint_distance_m),
+            cfg.max_setpoint_distance_m,
+        )
+        carrot = f.pos + choice.direction_ned * reach
+    if _fly_known_path(state, f, cluster, choice, carrot, d, cfg):
         return
     if choice is None:
         d.mode, d.reason = Mode.HOLD, Reason.NO_FREE_DIRECTION
@@ -609,17 +424,14 @@ def _plan_aim(state, f: _Frame, seeds: list[int], d: _Decision, cfg) -> None:
     d.mode = Mode.AVOID
     d.aim = choice.aiming_point_ned_m
     d.aim_dir = tuple(float(x) for x in choice.direction_ned)
-    reach = min(
-        max(choice.distance_m + cfg.setpoint_extension_m, cfg.min_setpoint_distance_m),
-        cfg.max_setpoint_distance_m,
-    )
-    d.setpoint = f.pos + choice.direction_ned * reach
+    d.setpoint = carrot
 
 
-def _fly_known_path(state, f: _Frame, cluster, choice, d, cfg) -> bool:
-    """Step 7's second guess: the first leg of a path through known-free space, when the
-    cone rule has no admissible direction (``choice`` None) or closes a way the map shows
-    open."""
+def _fly_known_path(state, f: _Frame, cluster, choice, carrot, d, cfg) -> bool:
+    """Step 7's second guess: the first leg of a path through known-free space, where the
+    cone rule fails (:func:`~companion.guidance.known_path.prefer_known_path`): no
+    admissible direction (``choice`` None), its ``carrot`` blocked in known space, or a
+    way the map shows open closed by the cones."""
     if f.plan is None:
         return False
     cone_has_direction = choice is not None
@@ -628,13 +440,17 @@ def _fly_known_path(state, f: _Frame, cluster, choice, d, cfg) -> bool:
         aim = np.asarray(choice.aiming_point_ned_m)
         cone_way_m = norm3(aim - f.pos) + norm3(f.goal - aim)
     kept = state.on_known_path and state.mode is Mode.AVOID
-    if cone_has_direction and not kept and not any(f.goal_blocked(i) for i in cluster):
+    goal_blocked = any(f.goal_blocked(i) for i in cluster)
+    blocked = carrot is not None and f.blocked is not None and f.blocked(f.pos, carrot)
+    if cone_has_direction and not (kept or goal_blocked or blocked):
         return False
     path = f.plan(f.pos, f.goal, [t.sphere for t in f.tracks])
     if not prefer_known_path(
         path, f.pos, f.goal, cone_has_direction=cone_has_direction,
         cones=[f.cones[i] for i in cluster], kept=kept,
         min_progress_m=cfg.known_path_progress_m, cone_way_m=cone_way_m,
+        cone_blocked=blocked,
+        cone_dir_ned=None if choice is None else np.asarray(choice.direction_ned),
     ):  # fmt: skip
         return False
     leg = np.array(path.leg_end_ned_m, dtype=float)
@@ -643,99 +459,6 @@ def _fly_known_path(state, f: _Frame, cluster, choice, d, cfg) -> bool:
     d.aim_dir = tuple(float(x) for x in (leg - f.pos) / norm3(leg - f.pos))
     d.setpoint = leg
     return True
-
-
-def _hold_at_stop_point(state: GuidanceState, f: _Frame, d: _Decision, cfg) -> None:
-    """The goal is unreachable and ``f.goal`` is the stop point before its obstacle: HOLD
-    (``GOAL_UNREACHABLE``) once within ``goal_standoff_m`` of it, and while held for it."""
-    if (state.mode is Mode.HOLD and state.unreachable) or f.goal_dist < cfg.goal_standoff_m:
-        d.mode, d.reason = Mode.HOLD, Reason.GOAL_UNREACHABLE
-        d.aim, d.aim_dir = None, None
-
-
-def _watch_progress(
-    state: GuidanceState,
-    f: _Frame,
-    goal: tuple[float, float, float],
-    d: _Decision,
-    cfg,
-    steering: bool,
-    surely_blocked: bool = True,
-) -> Progress:
-    """Every stall ends in a latched, reported HOLD (until the goal changes).
-
-    * ``GOAL_UNREACHABLE`` entered while the goal is surely blocked (``surely_blocked``)
-      stays held for this goal: the map's pieces change from frame to frame, and a goal
-      that left every confirmed sphere for one frame must not release the stop into a
-      go-around (issue 36).
-    * ``NO_PROGRESS``: ``stall_timeout_s`` of steering outside a HOLD without getting
-      ``stall_progress_m`` nearer the goal. The count restarts in other HOLDs and on each
-      step of an ``AVOID`` detour into a cell not visited since the best distance (a detour
-      still going somewhere: along a wall toward its end), but never after ``max_detour_s``
-      without getting nearer. Within ``2 · stall_progress_m`` of the goal its own rule
-      counts instead (``near_goal_stall_s`` without getting ``0.2 · stall_progress_m``
-      nearer), standing still within ``stall_progress_m`` (arrived: hovering at the goal is
-      not a stall; circling past it is). A gap between steps (no frames) and a step the
-      vehicle does not fly (``steering`` false: a failsafe hold, a pilot's mode) do not
-      count.
-    """
-    progress = state.progress
-    dist = norm3(np.asarray(goal) - f.pos)
-    if progress is None or progress.goal_ned_m != goal:
-        return Progress(goal, dist)
-    if progress.stalled:
-        _hold(d, Reason.NO_PROGRESS)
-        return progress
-    if progress.unreachable:
-        _hold(d, Reason.GOAL_UNREACHABLE)
-        return progress
-    if d.mode is Mode.HOLD and d.reason is Reason.GOAL_UNREACHABLE and surely_blocked:
-        return dataclasses.replace(progress, unreachable=True)
-    if dist <= progress.best_distance_m - cfg.stall_progress_m or d.mode is Mode.HOLD:
-        return Progress(goal, min(dist, progress.best_distance_m))
-    dt = f.time_s - state.time_s if state.time_s is not None else 0.0
-    dt = dt if steering and dt <= _MAX_STEP_GAP_S else 0.0  # time guidance steered
-    if dist <= 2.0 * cfg.stall_progress_m:
-        return _near_goal(progress, dist, dt, d, cfg)
-    cells = progress.detour_cells
-    stuck_s = progress.stuck_s + dt
-    since_best_s = progress.since_best_s + dt
-    if d.mode is Mode.AVOID and dt > 0.0:
-        cell = tuple(math.floor(float(x) / cfg.detour_cell_m) for x in f.pos)
-        if cell not in cells:
-            cells = cells | {cell}
-            stuck_s = 0.0  # a detour still going somewhere new
-    timed_out = stuck_s >= cfg.stall_timeout_s or since_best_s >= cfg.max_detour_s
-    stalled = cfg.stall_timeout_s > 0.0 and timed_out
-    if stalled:
-        _hold(d, Reason.NO_PROGRESS)
-    return dataclasses.replace(
-        progress,
-        stuck_s=stuck_s,
-        stalled=stalled,
-        detour_cells=cells,
-        since_best_s=since_best_s,
-        near_best_m=math.inf,
-        near_stuck_s=0.0,
-    )
-
-
-def _near_goal(progress: Progress, dist: float, dt: float, d: _Decision, cfg) -> Progress:
-    """The near-goal rule of :func:`_watch_progress`."""
-    if dist <= cfg.stall_progress_m:  # arrived (the mission's tolerance): stands still
-        return dataclasses.replace(progress, near_best_m=min(dist, progress.near_best_m))
-    if dist <= progress.near_best_m - 0.2 * cfg.stall_progress_m:
-        return dataclasses.replace(progress, near_best_m=dist, near_stuck_s=0.0)
-    near_stuck_s = progress.near_stuck_s + dt
-    stalled = cfg.stall_timeout_s > 0.0 and near_stuck_s >= cfg.near_goal_stall_s
-    if stalled:
-        _hold(d, Reason.NO_PROGRESS)
-    return dataclasses.replace(progress, near_stuck_s=near_stuck_s, stalled=stalled)
-
-
-def _hold(d: _Decision, reason: Reason) -> None:
-    d.mode, d.reason = Mode.HOLD, reason
-    d.aim, d.aim_dir = None, None
 
 
 def _latch_hold(state, f: _Frame, d: _Decision) -> tuple[float, float, float] | None:
@@ -829,6 +552,7 @@ class Guidance:
         steering: bool = True,
         goal_surely_blocked: bool = True,
         known_path: KnownPathFn | None = None,
+        way_blocked: WayBlockedFn | None = None,
     ) -> GuidanceOutput:
         """Run :func:`guidance_step` on the held state; returns the output."""
         self.state, output = guidance_step(
@@ -843,5 +567,6 @@ class Guidance:
             steering=steering,
             goal_surely_blocked=goal_surely_blocked,
             known_path=known_path,
+            way_blocked=way_blocked,
         )
         return output

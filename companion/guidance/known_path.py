@@ -51,20 +51,38 @@ traversable voxel (or the vehicle's own). Guidance aims along it.
 
 When the path wins over the cone (:func:`prefer_known_path`)
 ------------------------------------------------------------
-* The cone rule found **no admissible direction**: the path is flown when it gets at
-  least ``min_progress_m`` (``GuidanceConfig.known_path_progress_m``) nearer the goal
-  (else guidance holds, as before).
-* The cone rule found one, but the path's first leg points **into a cone** of the
-  obstacle being avoided (the cone closes a way the map shows open) and the path ends
-  **past that obstacle** (nearer the goal than every one of its spheres' centres) at
-  least ``min_progress_m`` nearer the goal, and the path (plus the straight line from its
-  end to the goal) is ``min_progress_m`` shorter than the cone's way (vehicle → aiming
-  point → goal) or passes *between* two of the obstacle's spheres (seen from above, it
-  crosses the segment joining their centres: an opening): the path is flown. A path
-  that only leads up to the obstacle's face, or goes round it the way the cone does
-  (§6: one sphere), does not replace the paper's rule.
-* Once flown, the path is kept (hysteresis) while it still gets ``min_progress_m``
-  nearer the goal, so guidance does not flip between the two rules frame by frame.
+The paper's cone and aiming point lead; the path leads only where the cone rule fails,
+on evidence from the map, never because it is a little shorter (§6 keeps its shape: a
+single sphere is gone round the way the paper goes round it). The path must get at least
+``min_progress_m`` (``GuidanceConfig.known_path_progress_m``) nearer the goal, and then
+leads when
+
+* the cone rule found **no admissible direction** (else guidance holds, as before);
+* the cone rule's direction is **blocked in known space** (:func:`way_blocked`): the
+  vehicle's body, moving straight to the cone's carrot, would meet a surface the map has
+  seen (OCCUPIED; its radius, no margin), and the path leads another way (its first leg
+  more than 45° from the cone's direction). The cone rule sees only the boundaries within
+  the detection threshold (4 m, the paper's); the map has seen the wall beyond them, so
+  a carrot that leads out of a corridor into its wall is known to end in a surface. When
+  both lead the same way (§6: the carrot grazes the far part of the one sphere, not yet
+  a boundary, and the path goes round the same side) the paper's rule stays;
+* the straight path to the goal is blocked by the obstacle avoided, the path's first leg
+  points **into a cone** of that obstacle (the cone closes a way the map shows open) and
+  the path ends **past that obstacle** (nearer the goal than every one of its spheres'
+  centres), and one of: the path (plus the straight line from its end to the goal) is
+  ``min_progress_m`` shorter than the cone's way (vehicle → aiming point → goal); it
+  passes *between* two of the obstacle's spheres (seen from above, it crosses the segment
+  joining their centres: an opening); or it reaches the goal and the cone's direction
+  **leads away** from it (no component along its first leg: round the far end of a wall
+  while the known way goes through it). A path that only leads up to the obstacle's face,
+  or goes round it the way the cone does (§6: one sphere, the two ways round less than a
+  right angle apart), does not replace the paper's rule;
+* once flown, the path is kept (hysteresis) while it still gets ``min_progress_m`` nearer
+  the goal, so guidance does not flip between the two rules frame by frame.
+
+Cost: a path found is followed (:func:`follow_known_path`) for up to ``replan_frames``
+frames while every voxel of its rest still passes the search's test, instead of being
+searched again (``benchmarks/bench_guidance_path.py``).
 """
 
 from __future__ import annotations
@@ -82,7 +100,17 @@ import numpy as np
 from companion.known_space import FREE, OCCUPIED, TENTATIVE, UNKNOWN
 from protocols.config import bounded, check_fields, dataclass_from_mapping
 
-__all__ = ["KnownPath", "KnownPathConfig", "plan_known_path", "prefer_known_path"]
+#: the path's first leg and the cone's direction lead different ways beyond this angle
+_APART_RAD = math.radians(45.0)
+
+__all__ = [
+    "KnownPath",
+    "KnownPathConfig",
+    "follow_known_path",
+    "plan_known_path",
+    "prefer_known_path",
+    "way_blocked",
+]
 
 
 @dataclass(frozen=True)
@@ -114,6 +142,13 @@ class KnownPathConfig:
         The search ends once every way still open is this much longer (cost plus
         distance to the goal) than the best end found so far [m]: a partial path's end
         that costs a detour of more than this is not worth looking for.
+    replan_frames : int
+        A path found is followed (:func:`follow_known_path`) for up to this many map frames
+        before the map is searched again (10: a third of a second at 30 Hz), while it stays
+        valid; a new opening is found within that time.
+    rejoin_m : float
+        A path is followed only while the vehicle is within this distance of one of its
+        voxels [m]; farther, it has left the path and the map is searched again.
     """
 
     clearance_m: float = bounded(0.65, "m", ge=0)
@@ -126,6 +161,8 @@ class KnownPathConfig:
     leg_max_m: float = bounded(4.0, "m", gt=0)
     max_expansions: int = bounded(20000, integer=True, ge=1)
     slack_m: float = bounded(5.0, "m", ge=0)
+    replan_frames: int = bounded(10, integer=True, ge=1)
+    rejoin_m: float = bounded(0.6, "m", gt=0)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -390,6 +427,127 @@ def _line_of_sight(grid, origin, voxel, pos, end, lo, ny, nz, nx, trav, sx, sy, 
     return True
 
 
+@numba.njit(cache=True)
+def _voxel_clear(grid, gx, gy, gz, centre, spheres, occ_off, sec_off, check_section):
+    """The search's test of one voxel (traversable, and no OCCUPIED or TENTATIVE voxel
+    within the clearance), asked of one voxel alone (the search stamps the clearance over
+    its whole box once)."""
+    if _traversable(grid, gx, gy, gz, centre, spheres, sec_off, check_section) != 1:
+        return False
+    for n in range(occ_off.shape[0]):
+        s = _state(grid, gx + occ_off[n, 0], gy + occ_off[n, 1], gz + occ_off[n, 2])
+        if s == OCCUPIED:
+            return False
+        if s == TENTATIVE:
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _clear_line(grid, origin, voxel, pos, end, spheres, occ_off, sec_off, near_m):
+    """Every half-voxel sample from ``pos`` to ``end`` lies in a clear voxel (or the
+    vehicle's own): :func:`_line_of_sight` without the search's table."""
+    sx = math.floor(pos[0] / voxel)
+    sy = math.floor(pos[1] / voxel)
+    sz = math.floor(pos[2] / voxel)
+    dx, dy, dz = end[0] - pos[0], end[1] - pos[1], end[2] - pos[2]
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    steps = math.ceil(length / (0.5 * voxel))
+    centre = np.empty(3)
+    lx, ly, lz = sx, sy, sz
+    for s in range(1, steps + 1):
+        t = s / steps
+        gx = math.floor((pos[0] + t * dx) / voxel)
+        gy = math.floor((pos[1] + t * dy) / voxel)
+        gz = math.floor((pos[2] + t * dz) / voxel)
+        if (gx == sx and gy == sy and gz == sz) or (gx == lx and gy == ly and gz == lz):
+            continue
+        lx, ly, lz = gx, gy, gz
+        centre[0] = (gx + 0.5) * voxel
+        centre[1] = (gy + 0.5) * voxel
+        centre[2] = (gz + 0.5) * voxel
+        far = math.sqrt(
+            (centre[0] - pos[0]) ** 2 + (centre[1] - pos[1]) ** 2 + (centre[2] - pos[2]) ** 2
+        )
+        ix, iy, iz = gx - origin[0], gy - origin[1], gz - origin[2]
+        if not _voxel_clear(grid, ix, iy, iz, centre, spheres, occ_off, sec_off, far > near_m):
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _follow(grid, origin, voxel, pos, path, spheres, occ_off, sec_off, near_m, leg_max_m, rejoin_m):
+    """The rest of ``path`` (rows 1…) from its voxel nearest ``pos``: (first row kept, leg
+    row), (-1, -1) when the vehicle is farther than ``rejoin_m`` from it or a voxel of the
+    rest is no longer clear, leg -1 when no row within ``leg_max_m`` is seen in a line."""
+    n = path.shape[0]
+    k0 = -1
+    best = np.inf
+    for k in range(1, n):
+        d = math.sqrt(
+            (path[k, 0] - pos[0]) ** 2 + (path[k, 1] - pos[1]) ** 2 + (path[k, 2] - pos[2]) ** 2
+        )
+        if d < best:
+            best, k0 = d, k
+    if k0 < 0 or best > rejoin_m:
+        return -1, -1
+    sx = math.floor(pos[0] / voxel)
+    sy = math.floor(pos[1] / voxel)
+    sz = math.floor(pos[2] / voxel)
+    for k in range(k0, n):
+        gx = math.floor(path[k, 0] / voxel)
+        gy = math.floor(path[k, 1] / voxel)
+        gz = math.floor(path[k, 2] / voxel)
+        if gx == sx and gy == sy and gz == sz:
+            continue
+        far = math.sqrt(
+            (path[k, 0] - pos[0]) ** 2 + (path[k, 1] - pos[1]) ** 2 + (path[k, 2] - pos[2]) ** 2
+        )
+        ix, iy, iz = gx - origin[0], gy - origin[1], gz - origin[2]
+        if not _voxel_clear(grid, ix, iy, iz, path[k], spheres, occ_off, sec_off, far > near_m):
+            return -1, -1
+    last = k0
+    along = best
+    for k in range(k0 + 1, n):
+        along += math.sqrt(
+            (path[k, 0] - path[k - 1, 0]) ** 2
+            + (path[k, 1] - path[k - 1, 1]) ** 2
+            + (path[k, 2] - path[k - 1, 2]) ** 2
+        )
+        if along > leg_max_m + 1e-9:
+            break
+        last = k
+    for k in range(last, k0 - 1, -1):  # the farthest row seen in a straight line
+        if _clear_line(grid, origin, voxel, pos, path[k], spheres, occ_off, sec_off, near_m):
+            return k0, k
+    return k0, -1
+
+
+@numba.njit(cache=True)
+def _body_meets_surface(grid, origin, voxel, a, b, body_off):
+    """A half-voxel sample of the segment ``a → b`` has an OCCUPIED voxel among the
+    offsets ``body_off`` about its voxel (a ball measured to the voxels' faces)."""
+    dx, dy, dz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    steps = max(math.ceil(length / (0.5 * voxel)), 1)
+    lx, ly, lz = -(2**62), 0, 0
+    for s in range(steps + 1):
+        t = s / steps
+        gx = math.floor((a[0] + t * dx) / voxel) - origin[0]
+        gy = math.floor((a[1] + t * dy) / voxel) - origin[1]
+        gz = math.floor((a[2] + t * dz) / voxel) - origin[2]
+        if gx == lx and gy == ly and gz == lz:
+            continue
+        lx, ly, lz = gx, gy, gz
+        for n in range(body_off.shape[0]):
+            if (
+                _state(grid, gx + body_off[n, 0], gy + body_off[n, 1], gz + body_off[n, 2])
+                == OCCUPIED
+            ):
+                return True
+    return False
+
+
 def _sphere_array(spheres: Iterable) -> np.ndarray:
     rows = [
         (*(float(x) for x in s.center_ned_m), float(s.radius_m))
@@ -464,6 +622,92 @@ def plan_known_path(
     )
 
 
+def follow_known_path(
+    path: KnownPath,
+    grid: np.ndarray,
+    origin_vox: np.ndarray,
+    voxel_m: float,
+    pos_ned_m,
+    goal_ned_m,
+    *,
+    spheres: Iterable = (),
+    config: KnownPathConfig | None = None,
+) -> KnownPath | None:
+    """An earlier search's ``path`` from where the vehicle is now, without a search, when
+    it is still valid in the map as it is now; None: search again.
+
+    Valid: the vehicle is within ``rejoin_m`` of one of its voxels, every voxel from there
+    to the path's end passes the search's own test (seen free, the clearance from surfaces,
+    outside every sphere, the section seen free beyond the near field), and a first leg is
+    seen in a straight line (module docstring). The path returned starts at the vehicle
+    and goes on from its nearest voxel (the one after it when that is nearer the vehicle
+    than to it: the vehicle has passed it); ``expanded`` is 0.
+    """
+    cfg = KnownPathConfig() if config is None else config
+    pos = np.asarray(pos_ned_m, dtype=float).reshape(3)
+    goal = np.asarray(goal_ned_m, dtype=float).reshape(3)
+    if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(goal))):
+        raise ValueError("pos_ned_m and goal_ned_m must be finite")
+    rows = np.asarray(path.waypoints_ned_m, dtype=float)
+    occ, sec = _offset_tables(cfg, float(voxel_m))
+    k0, leg = _follow(
+        grid, np.asarray(origin_vox, dtype=np.int64), float(voxel_m), pos, rows,
+        _sphere_array(spheres), occ, sec, cfg.near_field_m, cfg.leg_max_m, cfg.rejoin_m,
+    )  # fmt: skip
+    if k0 < 0 or leg < 0:
+        return None
+    if k0 + 1 < rows.shape[0] and leg > k0:
+        passed = np.linalg.norm(rows[k0 + 1] - pos) < np.linalg.norm(rows[k0 + 1] - rows[k0])
+        k0 += int(passed)
+    waypoints = np.vstack([pos, rows[k0:]])
+    waypoints.setflags(write=False)
+    leg_end = rows[leg].copy()
+    leg_end.setflags(write=False)
+    return KnownPath(
+        waypoints_ned_m=waypoints,
+        leg_end_ned_m=leg_end,
+        reaches_goal=path.reaches_goal,
+        end_to_goal_m=float(np.linalg.norm(waypoints[-1] - goal)),
+        length_m=float(np.sum(np.linalg.norm(np.diff(waypoints, axis=0), axis=1))),
+        expanded=0,
+    )
+
+
+def way_blocked(
+    grid: np.ndarray,
+    origin_vox: np.ndarray,
+    voxel_m: float,
+    start_ned_m,
+    end_ned_m,
+    *,
+    config: KnownPathConfig | None = None,
+) -> bool:
+    """Whether the vehicle's body moving straight from ``start_ned_m`` to ``end_ned_m``
+    meets a surface the map has seen: an OCCUPIED voxel whose face lies within
+    ``section_radius_m`` (the vehicle's radius, no margin) of a point of the segment. The
+    cone rule's direction is then *blocked in known space* (module docstring, "When the
+    path wins over the cone"). TENTATIVE (one frame's hit) and UNKNOWN voxels do not block:
+    the safety envelope stops the vehicle before unknown space, and the cone rule stays
+    the primary one wherever the map has not seen a surface in its way.
+    """
+    cfg = KnownPathConfig() if config is None else config
+    a = np.asarray(start_ned_m, dtype=float).reshape(3)
+    b = np.asarray(end_ned_m, dtype=float).reshape(3)
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        raise ValueError("start_ned_m and end_ned_m must be finite")
+    body = _body_table(cfg.section_radius_m, float(voxel_m))
+    return bool(
+        _body_meets_surface(
+            grid, np.asarray(origin_vox, dtype=np.int64), float(voxel_m), a, b, body
+        )
+    )
+
+
+@functools.cache
+def _body_table(radius_m: float, voxel_m: float) -> np.ndarray:
+    return _offsets(radius_m, radius_m, voxel_m, face=True)
+
+
 def prefer_known_path(
     path: KnownPath | None,
     pos_ned_m: np.ndarray,
@@ -474,6 +718,8 @@ def prefer_known_path(
     kept: bool,
     min_progress_m: float,
     cone_way_m: float = math.inf,
+    cone_blocked: bool = False,
+    cone_dir_ned: np.ndarray | None = None,
 ) -> bool:
     """Whether guidance flies ``path`` rather than the cone rule's aiming point (module
     docstring, "When the path wins over the cone").
@@ -493,6 +739,12 @@ def prefer_known_path(
     cone_way_m : float
         Length of the cone rule's way: vehicle → aiming point → goal [m] (a lower bound on
         it; the path must be ``min_progress_m`` shorter).
+    cone_blocked : bool
+        The cone rule's carrot is blocked in known space (:func:`way_blocked`): the path
+        leads if its first leg and ``cone_dir_ned`` are more than 45° apart.
+    cone_dir_ned : ndarray, shape (3,), optional
+        The cone rule's direction (unit): the path leads when it reaches the goal and the
+        cone's direction leads away from it (no component along its first leg).
     """
     if path is None:
         return False
@@ -502,6 +754,8 @@ def prefer_known_path(
     if kept or not cone_has_direction:
         return True
     leg = np.asarray(path.leg_end_ned_m) - pos_ned_m
+    if cone_blocked and (cone_dir_ned is None or _apart(leg, cone_dir_ned)):
+        return True
     cones = list(cones)
     into_cone = any(_inside_cone(c, leg) for c in cones)
     past = all(
@@ -509,7 +763,15 @@ def prefer_known_path(
         for c in cones
     )
     shorter = path.length_m + path.end_to_goal_m <= cone_way_m - min_progress_m
-    return into_cone and past and (shorter or _between_pieces(path, cones))
+    away = cone_dir_ned is not None and path.reaches_goal and float(leg @ cone_dir_ned) <= 0.0
+    return into_cone and past and (shorter or away or _between_pieces(path, cones))
+
+
+def _apart(leg: np.ndarray, direction: np.ndarray) -> bool:
+    """The path's first leg and the cone rule's direction lead different ways: more than
+    ``_APART_RAD`` apart."""
+    norm = float(np.linalg.norm(leg)) * float(np.linalg.norm(direction))
+    return norm > 0.0 and float(leg @ direction) < math.cos(_APART_RAD) * norm
 
 
 def _between_pieces(path: KnownPath, cones: list) -> bool:
@@ -544,7 +806,11 @@ def _inside_cone(cone, d: np.ndarray) -> bool:
 
 @functools.cache
 def warm_up() -> None:
-    """Compile (or load from numba's cache) the search kernel once per process."""
+    """Compile (or load from numba's cache) the search kernels once per process."""
     grid = np.full((12, 12, 12), FREE, np.int8)
     grid[6, 3:9, :] = OCCUPIED
-    plan_known_path(grid, np.zeros(3, np.int64), 0.2, (0.3, 1.2, 1.2), (2.1, 1.2, 1.2))
+    origin = np.zeros(3, np.int64)
+    path = plan_known_path(grid, origin, 0.2, (0.3, 1.2, 1.2), (2.1, 1.2, 1.2))
+    if path is not None:
+        follow_known_path(path, grid, origin, 0.2, (0.35, 1.2, 1.2), (2.1, 1.2, 1.2))
+    way_blocked(grid, origin, 0.2, (0.3, 1.2, 1.2), (2.1, 1.2, 1.2))
