@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from plant_sim.autopilot.modes import VelocityIntegrator
+from plant_sim.autopilot.integrator import VelocityIntegrator
 from plant_sim.disturbance import DisturbanceConfig, Disturbances, EstimateConfig, WindConfig
 from plant_sim.params import QuadrotorParams
 from plant_sim.vehicle import Quadrotor, Setpoint

@@ -28,8 +28,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from plant_sim.autopilot import commands as cmds
 from plant_sim.autopilot.collision_prevention import CP_PARAM_SPECS
+from plant_sim.autopilot.integrator import NO_VELOCITY_INTEGRATOR
 from plant_sim.autopilot.modes import (
-    NO_VELOCITY_INTEGRATOR,
     FlightMode,
     FlightModeMachine,
     GuidedTarget,

@@ -38,6 +38,7 @@ import enum
 import math
 from dataclasses import dataclass, replace
 
+from plant_sim.autopilot.integrator import VelocityIntegrator
 from plant_sim.autopilot.shaping import BrakeProfile, ShapingLimits, TargetShaper
 from plant_sim.vehicle import Setpoint, VehicleState
 from protocols.mavlink_modes import ArduCopterMode
@@ -51,7 +52,6 @@ __all__ = [
     "Kinematics",
     "LandedState",
     "ModeTimings",
-    "VelocityIntegrator",
 ]
 
 #: COMPONENT_ARM_DISARM param2 that bypasses the arming and disarming checks (ArduPilot).
@@ -99,26 +99,6 @@ class _Phase(enum.Enum):
 
 
 @dataclass(frozen=True)
-class VelocityIntegrator:
-    """ArduCopter's horizontal velocity-loop integrator, put on the paper's LQ loop
-    (:func:`plant_sim.flight_control.velocity_integrator`): ``PSC_VELXY_I`` and
-    ``PSC_VELXY_IMAX`` (``AC_PosControl.cpp`` defaults 1.0 and 1000 cm/s²) in SI units.
-    It removes the steady offset a wind leaves (the LQ loop has none of its own)."""
-
-    gain_xy_per_s2: float = 1.0  # PSC_VELXY_I [(m/s²)/(m/s)/s]
-    imax_xy_mps2: float = 10.0  # PSC_VELXY_IMAX 1000 cm/s²
-
-    def apply_to(self, quad) -> None:
-        """Put this integrator on ``quad`` (:class:`plant_sim.vehicle.Quadrotor`)."""
-        quad.set_velocity_integrator(self.gain_xy_per_s2, self.imax_xy_mps2)
-
-
-#: no integrator: the paper's LQ loop as it is (the PX4 flavour: its MPC_XY_VEL_I_ACC
-#: is not modelled)
-NO_VELOCITY_INTEGRATOR = VelocityIntegrator(0.0, 0.0)
-
-
-@dataclass(frozen=True)
 class ModeTimings:
     """Speeds and timeouts of the mode logic (ArduCopter parameter equivalents)."""
 
@@ -161,7 +141,7 @@ class ModeTimings:
     guided_shaping: bool = True
     # the position controller's velocity integrator (not mode logic: the service and the
     # lockstep put it on the plant whenever the timings are derived from the parameters)
-    velocity_integrator: VelocityIntegrator = VelocityIntegrator()
+    velocity_integrator: VelocityIntegrator = VelocityIntegrator()  # noqa: RUF009 (frozen)
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,8 @@ import enum
 import math
 from dataclasses import dataclass, replace
 
-from plant_sim.autopilot.modes import ModeTimings, VelocityIntegrator
+from plant_sim.autopilot.integrator import VelocityIntegrator
+from plant_sim.autopilot.modes import ModeTimings
 from plant_sim.autopilot.shaping import BrakeProfile, ShapingLimits
 
 #: g for the airframe's deceleration bound g·tan(ANGLE_MAX) [m/s²]
