@@ -235,15 +235,7 @@ def run_scene(
         if on_step is not None:
             on_step(frame, pose, step, mission)
         out = step.output
-        env = out.envelope
-        autopilot.command(
-            out.setpoint_ned_m,
-            out.yaw_rad,
-            env.speed_limit_mps,
-            state.time_s,
-            path_dir_ned=env.path_dir_ned,
-            speed_mps=env.speed_mps,
-        )
+        autopilot.command_output(out, state.time_s)
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
         if record_history:
             _record(history, state, surface, out, len(out.perception.obstacles), mission)

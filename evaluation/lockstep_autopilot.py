@@ -166,6 +166,18 @@ class LockstepAutopilot:
             climb.sent(kind, vertical_mps, capture_s)
             self.stats.speed_limits_sent += 1
 
+    def command_output(self, out, capture_s: float) -> None:
+        """:meth:`command` with a frame's :class:`~companion.pipeline.PipelineOutput`."""
+        env = out.envelope
+        self.command(
+            out.setpoint_ned_m,
+            out.yaw_rad,
+            env.speed_limit_mps,
+            capture_s,
+            path_dir_ned=env.path_dir_ned,
+            speed_mps=env.speed_mps,
+        )
+
     # ---- the autopilot's side -------------------------------------------------------
     def next_tick_step(self) -> int:
         """The physics step count of the next tick."""
