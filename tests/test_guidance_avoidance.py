@@ -1008,3 +1008,21 @@ def test_escaped_boundary_is_not_released_until_clear_of_it():
     far = 2.0 + config.escape_clearance_m + 0.05
     state, out = _step(state, 2 * DT_S, (0.0, far, 0.0), out_mps, goal, [sphere], config)
     assert out.mode is Mode.NAVIGATE
+
+
+def test_the_committed_reference_is_levelled_only_within_the_tie_angle():
+    """A near-tie's small climb or descent is not carried on; a deliberate one is."""
+    from companion.guidance.avoidance import _level_small_tilt
+
+    tie = math.radians(5.0)
+    slight = np.array([math.cos(math.radians(2.3)), 0.0, math.sin(math.radians(2.3))])  # 2.3° down
+    np.testing.assert_allclose(_level_small_tilt(slight, tie), [1.0, 0.0, 0.0], atol=1e-12)
+    over = np.array([math.cos(math.radians(10.0)), 0.0, -math.sin(math.radians(10.0))])  # 10° up
+    np.testing.assert_array_equal(_level_small_tilt(over, tie), over)
+    straight_up = np.array([0.0, 0.0, -1.0])
+    np.testing.assert_array_equal(_level_small_tilt(straight_up, tie), straight_up)
+    sideways = np.array([0.6, 0.8 * math.cos(0.05), 0.8 * math.sin(0.05)])  # keeps its azimuth
+    out = _level_small_tilt(sideways, tie)
+    assert out[2] == 0.0 and math.atan2(out[1], out[0]) == pytest.approx(
+        math.atan2(0.8 * math.cos(0.05), 0.6)
+    )

@@ -41,6 +41,8 @@ class GuidanceConfig:
         deterministic right-hand side-step decides (see ``cone`` module docstring).
         5°: several times the angular error of a perceived centre at the 4 m threshold
         (up to ~1.5° with the camera pitched 15° nose-down), so noise never picks the side.
+        While the side is kept, a committed aiming direction climbing or descending by
+        less than this is levelled before Eq. (28) (the same noise, vertically).
     cone_margin_rad : float
         Extra half-angle when testing a candidate against the *other* obstacles' cones.
     min_speed_mps : float
