@@ -23,14 +23,7 @@ from companion.depth_source import DepthSource
 from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput, Mode
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
 from companion.guidance.hold import HoldPlacement, hold_point, inside_any, keep_target_out
-from companion.guidance.known_path import (
-    KnownPath,
-    KnownPathConfig,
-    follow_known_path,
-    plan_known_path,
-    warm_up,
-    way_blocked,
-)
+from companion.guidance.known_path import KnownPath, KnownPathConfig, plan_known_path
 from companion.guidance.map_boundaries import (
     MapBoundary,
     MapBoundaryConfig,
@@ -38,6 +31,7 @@ from companion.guidance.map_boundaries import (
     map_boundaries,
     solid_extent,
 )
+from companion.guidance.path_rules import follow_known_path, warm_up, way_blocked
 from companion.known_space import KnownSpace, KnownSpaceConfig
 from companion.perception import PerceptionConfig, PerceptionResult, StereoPerception
 from protocols.config import vec3
@@ -229,7 +223,7 @@ class AvoidancePipeline:
         """Guidance's search of the known-space map (:mod:`companion.guidance.known_path`),
         bounded per frame: a path found is followed, not searched again, for up to
         ``replan_frames`` map frames while it stays valid
-        (:func:`~companion.guidance.known_path.follow_known_path`: a check of its voxels,
+        (:func:`~companion.guidance.path_rules.follow_known_path`: a check of its voxels,
         a fraction of a search); a search that found none is not repeated on the next
         frame (``benchmarks/bench_guidance_path.py`` prints the costs)."""
         ks = self.known_space
@@ -255,7 +249,7 @@ class AvoidancePipeline:
 
     def _way_blocked(self, start_ned_m, end_ned_m) -> bool:
         """Guidance's question to the known-space map: a surface seen in the way
-        (:func:`~companion.guidance.known_path.way_blocked`)."""
+        (:func:`~companion.guidance.path_rules.way_blocked`)."""
         ks = self.known_space
         return way_blocked(
             ks.grid, ks.origin_vox, ks.config.voxel_m, start_ned_m, end_ned_m,

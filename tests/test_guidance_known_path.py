@@ -1,6 +1,7 @@
-"""The known-space path search (companion/guidance/known_path.py) against closed forms:
-the shortest way round a known block, no path through unknown space, an opening refused
-below 2 × (vehicle radius + margin) and passed above it, inflated boundaries avoided."""
+"""The known-space path search (companion/guidance/known_path.py, path_rules.py) against
+closed forms: the shortest way round a known block, no path through unknown space, an
+opening refused below 2 × (vehicle radius + margin) and passed above it, inflated boundaries
+avoided."""
 
 from __future__ import annotations
 
@@ -12,14 +13,8 @@ import pytest
 
 from companion.guidance import GuidanceConfig, GuidanceState, Mode, Reason, guidance_step
 from companion.guidance.cone import BoundarySphere, collision_cone, contains_direction
-from companion.guidance.known_path import (
-    KnownPath,
-    KnownPathConfig,
-    follow_known_path,
-    plan_known_path,
-    prefer_known_path,
-    way_blocked,
-)
+from companion.guidance.known_path import KnownPath, KnownPathConfig, plan_known_path
+from companion.guidance.path_rules import follow_known_path, prefer_known_path, way_blocked
 from companion.known_space import FREE, OCCUPIED, TENTATIVE, UNKNOWN
 
 VOXEL_M = 0.2

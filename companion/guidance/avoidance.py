@@ -48,7 +48,7 @@ Each step
    rule is second-guessed where it fails (issue 36): when it leaves no admissible
    direction, or while the straight path to the goal is blocked and a path through space
    seen free leads past the obstacle through a way the cones close, guidance flies that
-   path's first leg (``KNOWN_PATH``, :func:`~companion.guidance.known_path.
+   path's first leg (``KNOWN_PATH``, :func:`~companion.guidance.path_rules.
    prefer_known_path`); the safety envelope bounds it like any setpoint.
 
 After step 7, no progress and every stall reported: :mod:`companion.guidance.progress`.
@@ -111,9 +111,10 @@ from companion.guidance.cone import (
 from companion.guidance.config import GuidanceConfig
 from companion.guidance.goal_stop import hold_at_stop_point, inside_ball, same_obstacle, stop_point
 from companion.guidance.hold import inside_any, nearest_outside
-from companion.guidance.known_path import KnownPath, prefer_known_path
+from companion.guidance.known_path import KnownPath
 from companion.guidance.memory import TrackedObstacle, update_memory
 from companion.guidance.modes import Mode, Reason
+from companion.guidance.path_rules import prefer_known_path
 from companion.guidance.planner import choose_aiming_point, overlapping_cluster
 from companion.guidance.progress import Progress, watch_progress
 from companion.guidance.step_types import GuidanceOutput, GuidanceState
@@ -136,7 +137,7 @@ KnownPathFn = Callable[[np.ndarray, np.ndarray, list], KnownPath | None]
 
 WayBlockedFn = Callable[[np.ndarray, np.ndarray], bool]
 """``(start_ned_m, end_ned_m) → bool``: the vehicle's body moving straight between them
-meets a surface the map has seen (:func:`companion.guidance.known_path.way_blocked`)."""
+meets a surface the map has seen (:func:`companion.guidance.path_rules.way_blocked`)."""
 
 
 def guidance_step(
@@ -444,7 +445,7 @@ def _level_small_tilt(direction: np.ndarray, tilt_rad: float) -> np.ndarray:
 
 def _fly_known_path(state, f: _Frame, cluster, choice, carrot, d, cfg) -> bool:
     """Step 7's second guess: the first leg of a path through known-free space, where the
-    cone rule fails (:func:`~companion.guidance.known_path.prefer_known_path`): no
+    cone rule fails (:func:`~companion.guidance.path_rules.prefer_known_path`): no
     admissible direction (``choice`` None), its ``carrot`` blocked in known space, or a
     way the map shows open closed by the cones."""
     if f.plan is None:
