@@ -1,6 +1,7 @@
 """``companion.guidance.hold``: the nearest point out of overlapping boundaries
-(``nearest_outside``) and any target kept out of them (``keep_target_out``), against
-closed forms (a ball, two balls, a wall of pieces) and over random clusters."""
+(``nearest_outside``, ``way_out``) and any target kept out of them (``keep_target_out``,
+``clear_along_ray``), against closed forms (a ball, two balls, a wall of pieces), against
+the 2 cm march ``clear_along_ray`` replaced, and over random clusters."""
 
 from __future__ import annotations
 
@@ -12,10 +13,12 @@ import pytest
 
 from companion.guidance.hold import (
     HoldPlacement,
+    clear_along_ray,
     hold_point,
     inside_any,
     keep_target_out,
     nearest_outside,
+    way_out,
 )
 
 STEP_M = 0.05
@@ -114,11 +117,81 @@ def test_shortening_stops_before_the_first_of_two_boundaries_on_the_way():
 
 def test_from_inside_the_carrot_is_carried_on_along_its_ray_to_the_outside():
     # vehicle 0.5 m from the centre of the unit ball, carrot shortened to 0.8: the ray
-    # leaves the ball at x = 1; the target is the standoff beyond, within the march step
+    # leaves the ball at x = 1; the target is the standoff beyond, within the 2 cm step
     kept = keep_target_out([0.5, 0, 0], [0.8, 0, 0], [UNIT], free_m=2.0, standoff_m=0.05)
     assert kept.placement is HoldPlacement.EXTENDED
     x, y, z = kept.pos_ned_m
     assert 1.05 - 1e-9 <= x <= 1.05 + 0.02 + 1e-9 and y == z == 0.0, kept
+
+
+def test_the_exit_along_a_chord_is_the_closed_form_root():
+    # from (0, 0.6, 0) along +x the unit ball's chord ends at x = sqrt(1 - 0.36) = 0.8;
+    # a second ball 0.035 m beyond that exit is nearer than the standoff: passed as well
+    second = Ball((0.8 + 0.035 + 0.5, 0.6, 0.0), 0.5)
+    ray = ([0.0, 0.6, 0.0], [1.0, 0.0, 0.0], 0.21)
+    assert clear_along_ray(*ray, [UNIT], 0.05, step_m=0.0) == pytest.approx(0.8, abs=1e-12)
+    s = clear_along_ray(*ray, [UNIT, second], 0.05, step_m=0.0)
+    assert s == pytest.approx(0.8 + 0.035 + 1.0, abs=1e-12)
+    # on 2 cm steps from 0.21 m: the first step past each exit, 0.81 then 1.85
+    assert clear_along_ray(*ray, [UNIT], 0.05) == pytest.approx(0.81, abs=1e-9)
+    assert clear_along_ray(*ray, [UNIT, second], 0.05) == pytest.approx(1.85, abs=1e-9)
+
+
+def _march_exit(pos, unit, start_m, balls, standoff_m, step_m=0.02, limit_m=20.0):
+    """The 2 cm march keep_target_out used before the closed form: the first step whose
+    point and the point ``standoff_m`` beyond are both outside every ball."""
+    s = start_m
+    while s <= limit_m:
+        if not (
+            inside_any(pos + unit * s, balls) or inside_any(pos + unit * (s + standoff_m), balls)
+        ):
+            return s
+        s += step_m
+    return math.inf
+
+
+def _stretch_meets_a_ball(pos, unit, s, balls, standoff_m=0.05):
+    return any(inside_any(pos + unit * t, balls) for t in np.linspace(s, s + standoff_m, 11))
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_the_closed_form_exit_agrees_with_the_march_on_random_clusters(seed):
+    # Balls of 0.4-1.2 m, the vehicle inside one: on the march's 2 cm steps the closed
+    # form is the march's answer (flights unchanged); exact (step 0) it is never later
+    # than the march, its stretch is outside every ball, and no earlier stretch is (5 mm
+    # grid): the least exit.
+    rng = np.random.default_rng([seed, 36])
+    balls = [Ball(tuple(rng.uniform(-2.0, 2.0, 3)), float(rng.uniform(0.4, 1.2))) for _ in range(6)]
+    for _ in range(60):
+        ball = balls[int(rng.integers(len(balls)))]  # the vehicle inside one of them
+        pos = np.array(ball.center_ned_m) + rng.uniform(-0.5, 0.5, 3) * ball.radius_m
+        unit = rng.normal(size=3)
+        unit /= np.linalg.norm(unit)
+        start = float(rng.uniform(0.0, 1.0))
+        marched = _march_exit(pos, unit, start, balls, 0.05)
+        stepped = clear_along_ray(pos, unit, start, balls, 0.05, step_m=0.02)
+        assert stepped == pytest.approx(marched, abs=1e-9), (seed, stepped, marched)
+        exact = clear_along_ray(pos, unit, start, balls, 0.05, step_m=0.0)
+        assert exact <= marched + 1e-9, (seed, exact, marched)
+        assert not _stretch_meets_a_ball(pos, unit, exact + 1e-9, balls), (seed, exact)
+        for s in np.arange(start, exact - 0.005, 0.005):
+            assert _stretch_meets_a_ball(pos, unit, s, balls), (seed, s, exact)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_way_out_is_the_holds_way_out_without_latency_or_speed(seed):
+    rng = np.random.default_rng([seed, 361])
+    balls = [Ball(tuple(rng.uniform(-2.0, 2.0, 3)), float(rng.uniform(0.4, 1.2))) for _ in range(5)]
+    for _ in range(30):
+        pos = rng.uniform(-2.5, 2.5, 3)
+        out = way_out(pos, balls, clearance_m=0.3)
+        if not inside_any(pos, balls):
+            assert out.placement is HoldPlacement.CURRENT
+            np.testing.assert_array_equal(out.pos_ned_m, pos)
+            continue
+        held = hold_point(pos, np.zeros(3), balls, latency_s=0.5, accel_mps2=3.0, clearance_m=0.3)
+        assert out == held
+        assert out.placement is HoldPlacement.CURRENT or not inside_any(out.pos_ned_m, balls)
 
 
 def test_from_inside_without_free_space_to_the_outside_the_way_out_is_the_escape():
