@@ -50,7 +50,7 @@ from companion.core.outbox import Outbox
 from companion.core.proximity_job import ProximityJob
 from companion.core.setpoint_job import SetpointJob
 from companion.core.status_job import StatusJob
-from companion.core.takeoff_job import TakeoffJob
+from companion.core.takeoff_job import Engage, TakeoffJob
 from companion.core.telemetry_job import REBOOT_BACKSTEP_MS, STREAMS, TelemetryJob
 from companion.failsafe import Response
 from companion.guidance.latency import DataAgeWindow
@@ -69,7 +69,6 @@ class CompanionCore(
     LinkJob,
     TelemetryJob,
     ModesJob,
-    TakeoffJob,
     FrameJob,
     SetpointJob,
     ProximityJob,
@@ -126,8 +125,8 @@ class CompanionCore(
         self.takeover = TakeoverGuard((link.system_id, link.component_id), instance_id)
         self._takeover_blocked = False
         self._last_mode_request = None
-        # takeoff
-        self.fatal: str | None = None  # terminal error (a refused takeoff): stop the process
+        # takeoff: a component of its own (its state, typed decisions out)
+        self.takeoff_job = TakeoffJob(link, self.out)
         # setpoints and speed
         self.speed_policy = SpeedLimitPolicy()
         self._overspeed_notice_s = -math.inf
@@ -150,6 +149,16 @@ class CompanionCore(
     def flying(self) -> bool:
         """The companion steers or holds the vehicle (frames are needed)."""
         return self.modes.phase in (ControlPhase.ACTIVE, ControlPhase.HOLD)
+
+    @property
+    def fatal(self) -> str | None:
+        """A terminal error (a refused takeoff): the process stops."""
+        return self.takeoff_job.fatal
+
+    @property
+    def takeoff(self) -> TakeoffSequence | None:
+        """The ``--takeoff-alt`` sequence since the autopilot was found (None: none)."""
+        return self.takeoff_job.sequence
 
     # ---- per-connection state ------------------------------------------------------
     def _reset_vehicle_state(self) -> None:
@@ -199,8 +208,7 @@ class CompanionCore(
         self._hold_target: PositionTarget | None = None  # latched at a hold's start
         self._hold_moved_told = False  # "hold target moved out of a boundary" said
         # takeoff
-        self.takeoff: TakeoffSequence | None = None  # --takeoff-alt, until finished
-        self._held_heartbeat = None  # (Flavour, custom_mode) for ModeWatch after takeoff
+        self.takeoff_job.reset()
 
     # ---- inputs ------------------------------------------------------------------
     def step(self, event: Input) -> list[Output]:
@@ -232,6 +240,11 @@ class CompanionCore(
             self._report_silence(now_s)
             return
         self._telemetry_timers(now_s)
-        self._takeoff_timer(now_s)
+        self._engage(self.takeoff_job.tick(now_s), now_s)
         self._mode_timer(now_s)
         self._setpoint_timer(now_s)
+
+    def _engage(self, engage: Engage | None, now_s: float) -> None:
+        """The takeoff is over: the mode watch takes the heartbeat it held (at once)."""
+        if engage is not None:
+            self._mode_heartbeat(engage.flavour, engage.custom_mode, now_s)

@@ -82,10 +82,10 @@ class LinkJob:
         if not from_autopilot:
             return
         self._on_link_alive(now_s)
-        if self._takeoff_busy() and not (
+        if self.takeoff_job.busy and not (
             mtype == "LOCAL_POSITION_NED" and not in_range((msg.z,), MAX_POS_M)
         ):
-            self._takeoff_input(msg, mtype, now_s)
+            self._engage(self.takeoff_job.on_message(msg, mtype, now_s), now_s)
         if mtype == "LOCAL_POSITION_NED":
             self._on_local_position(msg, now_s)
         elif mtype == "ATTITUDE":
@@ -136,13 +136,11 @@ class LinkJob:
                 control_mode(flavour).name,
             )
             if cfg.takeoff_alt_m > 0:
-                self._start_takeoff(flavour, now_s)
-        if self._takeoff_busy():
-            assert self.takeoff is not None
-            self._held_heartbeat = (flavour, msg.custom_mode)
+                self.takeoff_job.start(flavour, now_s)
+        if self.takeoff_job.busy:
             armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-            self.takeoff.on_heartbeat(now_s, msg.custom_mode, armed)
-            self._drive_takeoff(now_s)
+            engage = self.takeoff_job.on_heartbeat(flavour, msg.custom_mode, armed, now_s)
+            self._engage(engage, now_s)
             return
         self._mode_heartbeat(flavour, msg.custom_mode, now_s)
 
