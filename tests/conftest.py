@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 from _plant_sim_proc import PlantProcess
+from _schedule import FlightScheduling
 from _tiers import Tier, classify_file
 
 from protocols.threads import configure_threads
@@ -18,7 +19,7 @@ def pytest_configure(config):
     configure_threads()
 
 
-@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
+@pytest.hookimpl(tryfirst=True)  # the order pytest-xdist sees
 def pytest_collection_modifyitems(config, items):
     """Mark every test with its module's tier (:mod:`_tiers`), unless the module states one,
     and order the work for pytest-xdist (:func:`_schedule`).
@@ -39,16 +40,9 @@ def pytest_collection_modifyitems(config, items):
 
 
 def _schedule(items) -> None:
-    """Longest work first, and what shares a fixture on one worker.
-
-    Under ``--dist loadgroup --no-loadscope-reorder`` (scripts/test.sh) pytest-xdist hands
-    out work units in collection order: a module is one unit (its module-scoped fixtures,
-    a lockstep flight or the SITL binary, are built once, and a file's flights never run
-    beside each other), except a test marked ``own_flight`` (it flies its own scene and
-    shares nothing), which is a unit by itself, so the Monte Carlo seeds and the speed
-    bound's scenes spread over the workers. The slow lockstep flights go first, then the
-    other flights, processes, and the quick tiers last, which fill the gaps at the end.
-    """
+    """Longest work first: the slow lockstep flights, then the other flights, processes,
+    and the quick tiers last, which fill the gaps at the end (pytest-xdist hands out work
+    units in this order, :mod:`_schedule`)."""
 
     def rank(item) -> int:
         lockstep = item.get_closest_marker("lockstep") is not None
@@ -57,10 +51,15 @@ def _schedule(items) -> None:
             return 0 if slow else 1
         return 2 if item.get_closest_marker("processes") is not None else 3
 
-    for item in items:
-        if item.get_closest_marker("own_flight") is None:
-            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::", 1)[0]))
     items.sort(key=rank)  # stable: a module's tests keep their order
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist's own choice
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadscope``: by module, ``own_flight`` tests alone (:mod:`_schedule`)."""
+    if config.getvalue("dist") == "loadscope":
+        return FlightScheduling(config, log)
+    return None
 
 
 @pytest.fixture
