@@ -22,13 +22,15 @@ setpoint keep-alive). Per input:
 Outputs are MAVLink messages to send, setpoints, events and status documents, returned in
 order by :meth:`CompanionCore.step`. Log lines go to the ``companion`` logger.
 
-The work is split by job, one module each, mixed into :class:`CompanionCore`:
-:mod:`~companion.core.link_job` (link and heartbeats), :mod:`~companion.core.telemetry_job`
-(poses, boot time, TIMESYNC, streams), :mod:`~companion.core.modes_job` (modes and
-takeover), :mod:`~companion.core.takeoff_job`, :mod:`~companion.core.frame_job` (frame step
-and latency budget), :mod:`~companion.core.setpoint_job` (setpoints and speed),
-:mod:`~companion.core.proximity_job`, :mod:`~companion.core.failsafe_job` and
-:mod:`~companion.core.status_job`. Counters are one typed record
+The work is split by job, one module each: :mod:`~companion.core.link_job` (link and
+heartbeats), :mod:`~companion.core.telemetry_job` (poses, boot time),
+:mod:`~companion.core.modes_job` (modes and takeover), :mod:`~companion.core.frame_job`
+(frame step and latency budget), :mod:`~companion.core.setpoint_job` (setpoints and
+speed), :mod:`~companion.core.proximity_job`, :mod:`~companion.core.failsafe_job` and
+:mod:`~companion.core.status_job` are mixed into :class:`CompanionCore`;
+:mod:`~companion.core.takeoff_job` and :mod:`~companion.core.streams_job` (streams and
+TIMESYNC) are components it composes: each owns its state, takes typed inputs and returns
+typed decisions. Counters are one typed record
 (:class:`~companion.core.counters.CoreCounters`); outputs collect in an
 :class:`~companion.core.outbox.Outbox`.
 """
@@ -50,8 +52,9 @@ from companion.core.outbox import Outbox
 from companion.core.proximity_job import ProximityJob
 from companion.core.setpoint_job import SetpointJob
 from companion.core.status_job import StatusJob
+from companion.core.streams_job import STREAMS, StreamsJob
 from companion.core.takeoff_job import Engage, TakeoffJob
-from companion.core.telemetry_job import REBOOT_BACKSTEP_MS, STREAMS, TelemetryJob
+from companion.core.telemetry_job import REBOOT_BACKSTEP_MS, TelemetryJob
 from companion.failsafe import Response
 from companion.guidance.latency import DataAgeWindow
 from companion.link.mode_watch import ControlPhase, ModeWatch
@@ -118,8 +121,7 @@ class CompanionCore(
             horizon_ns=round(fs.pose_history_s * 1e9),
             max_extrapolation_ns=round(fs.max_pose_extrapolation_s * 1e9),
         )
-        self._timesync_pending: list[int] = []
-        self._next_timesync_s = 0.0
+        self.streams = StreamsJob(link, self.out, self.counters)  # a component
         # modes and takeover
         self.modes = ModeWatch(request_mode=link.request_mode, prestream_s=link.px4_prestream_s)
         self.takeover = TakeoverGuard((link.system_id, link.component_id), instance_id)
@@ -192,8 +194,7 @@ class CompanionCore(
         self._telemetry_newest_ns: int | None = None  # read by the Zenoh thread too
         self._newest_seen_ns: int | None = None  # newest frame-clock stamp observed
         self._position_host_ns: int | None = None  # host time the newest position came
-        self._streams_acked = 0  # accepted SET_MESSAGE_INTERVAL since the last request
-        self._next_stream_request_s = 0.0
+        self.streams.reset()
         # modes
         self.modes.reset()
         # setpoints and speed
@@ -239,7 +240,7 @@ class CompanionCore(
         if not self._link_up:
             self._report_silence(now_s)
             return
-        self._telemetry_timers(now_s)
+        self.streams.timers(now_s, self._now_ns)
         self._engage(self.takeoff_job.tick(now_s), now_s)
         self._mode_timer(now_s)
         self._setpoint_timer(now_s)

@@ -109,15 +109,14 @@ class LinkJob:
             self._listen_until_s = now_s + _LISTEN_BEFORE_STEERING_S
             self.out.event("link_up", url=self.config.link.url)
             _log.info("autopilot link up on %s", self.config.link.url)
-            self._next_stream_request_s = now_s
-            self._next_timesync_s = now_s
+            self.streams.link_up(now_s)
 
     def _autopilot_restarted(self, now_s: float, why: str) -> None:
         self.counters.autopilot_restarts += 1
         _log.warning("autopilot restarted (%s): starting over", why)
         self.out.event("autopilot_restart", reason=why)
         self._reset_vehicle_state()
-        self._next_stream_request_s = now_s
+        self.streams.request_streams_now(now_s)
 
     def _on_heartbeat(self, msg, now_s: float) -> None:
         flavour = detect_flavour(msg.autopilot)
