@@ -28,8 +28,9 @@ heartbeats), :mod:`~companion.core.telemetry_job` (poses, boot time),
 (frame step and latency budget), :mod:`~companion.core.setpoint_job` (setpoints and
 speed), :mod:`~companion.core.proximity_job`, :mod:`~companion.core.failsafe_job` and
 :mod:`~companion.core.status_job` are mixed into :class:`CompanionCore`;
-:mod:`~companion.core.takeoff_job` and :mod:`~companion.core.streams_job` (streams and
-TIMESYNC) are components it composes: each owns its state, takes typed inputs and returns
+:mod:`~companion.core.takeoff_job`, :mod:`~companion.core.streams_job` (streams and
+TIMESYNC) and :mod:`~companion.core.param_job` (the autopilot's WPNAV_SPEED) are
+components it composes: each owns its state, takes typed inputs and returns
 typed decisions. Counters are one typed record
 (:class:`~companion.core.counters.CoreCounters`); outputs collect in an
 :class:`~companion.core.outbox.Outbox`.
@@ -49,6 +50,7 @@ from companion.core.link_job import LinkJob
 from companion.core.mission import Mission
 from companion.core.modes_job import ModesJob
 from companion.core.outbox import Outbox
+from companion.core.param_job import ParamJob
 from companion.core.proximity_job import ProximityJob
 from companion.core.setpoint_job import SetpointJob
 from companion.core.status_job import StatusJob
@@ -122,6 +124,7 @@ class CompanionCore(
             max_extrapolation_ns=round(fs.max_pose_extrapolation_s * 1e9),
         )
         self.streams = StreamsJob(link, self.out, self.counters)  # a component
+        self.params = ParamJob(link, self.out)  # a component: WPNAV_SPEED
         # modes and takeover
         self.modes = ModeWatch(request_mode=link.request_mode, prestream_s=link.px4_prestream_s)
         self.takeover = TakeoverGuard((link.system_id, link.component_id), instance_id)
@@ -200,9 +203,7 @@ class CompanionCore(
         # setpoints and speed
         self.policy: SetpointPolicy | None = None
         self._engaged = False  # a guidance setpoint was sent since the last reset
-        self._wpnav_speed_mps: float | None = None  # the autopilot's own speed limit
-        self._next_param_request_s = 0.0
-        self._param_requests = 0
+        self.params.reset()  # the autopilot's WPNAV_SPEED, asked for again
         # failsafe
         self.failsafe = failsafe_monitor(cfg)
         self._hold = Response.STEER  # the hold the companion commands (failsafe)

@@ -97,7 +97,7 @@ class LinkJob:
         elif mtype == "STATUSTEXT":
             _log.info("autopilot: %s", statustext(msg))
         elif mtype == "PARAM_VALUE":
-            self._on_param_value(msg)
+            self.params.on_param_value(msg)
 
     def _on_link_alive(self, now_s: float) -> None:
         self._last_rx_s = now_s
