@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 from _plant_sim_proc import PlantProcess
 from _schedule import FlightScheduling
@@ -60,6 +61,24 @@ def pytest_xdist_make_scheduler(config, log):
     if config.getvalue("dist") == "loadscope":
         return FlightScheduling(config, log)
     return None
+
+
+#: the companion's deaths simulated in the paper's flight: 20 evenly spaced times up to
+#: 26.5 s (the flight takes ~26.7 s)
+PAPER_KILL_TIMES_S = tuple(float(t) for t in np.linspace(0.0, 26.5, 20))
+
+
+@pytest.fixture(scope="session")
+def paper_flight():
+    """The paper's §6 flight in lockstep at the default configuration, with the companion's
+    death simulated at :data:`PAPER_KILL_TIMES_S` (each death's tail is flown on a copy of
+    the plant, so the flight itself is the plain §6 flight): one flight for
+    ``test_lockstep_paper.py`` and ``test_lockstep_envelope.py``, which state
+    ``SHARED_FLIGHT = "paper"`` and so run on one worker (:mod:`_schedule`)."""
+    from evaluation.harness import RunConfig, run_scene
+    from evaluation.scenes import paper_scene
+
+    return run_scene(paper_scene(), RunConfig(), kill_times_s=PAPER_KILL_TIMES_S)
 
 
 @pytest.fixture
