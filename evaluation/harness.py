@@ -231,12 +231,13 @@ def run_scene(
         error_ned_m = _disturb(disturbed, quad, state.time_s)
         pose = PoseAtCapture(state.pos_ned_m + error_ned_m, state.vel_ned_mps, state.R_ned_from_frd)
         frame = shoot(state, seq)
+        surface = nearest_surface_m(scene.world, state.pos_ned_m)
+        history.settle_proximity(surface)  # before the step changes the map it reads
         step = mission.step(frame, pose)
         if on_step is not None:
             on_step(frame, pose, step, mission)
         out = step.output
         autopilot.command_output(out, state.time_s)
-        surface = nearest_surface_m(scene.world, state.pos_ned_m)
         if record_history:
             _record(history, state, surface, out, len(out.perception.obstacles), mission)
         tally.note_frame(out, surface, frame_period_s)

@@ -50,15 +50,35 @@ class History:
         self._rows: list[tuple[float, ...]] = []
         # OBSTACLE_DISTANCE sectors the companion would send at the closest approach
         # (companion.proximity.sectors.ProximitySectors) and that approach's surface
-        # distance [m]; None until a frame was recorded
-        self.proximity_at_closest = None
+        # distance [m]; None until a frame was recorded. The sectors are computed once the
+        # approach stops getting nearer (settle_proximity), not on every nearer frame.
+        self._proximity_at_closest = None
+        self._pending_sectors = None
         self.proximity_surface_m = math.inf
 
+    @property
+    def proximity_at_closest(self):
+        """The sectors at the closest approach noted (None before any)."""
+        self.settle_proximity(math.inf)
+        return self._proximity_at_closest
+
     def note_proximity(self, surface_m: float, sectors_fn) -> None:
-        """Keep ``sectors_fn()`` when ``surface_m`` is the closest approach so far."""
+        """Keep ``sectors_fn`` when ``surface_m`` is the closest approach so far.
+
+        ``sectors_fn`` reads the map as it is now: it is called by :meth:`settle_proximity`
+        (or when :attr:`proximity_at_closest` is read), which must come before the map
+        changes.
+        """
         if surface_m < self.proximity_surface_m:
             self.proximity_surface_m = surface_m
-            self.proximity_at_closest = sectors_fn()
+            self._pending_sectors = sectors_fn
+
+    def settle_proximity(self, next_surface_m: float) -> None:
+        """Before the map changes for a frame at ``next_surface_m`` [m]: compute the kept
+        candidate's sectors now, unless that frame is nearer and will replace it."""
+        if self._pending_sectors is not None and next_surface_m >= self.proximity_surface_m:
+            self._proximity_at_closest = self._pending_sectors()
+            self._pending_sectors = None
 
     def append(self, **values: float) -> None:
         """Add one sample; every column must be given, nothing else."""

@@ -16,7 +16,10 @@ bash scripts/setup.sh
 export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 .venv/bin/ruff check .
 .venv/bin/ruff format --check .
-# Two workers by default (PYTEST_WORKERS=0, or `-n 0`: one process). --dist loadfile:
-# a module's tests share one worker, so module-scoped fixtures (a lockstep run, the SITL
-# binary) are built once and a file's flights never run beside each other.
-.venv/bin/python -m pytest -n "${PYTEST_WORKERS:-2}" --dist loadfile "${select[@]}" "$@"
+# Two workers by default (PYTEST_WORKERS=0, or `-n 0`: one process). --dist loadscope with
+# tests/_schedule.py: a module's tests share one worker, so module-scoped fixtures (a lockstep
+# run, the SITL binary) are built once and a file's flights never run beside each other,
+# while each `own_flight` test (a Monte Carlo seed, a speed-bound scene) is a unit of its
+# own; units go out longest first, in the order tests/conftest.py sorts them.
+.venv/bin/python -m pytest -n "${PYTEST_WORKERS:-2}" --dist loadscope --no-loadscope-reorder \
+    "${select[@]}" "$@"

@@ -24,9 +24,14 @@ def _flight_with_kills(name: str, flight_time_s: float):
     return run_scene(paper_scene(), cfg, kill_times_s=np.linspace(0.0, flight_time_s, N_KILLS))
 
 
+SHARED_FLIGHT = "paper"  # conftest.py's paper_flight, flown once with test_lockstep_paper
+
+
 @pytest.fixture(scope="module")
-def paper_kills():
-    return _flight_with_kills("paper", 26.5)  # the flight takes ~27.8 s
+def paper_kills(paper_flight):
+    """The paper profile is the default configuration: conftest.py's §6 flight, whose
+    companion deaths are at the same 20 times up to 26.5 s (the flight takes ~26.7 s)."""
+    return paper_flight
 
 
 @pytest.fixture(scope="module")

@@ -6,14 +6,17 @@ import numpy as np
 import pytest
 
 from companion.known_space import KnownSpaceConfig
-from evaluation.harness import RunConfig, run_scene
-from evaluation.scenes import paper_scene
+from evaluation.harness import RunConfig
 from protocols.camera import CameraModel
+
+pytestmark = pytest.mark.lockstep
+SHARED_FLIGHT = "paper"  # conftest.py's paper_flight, flown once with test_lockstep_envelope
 
 
 @pytest.fixture(scope="module")
-def paper_run():
-    return run_scene(paper_scene(), RunConfig())
+def paper_run(paper_flight):
+    """The §6 flight (conftest.py: its companion-death tails fly on copies)."""
+    return paper_flight
 
 
 def test_goal_reached_without_collision(paper_run):

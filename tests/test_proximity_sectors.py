@@ -299,10 +299,13 @@ def test_the_run_keeps_the_sectors_of_its_closest_approach_and_draws_them():
         calls.append(1)
         return sectors_from_map(space, POS, 0.0, CFG)
 
-    for surface in (5.0, 3.0, 4.0):
+    for surface in (5.0, 3.0):
         history.note_proximity(surface, sectors)
-    assert history.proximity_surface_m == 3.0 and len(calls) == 2
+    history.settle_proximity(4.0)  # the next frame is farther: 3.0 m's sectors are kept
+    history.note_proximity(4.0, sectors)
+    assert history.proximity_surface_m == 3.0 and len(calls) == 1  # only the closest
     sec = history.proximity_at_closest
+    assert len(calls) == 1
     fig = proximity_polar(sec, 3.0)
     heights = sorted(round(p.get_height(), 6) for p in fig.axes[0].patches)
     seen = sec.distances_cm[:72][sec.distances_cm[:72] <= sec.max_distance_cm] / 100.0

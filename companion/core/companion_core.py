@@ -22,13 +22,16 @@ setpoint keep-alive). Per input:
 Outputs are MAVLink messages to send, setpoints, events and status documents, returned in
 order by :meth:`CompanionCore.step`. Log lines go to the ``companion`` logger.
 
-The work is split by job, one module each, mixed into :class:`CompanionCore`:
-:mod:`~companion.core.link_job` (link and heartbeats), :mod:`~companion.core.telemetry_job`
-(poses, boot time, TIMESYNC, streams), :mod:`~companion.core.modes_job` (modes and
-takeover), :mod:`~companion.core.takeoff_job`, :mod:`~companion.core.frame_job` (frame step
-and latency budget), :mod:`~companion.core.setpoint_job` (setpoints and speed),
-:mod:`~companion.core.proximity_job`, :mod:`~companion.core.failsafe_job` and
-:mod:`~companion.core.status_job`. Counters are one typed record
+The work is split by job, one module each: :mod:`~companion.core.link_job` (link and
+heartbeats), :mod:`~companion.core.telemetry_job` (poses, boot time),
+:mod:`~companion.core.modes_job` (modes and takeover), :mod:`~companion.core.frame_job`
+(frame step and latency budget), :mod:`~companion.core.setpoint_job` (setpoints and
+speed), :mod:`~companion.core.proximity_job`, :mod:`~companion.core.failsafe_job` and
+:mod:`~companion.core.status_job` are mixed into :class:`CompanionCore`;
+:mod:`~companion.core.takeoff_job`, :mod:`~companion.core.streams_job` (streams and
+TIMESYNC) and :mod:`~companion.core.param_job` (the autopilot's WPNAV_SPEED) are
+components it composes: each owns its state, takes typed inputs and returns
+typed decisions. Counters are one typed record
 (:class:`~companion.core.counters.CoreCounters`); outputs collect in an
 :class:`~companion.core.outbox.Outbox`.
 """
@@ -47,11 +50,13 @@ from companion.core.link_job import LinkJob
 from companion.core.mission import Mission
 from companion.core.modes_job import ModesJob
 from companion.core.outbox import Outbox
+from companion.core.param_job import ParamJob
 from companion.core.proximity_job import ProximityJob
 from companion.core.setpoint_job import SetpointJob
 from companion.core.status_job import StatusJob
-from companion.core.takeoff_job import TakeoffJob
-from companion.core.telemetry_job import REBOOT_BACKSTEP_MS, STREAMS, TelemetryJob
+from companion.core.streams_job import STREAMS, StreamsJob
+from companion.core.takeoff_job import Engage, TakeoffJob
+from companion.core.telemetry_job import REBOOT_BACKSTEP_MS, TelemetryJob
 from companion.failsafe import Response
 from companion.guidance.latency import DataAgeWindow
 from companion.link.mode_watch import ControlPhase, ModeWatch
@@ -69,7 +74,6 @@ class CompanionCore(
     LinkJob,
     TelemetryJob,
     ModesJob,
-    TakeoffJob,
     FrameJob,
     SetpointJob,
     ProximityJob,
@@ -119,15 +123,15 @@ class CompanionCore(
             horizon_ns=round(fs.pose_history_s * 1e9),
             max_extrapolation_ns=round(fs.max_pose_extrapolation_s * 1e9),
         )
-        self._timesync_pending: list[int] = []
-        self._next_timesync_s = 0.0
+        self.streams = StreamsJob(link, self.out, self.counters)  # a component
+        self.params = ParamJob(link, self.out)  # a component: WPNAV_SPEED
         # modes and takeover
         self.modes = ModeWatch(request_mode=link.request_mode, prestream_s=link.px4_prestream_s)
         self.takeover = TakeoverGuard((link.system_id, link.component_id), instance_id)
         self._takeover_blocked = False
         self._last_mode_request = None
-        # takeoff
-        self.fatal: str | None = None  # terminal error (a refused takeoff): stop the process
+        # takeoff: a component of its own (its state, typed decisions out)
+        self.takeoff_job = TakeoffJob(link, self.out)
         # setpoints and speed
         self.speed_policy = SpeedLimitPolicy()
         self._overspeed_notice_s = -math.inf
@@ -150,6 +154,16 @@ class CompanionCore(
     def flying(self) -> bool:
         """The companion steers or holds the vehicle (frames are needed)."""
         return self.modes.phase in (ControlPhase.ACTIVE, ControlPhase.HOLD)
+
+    @property
+    def fatal(self) -> str | None:
+        """A terminal error (a refused takeoff): the process stops."""
+        return self.takeoff_job.fatal
+
+    @property
+    def takeoff(self) -> TakeoffSequence | None:
+        """The ``--takeoff-alt`` sequence since the autopilot was found (None: none)."""
+        return self.takeoff_job.sequence
 
     # ---- per-connection state ------------------------------------------------------
     def _reset_vehicle_state(self) -> None:
@@ -183,24 +197,20 @@ class CompanionCore(
         self._telemetry_newest_ns: int | None = None  # read by the Zenoh thread too
         self._newest_seen_ns: int | None = None  # newest frame-clock stamp observed
         self._position_host_ns: int | None = None  # host time the newest position came
-        self._streams_acked = 0  # accepted SET_MESSAGE_INTERVAL since the last request
-        self._next_stream_request_s = 0.0
+        self.streams.reset()
         # modes
         self.modes.reset()
         # setpoints and speed
         self.policy: SetpointPolicy | None = None
         self._engaged = False  # a guidance setpoint was sent since the last reset
-        self._wpnav_speed_mps: float | None = None  # the autopilot's own speed limit
-        self._next_param_request_s = 0.0
-        self._param_requests = 0
+        self.params.reset()  # the autopilot's WPNAV_SPEED, asked for again
         # failsafe
         self.failsafe = failsafe_monitor(cfg)
         self._hold = Response.STEER  # the hold the companion commands (failsafe)
         self._hold_target: PositionTarget | None = None  # latched at a hold's start
         self._hold_moved_told = False  # "hold target moved out of a boundary" said
         # takeoff
-        self.takeoff: TakeoffSequence | None = None  # --takeoff-alt, until finished
-        self._held_heartbeat = None  # (Flavour, custom_mode) for ModeWatch after takeoff
+        self.takeoff_job.reset()
 
     # ---- inputs ------------------------------------------------------------------
     def step(self, event: Input) -> list[Output]:
@@ -231,7 +241,12 @@ class CompanionCore(
         if not self._link_up:
             self._report_silence(now_s)
             return
-        self._telemetry_timers(now_s)
-        self._takeoff_timer(now_s)
+        self.streams.timers(now_s, self._now_ns)
+        self._engage(self.takeoff_job.tick(now_s), now_s)
         self._mode_timer(now_s)
         self._setpoint_timer(now_s)
+
+    def _engage(self, engage: Engage | None, now_s: float) -> None:
+        """The takeoff is over: the mode watch takes the heartbeat it held (at once)."""
+        if engage is not None:
+            self._mode_heartbeat(engage.flavour, engage.custom_mode, now_s)

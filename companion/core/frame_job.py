@@ -93,7 +93,7 @@ class FrameJob:
                 (frame.sequence, frame.capture_ns),
             )
             return None
-        if self._takeoff_busy():
+        if self.takeoff_job.busy:
             self._frame_during_takeoff(frame)
             return None
         if self._last_capture_ns is not None and frame.capture_ns <= self._last_capture_ns:
@@ -147,3 +147,11 @@ class FrameJob:
         self._age_pending = None
         compute_s = (self._now_ns - started_ns) * 1e-9 * self._frame_clock_rate()
         self.data_age.add(capture_ns, age_at_start_s + compute_s)
+
+    def _frame_during_takeoff(self, frame: StereoFrame) -> None:
+        """A frame while the takeoff runs: not steered on, it proves the camera works."""
+        self._observe(frame.capture_ns)
+        self.counters.frames_during_takeoff += 1  # not steering before the climb
+        if self._newest_frame_ns is None or frame.capture_ns > self._newest_frame_ns:
+            self._newest_frame_ns = frame.capture_ns  # the camera works: health
+        self._engage(self.takeoff_job.on_frame(self._now_s), self._now_s)

@@ -82,10 +82,10 @@ class LinkJob:
         if not from_autopilot:
             return
         self._on_link_alive(now_s)
-        if self._takeoff_busy() and not (
+        if self.takeoff_job.busy and not (
             mtype == "LOCAL_POSITION_NED" and not in_range((msg.z,), MAX_POS_M)
         ):
-            self._takeoff_input(msg, mtype, now_s)
+            self._engage(self.takeoff_job.on_message(msg, mtype, now_s), now_s)
         if mtype == "LOCAL_POSITION_NED":
             self._on_local_position(msg, now_s)
         elif mtype == "ATTITUDE":
@@ -97,7 +97,7 @@ class LinkJob:
         elif mtype == "STATUSTEXT":
             _log.info("autopilot: %s", statustext(msg))
         elif mtype == "PARAM_VALUE":
-            self._on_param_value(msg)
+            self.params.on_param_value(msg)
 
     def _on_link_alive(self, now_s: float) -> None:
         self._last_rx_s = now_s
@@ -109,15 +109,14 @@ class LinkJob:
             self._listen_until_s = now_s + _LISTEN_BEFORE_STEERING_S
             self.out.event("link_up", url=self.config.link.url)
             _log.info("autopilot link up on %s", self.config.link.url)
-            self._next_stream_request_s = now_s
-            self._next_timesync_s = now_s
+            self.streams.link_up(now_s)
 
     def _autopilot_restarted(self, now_s: float, why: str) -> None:
         self.counters.autopilot_restarts += 1
         _log.warning("autopilot restarted (%s): starting over", why)
         self.out.event("autopilot_restart", reason=why)
         self._reset_vehicle_state()
-        self._next_stream_request_s = now_s
+        self.streams.request_streams_now(now_s)
 
     def _on_heartbeat(self, msg, now_s: float) -> None:
         flavour = detect_flavour(msg.autopilot)
@@ -136,13 +135,11 @@ class LinkJob:
                 control_mode(flavour).name,
             )
             if cfg.takeoff_alt_m > 0:
-                self._start_takeoff(flavour, now_s)
-        if self._takeoff_busy():
-            assert self.takeoff is not None
-            self._held_heartbeat = (flavour, msg.custom_mode)
+                self.takeoff_job.start(flavour, now_s)
+        if self.takeoff_job.busy:
             armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-            self.takeoff.on_heartbeat(now_s, msg.custom_mode, armed)
-            self._drive_takeoff(now_s)
+            engage = self.takeoff_job.on_heartbeat(flavour, msg.custom_mode, armed, now_s)
+            self._engage(engage, now_s)
             return
         self._mode_heartbeat(flavour, msg.custom_mode, now_s)
 

@@ -86,8 +86,7 @@ class ModesJob:
     def _on_ack(self, msg, now_s: float) -> None:
         accepted = msg.result == mavlink.MAV_RESULT_ACCEPTED
         if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
-            if accepted:
-                self._streams_acked += 1
+            self.streams.on_stream_ack(accepted)
             return
         if msg.command == mavlink.MAV_CMD_DO_CHANGE_SPEED:
             if accepted:

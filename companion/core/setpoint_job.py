@@ -10,9 +10,6 @@ WPNAV_SPEED, with the climb or descent speed that keeps the flown slope within t
 from __future__ import annotations
 
 import logging
-import math
-
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.core.events import SendSetpoint
 from companion.core.outbox import SEV_WARNING
@@ -23,16 +20,14 @@ from companion.link.speed_limit import change_speed_command
 
 _log = logging.getLogger("companion")
 
-_WPNAV_SPEED = "WPNAV_SPEED"  # ArduCopter's horizontal speed limit parameter [cm/s]
-
 __all__ = ["SetpointJob"]
 
 
 class SetpointJob:
     """Setpoints on the wire and the speed limit stated to the autopilot.
 
-    Owns ``policy``, ``speed_policy``, ``_engaged``, ``_overspeed_notice_s``,
-    ``_wpnav_speed_mps``, ``_next_param_request_s``, ``_param_requests``.
+    Owns ``policy``, ``speed_policy``, ``_engaged``, ``_overspeed_notice_s``; reads the
+    autopilot's WPNAV_SPEED from the ``params`` component (:mod:`~companion.core.param_job`).
     """
 
     def _send_target(self, target: PositionTarget, now_s: float, frame_ns: int | None) -> None:
@@ -91,28 +86,14 @@ class SetpointJob:
         flavour = self.modes.flavour
         if flavour is None or not profile_for(flavour).states_speed_limit:
             return
-        if self._wpnav_speed_mps is None:
-            # DO_CHANGE_SPEED overrides WPNAV_SPEED (no clip): never state a speed before we
-            # know the pilot's own limit, so that ours can only lower it (the carrot bounds
-            # the speed meanwhile)
-            if now_s >= self._next_param_request_s and self._param_requests < 5:
-                self._param_requests += 1
-                if self._param_requests == 5:
-                    _log.warning(
-                        "autopilot does not report %s: no speed limit stated, the carrot "
-                        "alone bounds the speed",
-                        _WPNAV_SPEED,
-                    )
-                self._next_param_request_s = now_s + 2.0
-                cfg = self.config.link
-                self.out.send(
-                    mavlink.MAVLink_param_request_read_message(
-                        cfg.target_system, cfg.target_component, _WPNAV_SPEED.encode(), -1
-                    )
-                )
+        wpnav_speed_mps = self.params.wpnav_speed_mps
+        if wpnav_speed_mps is None:
+            # never state a speed before we know the pilot's own limit (ParamJob); the
+            # carrot bounds the speed meanwhile
+            self.params.request_if_due(now_s)
             return
         cfg = self.config.link
-        horizontal_mps = min(limit_mps, self._wpnav_speed_mps)
+        horizontal_mps = min(limit_mps, wpnav_speed_mps)
         speed = self.speed_policy.due(horizontal_mps, now_s)
         if speed is not None:
             self.out.send(change_speed_command(speed, cfg.target_system, cfg.target_component))
@@ -142,19 +123,3 @@ class SetpointJob:
                 f"Speed {env.speed_mps:.1f} m/s above limit {env.speed_limit_mps:.1f} m/s",
                 SEV_WARNING,
             )
-
-    def _on_param_value(self, msg) -> None:
-        """WPNAV_SPEED [cm/s]: the ceiling of every speed limit we state (ArduPilot)."""
-        name = (
-            msg.param_id
-            if isinstance(msg.param_id, str)
-            else msg.param_id.decode("ascii", "replace")
-        )
-        value = float(msg.param_value)
-        if name.split("\x00", 1)[0] != _WPNAV_SPEED or not (math.isfinite(value) and value > 0):
-            return
-        if self._wpnav_speed_mps is None:
-            _log.info(
-                "autopilot WPNAV_SPEED %.2f m/s: stated speed limits stay below it", value / 100.0
-            )
-        self._wpnav_speed_mps = value / 100.0

@@ -1,28 +1,20 @@
-"""Streams and TIMESYNC: telemetry into the pose history, on one clock with the frames.
+"""Telemetry into the pose history, on one clock with the frames.
 
 A mixin of :class:`~companion.core.CompanionCore`. LOCAL_POSITION_NED and ATTITUDE go
 into the pose history at their ``time_boot_ms`` mapped onto the frame clock
 (:mod:`companion.clock_model`); a ``time_boot_ms`` that jumps back is a reboot once
-confirmed, an implausible one is dropped and counted. TIMESYNC both ways, and the
-telemetry streams requested with SET_MESSAGE_INTERVAL until each is acknowledged.
+confirmed, an implausible one is dropped and counted. The streams and TIMESYNC are
+:class:`~companion.core.streams_job.StreamsJob`'s; a TIMESYNC answer's sample goes to the
+autopilot's clock here.
 """
 
 from __future__ import annotations
 
 import math
 
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from companion.clock_model import BootTime, SyncResult
 
-from companion.clock_model import BootTime, SyncResult, SyncSample
-from companion.link.messages import set_message_interval, timesync_reply, timesync_request
-
-#: telemetry streams the core requests with SET_MESSAGE_INTERVAL
-STREAMS = (
-    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
-    mavlink.MAVLINK_MSG_ID_ATTITUDE,
-)
 REBOOT_BACKSTEP_MS = 500  # time_boot_ms going back this far: the autopilot restarted
-_MAX_TIMESYNC_PENDING = 32  # our outstanding TIMESYNC requests (replies must match one)
 MAX_POS_M = 1e5  # |LOCAL_NED| beyond this is not a position of a multirotor
 _MAX_SPEED_MPS = 300.0
 
@@ -32,14 +24,13 @@ def in_range(values, bound: float) -> bool:
     return all(math.isfinite(v) and abs(v) <= bound for v in values)
 
 
-__all__ = ["MAX_POS_M", "REBOOT_BACKSTEP_MS", "STREAMS", "TelemetryJob", "in_range"]
+__all__ = ["MAX_POS_M", "REBOOT_BACKSTEP_MS", "TelemetryJob", "in_range"]
 
 
 class TelemetryJob:
-    """Poses on the frame clock, the autopilot's boot time, TIMESYNC and stream requests.
+    """Poses on the frame clock and the autopilot's boot time.
 
-    Owns ``clock``, ``poses``, ``boot_time``, ``_timesync_pending``, ``_next_timesync_s``,
-    ``_streams_acked``, ``_next_stream_request_s``, ``_telemetry_newest_ns``,
+    Owns ``clock``, ``poses``, ``boot_time``, ``_telemetry_newest_ns``,
     ``_newest_seen_ns``, ``_last_boot_ms``, ``_position_host_ns``.
     """
 
@@ -110,34 +101,11 @@ class TelemetryJob:
         """One warning per ``kind`` every 2 s for an input dropped ``count`` times."""
         self.out.drop_log(kind, "%s: dropped %s %s (%d so far)", kind, what, values, count)
 
-    def _telemetry_timers(self, now_s: float) -> None:
-        """TIMESYNC requests and the stream requests, when due (the link is up)."""
-        cfg = self.config.link
-        if now_s >= self._next_timesync_s:
-            stamp = self._now_ns
-            self._timesync_pending.append(stamp)
-            del self._timesync_pending[:-_MAX_TIMESYNC_PENDING]
-            self.out.send(timesync_request(stamp))
-            self._next_timesync_s = now_s + cfg.timesync_period_s
-        if now_s >= self._next_stream_request_s and self._streams_acked < len(STREAMS):
-            self._streams_acked = 0
-            for msg_id in STREAMS:
-                self.out.send(
-                    set_message_interval(
-                        cfg.target_system, cfg.target_component, msg_id, cfg.telemetry_rate_hz
-                    )
-                )
-            self._next_stream_request_s = now_s + 1.0
-
     def _on_timesync(self, msg, now_s: float) -> None:
-        now_ns = self._now_ns
-        if msg.tc1 == 0:  # the autopilot asks for our time
-            self.out.send(timesync_reply(now_ns, msg.ts1))
+        """TIMESYNC (:class:`~companion.core.streams_job.StreamsJob`); an answer to our
+        request is a sample of the autopilot's clock."""
+        sample = self.streams.on_timesync(msg, self._now_ns)
+        if sample is None:
             return
-        if msg.ts1 not in self._timesync_pending:
-            self.counters.timesync_unmatched += 1  # not an answer to a request of ours
-            return
-        self._timesync_pending.remove(msg.ts1)
-        result = self.clock.autopilot.add_sample(SyncSample(msg.ts1, msg.tc1, now_ns))
-        if result is SyncResult.REBOOT:
+        if self.clock.autopilot.add_sample(sample) is SyncResult.REBOOT:
             self._autopilot_restarted(now_s, "TIMESYNC went backwards")
