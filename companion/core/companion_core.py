@@ -183,6 +183,9 @@ class CompanionCore(
         self._telemetry_newest_ns: int | None = None  # read by the Zenoh thread too
         self._newest_seen_ns: int | None = None  # newest frame-clock stamp observed
         self._position_host_ns: int | None = None  # host time the newest position came
+        # GPS_RAW_INT h_acc [m] and when it came [s, host]; the margins' widening notice
+        self._h_acc: tuple[float, float] | None = None
+        self._uncovered_told = False
         self._streams_acked = 0  # accepted SET_MESSAGE_INTERVAL since the last request
         self._next_stream_request_s = 0.0
         # modes
