@@ -182,6 +182,13 @@ class PerceptionConfig:
         Vehicle radius added to the boundary [m] (Table 2 arm 0.25 m + propeller; assumed).
     safety_margin_m : float
         Extra clearance added to the boundary [m] (assumed).
+    position_uncertainty_m : float
+        Least uncertainty of the position estimate [m]: the vehicle counts this much wider
+        in boundaries, paths and the swept section (:mod:`companion.position_uncertainty`);
+        the autopilot's stated accuracy (GPS_RAW_INT ``h_acc``) raises it.
+    max_position_uncertainty_m : float
+        Most widening the margins take [m]; a stated accuracy beyond it is reported as not
+        covered.
     cap_depth_m : float
         Depth of the nearest cap whose mean bearing gives the centre direction [m]
         (at least 3 % of the nearest range).
@@ -222,6 +229,8 @@ class PerceptionConfig:
     max_half_angle_deg: float = bounded(64.0, "deg", gt=0, lt=90)
     vehicle_radius_m: float = bounded(0.35, "m", ge=0)
     safety_margin_m: float = bounded(0.3, "m", ge=0)
+    position_uncertainty_m: float = bounded(0.0, "m", ge=0, le=5.0)
+    max_position_uncertainty_m: float = bounded(0.5, "m", ge=0, le=5.0)
     max_points: int = bounded(1500, integer=True, ge=16)
     cap_depth_m: float = bounded(0.1, "m", ge=0)
     min_far_fraction: float = bounded(0.01, ge=0, lt=1)

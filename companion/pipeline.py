@@ -34,6 +34,7 @@ from companion.guidance.map_boundaries import (
 from companion.guidance.path_rules import follow_known_path, warm_up, way_blocked
 from companion.known_space import KnownSpace, KnownSpaceConfig
 from companion.perception import PerceptionConfig, PerceptionResult, StereoPerception
+from companion.position_uncertainty import NO_WIDENING, Widening, widening
 from protocols.config import vec3
 from protocols.stereo_frame import StereoFrame
 
@@ -44,11 +45,14 @@ _RETRY_FRAMES = 2  # a search that found no path is not repeated on the next fra
 
 @dataclass(frozen=True, eq=False)
 class PoseAtCapture:
-    """The vehicle's pose and velocity at a frame's capture time (LOCAL_NED, FRD)."""
+    """The vehicle's pose and velocity at a frame's capture time (LOCAL_NED, FRD), and the
+    horizontal accuracy the autopilot states for its position (GPS_RAW_INT ``h_acc``) [m],
+    None when it states none."""
 
     pos_ned_m: np.ndarray
     vel_ned_mps: np.ndarray
     R_ned_from_frd: np.ndarray
+    h_acc_m: float | None = None
 
     @property
     def yaw_rad(self) -> float:
@@ -76,6 +80,9 @@ class PipelineOutput:
     # guidance steered (not a hold) and the envelope's carrot lay inside a boundary: where
     # it was put instead (companion.guidance.hold.keep_target_out), None when it stood
     target_kept_out: HoldPlacement | None = None
+    # how much wider the vehicle counted for the position estimate's uncertainty, and
+    # whether the margins covered it (companion.position_uncertainty)
+    widening: Widening = NO_WIDENING
 
     @property
     def obstacles(self) -> tuple[MapBoundary, ...]:
@@ -125,21 +132,29 @@ class AvoidancePipeline:
         self.perception = StereoPerception(perception, source=depth_source)
         self.guidance = Guidance(guidance)
         self.known_space = KnownSpace(known_space)
-        p = self.perception.config
-        self.boundary_config = MapBoundaryConfig(
-            detect_range_m=p.threshold_m, inflate_m=p.vehicle_radius_m + p.safety_margin_m
-        )
         self.envelope_config = EnvelopeConfig() if envelope is None else envelope
-        e = self.envelope_config
+        self._last_path = None  # (map frame, goal, KnownPath or None) of the last search
+        self._widen(self.perception.config.position_uncertainty_m)
+        warm_up()
+
+    def _widen(self, widen_m: float) -> None:
+        """Count the vehicle ``widen_m`` wider in boundaries, the known-space path and the
+        envelope's swept section (:mod:`companion.position_uncertainty`); a path found
+        with other margins is searched again."""
+        p, e = self.perception.config, self.envelope_config
+        self.widen_m = widen_m
+        self.vehicle_radius_m = p.vehicle_radius_m + widen_m
+        self.boundary_config = MapBoundaryConfig(
+            detect_range_m=p.threshold_m, inflate_m=self.vehicle_radius_m + p.safety_margin_m
+        )
         self.known_path_config = KnownPathConfig(
-            clearance_m=p.vehicle_radius_m + p.safety_margin_m,
-            section_radius_m=p.vehicle_radius_m,
+            clearance_m=self.vehicle_radius_m + p.safety_margin_m,
+            section_radius_m=self.vehicle_radius_m,
             section_half_height_m=e.vehicle_half_height_m,
             near_field_m=e.near_field_m,
             reach_m=self.known_space.config.max_range_m,
         )
-        self._last_path = None  # (map frame, goal, KnownPath or None) of the last search
-        warm_up()
+        self._last_path = None
 
     def process(
         self,
@@ -153,6 +168,10 @@ class AvoidancePipeline:
         ``steering``: whether the vehicle flies the output (guidance's stall count);
         ``latency_s``: the measured latency budget [s] for the stopping rule (None: the
         envelope's configured ``latency_s``; :mod:`companion.guidance.latency`)."""
+        p = self.perception.config
+        widened = widening(pose.h_acc_m, p.position_uncertainty_m, p.max_position_uncertainty_m)
+        if widened.widen_m != self.widen_m:
+            self._widen(widened.widen_m)
         seen = self.perception.process(frame, pose.pos_ned_m, pose.R_ned_from_frd)
         if seen.depth_m is not None:
             self.known_space.integrate(
@@ -189,7 +208,7 @@ class AvoidancePipeline:
             free_distance=functools.partial(
                 self.known_space.free_distance_m, solid_ned_m=solid_extent(boundaries)
             ),
-            vehicle_radius_m=self.perception.config.vehicle_radius_m,
+            vehicle_radius_m=self.vehicle_radius_m,
             max_path_elevation_rad=self.guidance.config.max_aim_elevation_rad,
             config=self.envelope_config,
             latency_s=latency_s,
@@ -217,6 +236,7 @@ class AvoidancePipeline:
             boundaries=boundaries,
             hold_escape=escape is not None and kept_out is None,
             target_kept_out=None if kept_out is None else kept_out.placement,
+            widening=widened,
         )
 
     def _known_path(self, pos_ned_m, goal_ned_m, spheres) -> KnownPath | None:

@@ -229,7 +229,12 @@ def run_scene(
     while True:
         state = quad.snapshot()
         error_ned_m = _disturb(disturbed, quad, state.time_s)
-        pose = PoseAtCapture(state.pos_ned_m + error_ned_m, state.vel_ned_mps, state.R_ned_from_frd)
+        pose = PoseAtCapture(
+            state.pos_ned_m + error_ned_m,
+            state.vel_ned_mps,
+            state.R_ned_from_frd,
+            h_acc_m=_stated_h_acc_m(disturbed),
+        )
         frame = shoot(state, seq)
         surface = nearest_surface_m(scene.world, state.pos_ned_m)
         history.settle_proximity(surface)  # before the step changes the map it reads
@@ -297,6 +302,12 @@ def _disturb(disturbed: Disturbances | None, quad: Quadrotor, time_s: float) -> 
     disturbed.advance(time_s)
     quad.set_wind_ned_mps(disturbed.wind_ned_mps)
     return np.asarray(disturbed.estimate_error_ned_m)
+
+
+def _stated_h_acc_m(disturbed: Disturbances | None) -> float | None:
+    """The horizontal accuracy plant-sim's autopilot states (GPS_RAW_INT ``h_acc``), as
+    the companion reads it; None without a disturbance (h_acc 0: none stated)."""
+    return None if disturbed is None else disturbed.stated_accuracy_m[0]
 
 
 _NO_ERROR = np.zeros(3)

@@ -20,6 +20,15 @@ correlated over ``wander_tau_s``, a steady ``drift_ned_mps`` (a slow bias), and 
 recovers from). The autopilot reports and controls ``truth + e`` — so holding a target
 moves the true vehicle by ``−e`` — while the camera sees the true world.
 
+**Stated accuracy** (:attr:`Disturbances.stated_accuracy_m`): what the autopilot says of
+its own estimate, as GPS_RAW_INT ``h_acc``/``v_acc`` do (ArduPilot's
+``AP_GPS::send_mavlink_gps_raw`` fills them from the receiver's horizontal and vertical
+accuracy; PX4's ``MavlinkStreamGPSRawInt`` likewise). It follows the error simulated: the
+root sum of squares of the wander's standard deviation, the jump size (while jumps are
+on) and the drift accumulated so far, horizontal and vertical apart; (0, 0) with no
+estimate error. A receiver states its accuracy, not its error: the stated figure never
+reveals ``e`` itself.
+
 Pure: a seeded generator, time passed in; nothing here reads a clock.
 """
 
@@ -126,6 +135,15 @@ class Disturbances:
     @property
     def estimate_error_ned_m(self) -> tuple[float, float, float]:
         return tuple(float(v) for v in self._wander + self._drift)
+
+    @property
+    def stated_accuracy_m(self) -> tuple[float, float]:
+        """(horizontal, vertical) accuracy the autopilot states for its estimate [m, 1σ]."""
+        e = self.config.estimate
+        jump = 0.0 if math.isinf(e.jump_every_s) else e.jump_m
+        h = math.sqrt(e.wander_std_m**2 + jump**2 + self._drift[0] ** 2 + self._drift[1] ** 2)
+        v = math.hypot(e.wander_vertical_std_m, float(self._drift[2]))
+        return h, v
 
     def advance(self, time_s: float) -> None:
         """Step both processes to ``time_s`` (no-op for a time not after the current)."""

@@ -398,6 +398,9 @@ class PlantService(MessageHandlers):
             wall_unix_s=wall_unix,
             comm_errors=self.link.stats.dropped,
             signing_refused=self.link.stats.signing_refused,
+            accuracy_m=(0.0, 0.0)
+            if self.disturbances is None
+            else self.disturbances.stated_accuracy_m,
         )
 
     def _tilt_notice(self, snap: VehicleState) -> None:

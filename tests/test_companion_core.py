@@ -533,3 +533,30 @@ def test_core_counters_are_one_typed_record_in_the_exit_statistics():
     assert stats["frames_processed"] == rig.core.counters.frames_processed > 0
     sent = sum(1 for o in rig.outputs if isinstance(o, SendMavlink | SendSetpoint))
     assert stats["mavlink_sent"] == sent  # every message counted once, by the outbox
+
+
+def _gps_raw(rig: Rig, h_acc_mm: int):
+    return mavlink.MAVLink_gps_raw_int_message(
+        rig.boot_ms * 1000, 3, 0, 0, 0, 80, 120, 0, 65535, 12, h_acc=h_acc_mm
+    )
+
+
+def test_core_widens_its_margins_by_the_autopilots_stated_accuracy():
+    """GPS_RAW_INT h_acc reaches the pipeline with each frame's pose (issue 31): 0.15 m
+    widens by 0.15 m; 2 m is beyond what the margins take (0.5 m), said once per episode;
+    a stale statement (no GPS_RAW_INT for 5 s) is no statement."""
+    rig = _steering_rig()
+    pipeline = rig.core.mission.pipeline
+    assert pipeline.widen_m == 0.0
+    rig.receive(_gps_raw(rig, 150))
+    rig.run(0.2)
+    assert pipeline.widen_m == pytest.approx(0.15)
+    assert not [t for t in rig.texts() if t.startswith("Position accuracy")]
+    for _ in range(3):
+        rig.receive(_gps_raw(rig, 2000))
+        rig.run(1.0)
+    assert pipeline.widen_m == pytest.approx(0.5)
+    told = [t for t in rig.texts() if t.startswith("Position accuracy")]
+    assert told == ["Position accuracy 2.00 m, margins cover 0.50 m"]
+    rig.run(5.5)
+    assert pipeline.widen_m == 0.0

@@ -198,6 +198,9 @@ class CompanionCore(
         self._newest_seen_ns: int | None = None  # newest frame-clock stamp observed
         self._position_host_ns: int | None = None  # host time the newest position came
         self.streams.reset()
+        # GPS_RAW_INT h_acc [m] and when it came [s, host]; the margins' widening notice
+        self._h_acc: tuple[float, float] | None = None
+        self._uncovered_told = False
         # modes
         self.modes.reset()
         # setpoints and speed

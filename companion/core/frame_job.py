@@ -9,6 +9,7 @@ each command (capture → on the wire, frame clock) feeds the latency budget.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from companion.clock_model import FrameClock
@@ -25,7 +26,7 @@ class FrameJob:
     """One frame: pose at its capture time, the mission step, its setpoint and reports.
 
     Owns ``mission``, ``_last_capture_ns``, ``_newest_frame_ns``, ``data_age``,
-    ``_age_pending``, ``_speed_limit_mps``, ``_boundaries``.
+    ``_age_pending``, ``_speed_limit_mps``, ``_boundaries``, ``_uncovered_told``.
     """
 
     def frame_time_plausible(self, capture_ns: int, now_ns: int) -> bool | None:
@@ -39,8 +40,8 @@ class FrameJob:
         lookup = self._frame_pose(frame)
         if lookup is None:
             return
-        pose = lookup.pose
-        assert pose is not None
+        assert lookup.pose is not None
+        pose = dataclasses.replace(lookup.pose, h_acc_m=self._stated_h_acc_m(self._now_s))
         # Whether the vehicle flies what this frame yields (not in our failsafe hold, a
         # pilot's mode or beside another source): time it does not, guidance does not
         # count as its own lack of progress.
@@ -66,6 +67,7 @@ class FrameJob:
                 sent = True
             self._state_speed_limit(out.envelope, self._now_s)
         self._check_overspeed(out)
+        self._tell_uncovered(out.widening)
         self.counters.targets_kept_out += out.target_kept_out is not None
         for notice in result.notices:
             self.out.notice(notice.text, SEV_WARNING if notice.warning else SEV_INFO)
@@ -78,6 +80,19 @@ class FrameJob:
             pipeline = self.mission.pipeline
             self.out.append(
                 FrameProcessed(frame, pose, result, pipeline.goal_ned_m, pipeline.known_space, sent)
+            )
+
+    def _tell_uncovered(self, widened) -> None:
+        """Say once per episode when the stated position accuracy exceeds what the margins
+        take (:mod:`companion.position_uncertainty`)."""
+        if widened.covered:
+            self._uncovered_told = False
+        elif not self._uncovered_told:
+            self._uncovered_told = True
+            self.out.notice(
+                f"Position accuracy {widened.stated_m:.2f} m, margins cover "
+                f"{widened.widen_m:.2f} m",
+                SEV_WARNING,
             )
 
     def _frame_pose(self, frame: StereoFrame):

@@ -90,6 +90,8 @@ class LinkJob:
             self._on_local_position(msg, now_s)
         elif mtype == "ATTITUDE":
             self._on_attitude(msg, now_s)
+        elif mtype == "GPS_RAW_INT":
+            self._on_gps_raw(msg, now_s)
         elif mtype == "TIMESYNC":
             self._on_timesync(msg, now_s)
         elif mtype == "COMMAND_ACK":

@@ -1,6 +1,8 @@
 """Telemetry into the pose history, on one clock with the frames.
 
-A mixin of :class:`~companion.core.CompanionCore`. LOCAL_POSITION_NED and ATTITUDE go
+A mixin of :class:`~companion.core.CompanionCore`. GPS_RAW_INT's ``h_acc`` is the
+accuracy the autopilot states for its position (it widens the margins,
+:mod:`companion.position_uncertainty`). LOCAL_POSITION_NED and ATTITUDE go
 into the pose history at their ``time_boot_ms`` mapped onto the frame clock
 (:mod:`companion.clock_model`); a ``time_boot_ms`` that jumps back is a reboot once
 confirmed, an implausible one is dropped and counted. The streams and TIMESYNC are
@@ -14,6 +16,8 @@ import math
 
 from companion.clock_model import BootTime, SyncResult
 
+#: a stated accuracy older than this is not used (GPS_RAW_INT streams at 1-5 Hz) [s]
+H_ACC_MAX_AGE_S = 5.0
 REBOOT_BACKSTEP_MS = 500  # time_boot_ms going back this far: the autopilot restarted
 MAX_POS_M = 1e5  # |LOCAL_NED| beyond this is not a position of a multirotor
 _MAX_SPEED_MPS = 300.0
@@ -24,14 +28,20 @@ def in_range(values, bound: float) -> bool:
     return all(math.isfinite(v) and abs(v) <= bound for v in values)
 
 
-__all__ = ["MAX_POS_M", "REBOOT_BACKSTEP_MS", "TelemetryJob", "in_range"]
+__all__ = [
+    "H_ACC_MAX_AGE_S",
+    "MAX_POS_M",
+    "REBOOT_BACKSTEP_MS",
+    "TelemetryJob",
+    "in_range",
+]
 
 
 class TelemetryJob:
     """Poses on the frame clock and the autopilot's boot time.
 
     Owns ``clock``, ``poses``, ``boot_time``, ``_telemetry_newest_ns``,
-    ``_newest_seen_ns``, ``_last_boot_ms``, ``_position_host_ns``.
+    ``_newest_seen_ns``, ``_last_boot_ms``, ``_position_host_ns``, ``_h_acc``.
     """
 
     def _telemetry_seen(self, t_ns: int) -> None:
@@ -96,6 +106,18 @@ class TelemetryJob:
             elif self.poses.add_attitude(t, *angles):
                 self._observe(t)
                 self._telemetry_seen(t)
+
+    def _on_gps_raw(self, msg, now_s: float) -> None:
+        """GPS_RAW_INT ``h_acc`` [mm]: the accuracy the autopilot states for its position
+        (0: none stated), which widens the margins (:mod:`companion.position_uncertainty`)."""
+        h_acc_mm = getattr(msg, "h_acc", 0)  # a MAVLink 1 frame has no extension fields
+        self._h_acc = (h_acc_mm * 1e-3, now_s) if h_acc_mm and h_acc_mm < 0xFFFFFFFF else None
+
+    def _stated_h_acc_m(self, now_s: float) -> float | None:
+        """The autopilot's stated horizontal accuracy [m], None if none or stale."""
+        if self._h_acc is None or now_s - self._h_acc[1] > H_ACC_MAX_AGE_S:
+            return None
+        return self._h_acc[0]
 
     def _log_drop(self, kind: str, count: int, what: str, values) -> None:
         """One warning per ``kind`` every 2 s for an input dropped ``count`` times."""

@@ -83,6 +83,7 @@ AUTOPILOT_CAPABILITIES = (
 )
 
 # ArduCopter 4.5.0, official: major << 24 | minor << 16 | patch << 8 | FIRMWARE_VERSION_TYPE
+_UINT32_MAX = 0xFFFFFFFF  # GPS_RAW_INT h_acc / v_acc are uint32 [mm]
 _FLIGHT_SW_VERSION = (4 << 24) | (5 << 16) | (0 << 8) | 255
 
 
@@ -214,8 +215,11 @@ class TelemetryBuilder:
         wall_unix_s: float,
         comm_errors: int = 0,
         signing_refused: int = 0,
+        accuracy_m: tuple[float, float] = (0.0, 0.0),
     ):
-        """The message ``name`` for the state at ``snap.time_s``."""
+        """The message ``name`` for the state at ``snap.time_s``; ``accuracy_m``: the
+        (horizontal, vertical) accuracy stated for the position [m]
+        (:attr:`plant_sim.disturbance.Disturbances.stated_accuracy_m`)."""
         if name == "HEARTBEAT":
             return self.heartbeat(machine)
         if name == "LOCAL_POSITION_NED":
@@ -225,7 +229,7 @@ class TelemetryBuilder:
         if name == "GLOBAL_POSITION_INT":
             return self.global_position(snap, machine)
         if name == "GPS_RAW_INT":
-            return self.gps_raw(snap)
+            return self.gps_raw(snap, accuracy_m)
         if name == "SYS_STATUS":
             return _sys_status(comm_errors, signing_refused)
         if name == "EXTENDED_SYS_STATE":
@@ -259,8 +263,10 @@ class TelemetryBuilder:
             _wrap_cdeg(snap.yaw_rad),
         )
 
-    def gps_raw(self, snap: VehicleState):
-        """GPS_RAW_INT: a 3-D fix with 12 satellites, course over ground above 0.1 m/s."""
+    def gps_raw(self, snap: VehicleState, accuracy_m: tuple[float, float] = (0.0, 0.0)):
+        """GPS_RAW_INT: a 3-D fix with 12 satellites, course over ground above 0.1 m/s,
+        ``h_acc``/``v_acc`` [mm] the stated (horizontal, vertical) accuracy [m]."""
+        h_acc_mm, v_acc_mm = (min(round(a * 1000.0), _UINT32_MAX) for a in accuracy_m)
         lat, lon, alt = self.geodetic(snap.pos_ned_m)
         v = snap.vel_ned_mps
         ground_speed = math.hypot(float(v[0]), float(v[1]))
@@ -276,6 +282,8 @@ class TelemetryBuilder:
             round(ground_speed * 100.0),
             cog,
             12,
+            h_acc=h_acc_mm,
+            v_acc=v_acc_mm,
         )
 
     def home_position(self, machine: FlightModeMachine, time_s: float):
