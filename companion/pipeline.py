@@ -172,18 +172,7 @@ class AvoidancePipeline:
         widened = widening(pose.h_acc_m, p.position_uncertainty_m, p.max_position_uncertainty_m)
         if widened.widen_m != self.widen_m:
             self._widen(widened.widen_m)
-        seen = self.perception.process(frame, pose.pos_ned_m, pose.R_ned_from_frd)
-        if seen.depth_m is not None:
-            self.known_space.integrate(
-                seen.depth_m,
-                frame.intrinsics,
-                pose.pos_ned_m,
-                pose.R_ned_from_frd,
-                blind_band_px=seen.blind_band_px,
-                trusted_range_m=seen.trusted_range_m,
-            )
-        else:
-            self.known_space.mark_vehicle(pose.pos_ned_m)
+        seen = self._see(frame, pose)
         boundaries = map_boundaries(
             self.known_space, pose.pos_ned_m, self.goal_ned_m, self.boundary_config
         )
@@ -238,6 +227,23 @@ class AvoidancePipeline:
             target_kept_out=None if kept_out is None else kept_out.placement,
             widening=widened,
         )
+
+    def _see(self, frame: StereoFrame, pose: PoseAtCapture):
+        """Perception of ``frame`` and its depth into the known-space map (no depth: the
+        vehicle's own cell is marked)."""
+        seen = self.perception.process(frame, pose.pos_ned_m, pose.R_ned_from_frd)
+        if seen.depth_m is not None:
+            self.known_space.integrate(
+                seen.depth_m,
+                frame.intrinsics,
+                pose.pos_ned_m,
+                pose.R_ned_from_frd,
+                blind_band_px=seen.blind_band_px,
+                trusted_range_m=seen.trusted_range_m,
+            )
+        else:
+            self.known_space.mark_vehicle(pose.pos_ned_m)
+        return seen
 
     def _known_path(self, pos_ned_m, goal_ned_m, spheres) -> KnownPath | None:
         """Guidance's search of the known-space map (:mod:`companion.guidance.known_path`),
