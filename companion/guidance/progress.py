@@ -69,8 +69,9 @@ def watch_progress(
       step of an ``AVOID`` detour into a cell not visited since the best distance (a detour
       still going somewhere: along a wall toward its end), but never after ``max_detour_s``
       without getting nearer. Cells are columns (north, east): a detour that paces to and
-      fro along a wall while its altitude wanders revisits them (stereo gap-0 did, 80 s,
-      each pass 1-2 m higher or lower, and met the 90 s limit as a timeout). Within
+      fro along a wall while its altitude wanders revisits them (stereo gap-0 paced 80 s,
+      each pass 1-2 m higher or lower; its ±0.5 m wobble across the wall still finds
+      new columns, and it still meets the 90 s limit as a timeout). Within
       ``2 · stall_progress_m`` of the goal its own rule counts instead
       (``near_goal_stall_s`` without getting ``0.2 · stall_progress_m`` nearer), standing
       still within ``stall_progress_m`` (arrived: hovering at the goal is
