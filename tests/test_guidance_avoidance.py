@@ -945,6 +945,23 @@ def test_a_detour_that_circles_back_over_its_own_track_stalls():
     assert 10.0 <= k_stall * DT_S <= 10.0 + 2.0 * math.pi / 0.5  # within a lap of the timeout
 
 
+def test_a_detour_that_paces_to_and_fro_while_changing_altitude_stalls():
+    """Back and forth over the same 3 m while climbing 0.4 m per pass (stereo gap-0 paced
+    along its wall 80 s, its altitude wandering by 2 m): the columns are revisited, so the
+    count runs and guidance holds within a lap of stall_timeout_s, not at max_detour_s."""
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=10.0, max_detour_s=100.0)
+    goal = np.array([0.0, 0.0, -7.0])
+    n = round(30.0 / DT_S)
+    pace = [
+        np.array([30.0, 1.5 + 1.5 * math.sin(0.5 * t), -7.0 - 0.4 * t * 0.5 / math.pi])
+        for t in (k * DT_S for k in range(n))
+    ]
+    outs = _detour_along(cfg, pace, [-0.5, 0.0, 0.0], goal)
+    k_stall = next(k for k, o in enumerate(outs) if o.mode is Mode.HOLD)
+    assert outs[k_stall].reason is Reason.NO_PROGRESS
+    assert 10.0 <= k_stall * DT_S <= 10.0 + 2.0 * math.pi / 0.5  # within a lap of the timeout
+
+
 def test_an_unreachable_goal_stays_held_when_its_obstacle_is_forgotten():
     """The GOAL_UNREACHABLE hold is latched for the goal: the obstacle left the map (unseen
     and forgotten) does not release it into a go-around; only a new goal does."""

@@ -116,10 +116,11 @@ class GuidanceConfig:
         Hovering 0.9 m short of a goal the envelope cannot certify (straight above) is a
         stall the pilot is told of, not a silent hover until the battery runs out.
     detour_cell_m : float
-        While avoiding (``AVOID``), each step into a cube of this edge the vehicle has not
-        visited since it last got nearer the goal counts as progress along the detour [m]:
-        a detour along a long wall toward its end (going away from the goal) does not
-        stall, a detour that circles (revisits its cells) does.
+        While avoiding (``AVOID``), each step into a column of this square section (north,
+        east; any altitude) the vehicle has not visited since it last got nearer the goal
+        counts as progress along the detour [m]: a detour along a long wall toward its end
+        (going away from the goal) does not stall, a detour that circles or paces to and
+        fro (revisits its columns, climbing or not) does.
     max_detour_s : float
         The longest a detour may go on without getting ``stall_progress_m`` nearer the goal,
         new cells or not [s]; then the ``NO_PROGRESS`` HOLD. Every flight thus ends at the

@@ -68,9 +68,13 @@ def watch_progress(
       ``stall_progress_m`` nearer the goal. The count restarts in other HOLDs and on each
       step of an ``AVOID`` detour into a cell not visited since the best distance (a detour
       still going somewhere: along a wall toward its end), but never after ``max_detour_s``
-      without getting nearer. Within ``2 · stall_progress_m`` of the goal its own rule
-      counts instead (``near_goal_stall_s`` without getting ``0.2 · stall_progress_m``
-      nearer), standing still within ``stall_progress_m`` (arrived: hovering at the goal is
+      without getting nearer. Cells are columns (north, east): a detour that paces to and
+      fro along a wall while its altitude wanders revisits them (stereo gap-0 paced 80 s,
+      each pass 1-2 m higher or lower; its ±0.5 m wobble across the wall still finds
+      new columns, and it still meets the 90 s limit as a timeout). Within
+      ``2 · stall_progress_m`` of the goal its own rule counts instead
+      (``near_goal_stall_s`` without getting ``0.2 · stall_progress_m`` nearer), standing
+      still within ``stall_progress_m`` (arrived: hovering at the goal is
       not a stall; circling past it is). A gap between steps (no frames) and a step the
       vehicle does not fly (``steering`` false: a failsafe hold, a pilot's mode) do not
       count.
@@ -97,7 +101,7 @@ def watch_progress(
     stuck_s = progress.stuck_s + dt
     since_best_s = progress.since_best_s + dt
     if d.mode is Mode.AVOID and dt > 0.0:
-        cell = tuple(math.floor(float(x) / cfg.detour_cell_m) for x in f.pos)
+        cell = tuple(math.floor(float(x) / cfg.detour_cell_m) for x in f.pos[:2])
         if cell not in cells:
             cells = cells | {cell}
             stuck_s = 0.0  # a detour still going somewhere new
