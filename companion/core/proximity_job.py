@@ -23,8 +23,9 @@ class ProximityJob:
     def _send_proximity_frame(self, capture_ns: int, pose) -> None:
         """OBSTACLE_DISTANCE of the map this frame updated, stamped with its capture time,
         seen from where the vehicle is now (not where it was when the frame was taken:
-        the frame's processing time is not added to the autopilot's reaction)."""
-        if self.proximity is None:
+        the frame's processing time is not added to the autopilot's reaction). Not when
+        the service's own thread sends (``streamed``, :mod:`companion.proximity.stream`)."""
+        if self.proximity is None or self.proximity.streamed:
             return
         pos, yaw = self._proximity_pose()
         if pos is None and self._position_host_ns is None:
@@ -42,6 +43,11 @@ class ProximityJob:
         newest = self.poses.newest_ns
         stamp_ns = self._last_capture_ns if self._last_capture_ns is not None else newest
         self.out.send(obstacle_distance_message(max(stamp_ns or 0, 0) // 1000, sectors))
+
+    def frame_clock_rate(self) -> float:
+        """Frame-clock seconds per host second: the service's OBSTACLE_DISTANCE thread
+        carries positions forward with it (:mod:`companion.proximity.stream`)."""
+        return self._frame_clock_rate()
 
     def _proximity_pose(self):
         """(position [m, LOCAL_NED], yaw [rad]) of the vehicle at this send: the newest

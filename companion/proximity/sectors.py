@@ -261,7 +261,7 @@ def _cm(value_m: float) -> int:
     return round(value_m * 100.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _scan(
     grid,
     origin,
@@ -357,7 +357,7 @@ def _scan(
                     unk[kk] = near
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _joined(grid, i, j, k_edge, step, n_ext):
     """An OCCUPIED voxel of column (``i``, ``j``) within ``n_ext`` voxels beyond the band's
     edge voxel ``k_edge`` (``step`` -1: up, 1: down), reached from it through voxels that

@@ -27,12 +27,17 @@ would otherwise think it has left. A position older than :data:`POSE_STALE_S` is
 carried forward: the vehicle could be anywhere, and the sectors are sent unknown
 (never clear, never an obstacle where there is none) until telemetry returns.
 
-Pure: the caller passes the wall time (``now_s``) and the map; no clock, no I/O.
+Pure: the caller passes the wall time (``now_s``) and the map; no clock, no I/O. The
+companion process sends from a thread of its own (:mod:`companion.proximity.stream`):
+then :attr:`ProximitySender.streamed` is set, the core's step sends nothing and
+:meth:`ProximitySender.due` is never true; the figures are kept under a lock, as the
+thread counts while the main loop reads them for the status.
 """
 
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
 from typing import Any
 
@@ -88,20 +93,30 @@ class ProximitySender:
         self.late = 0
         self.longest_gap_s = 0.0
         self.last: ProximitySectors | None = None
+        # sent by companion.proximity.stream's thread, not by the core's step
+        self.streamed = False
         self._last_send_s = float("-inf")
         self._times: deque[float] = deque()
+        self._lock = threading.Lock()
 
     def due(self, now_s: float) -> bool:
         """The timer must send now (nothing went out for a period, less a millisecond
-        of slack so that a caller ticking at a divisor of the period keeps the rate)."""
-        return now_s - self._last_send_s >= self.period_s - _SLACK_S
+        of slack so that a caller ticking at a divisor of the period keeps the rate);
+        never when :attr:`streamed`."""
+        return not self.streamed and now_s - self._last_send_s >= self.period_s - _SLACK_S
+
+    def count_stale_pose(self) -> None:
+        """One send made all unknown because the position was too old."""
+        with self._lock:
+            self.stale_pose += 1
 
     def on_frame(
         self, space: KnownSpace, pos_ned_m, yaw_rad: float | None, now_s: float
     ) -> ProximitySectors:
         """Sectors of the map just updated by a frame, at the vehicle's position at the
         send (None: stale → all unknown)."""
-        self.from_frames += 1
+        with self._lock:
+            self.from_frames += 1
         return self.on_timer(space, pos_ned_m, yaw_rad, now_s)
 
     def on_timer(
@@ -116,6 +131,10 @@ class ProximitySender:
 
     def figures(self, now_s: float) -> dict[str, Any]:
         """Message count, send rate over the last 2 s [Hz wall] and the last sectors."""
+        with self._lock:
+            return self._figures(now_s)
+
+    def _figures(self, now_s: float) -> dict[str, Any]:
         self._trim(now_s)
         counts = (None, None, None) if self.last is None else self.last.counts()
         return {
@@ -132,6 +151,11 @@ class ProximitySender:
         }
 
     def _sent(self, sectors: ProximitySectors, now_s: float) -> ProximitySectors:
+        with self._lock:
+            self._count_sent(sectors, now_s)
+        return sectors
+
+    def _count_sent(self, sectors: ProximitySectors, now_s: float) -> None:
         gap_s = now_s - self._last_send_s
         if math.isfinite(gap_s):
             self.longest_gap_s = max(self.longest_gap_s, gap_s)
@@ -142,7 +166,6 @@ class ProximitySender:
         self._last_send_s = now_s
         self._times.append(now_s)
         self._trim(now_s)
-        return sectors
 
     def _trim(self, now_s: float) -> None:
         while self._times and self._times[0] <= now_s - _RATE_WINDOW_S:
