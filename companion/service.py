@@ -117,7 +117,7 @@ class CompanionService:
         """Open MAVLink and Zenoh; start the OBSTACLE_DISTANCE thread."""
         self.link.open()
         sender = self.core.proximity
-        if sender is not None and not self.observers:
+        if sender is not None and self.config.proximity.thread and not self.observers:
             link = self.config.link
             self.proximity = ProximityStream(
                 sender,

@@ -9,6 +9,7 @@ import math
 import select
 import time
 
+import cv2
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -105,32 +106,42 @@ def _stream(link: _Link) -> tuple[ProximityStream, ProximitySender]:
     return stream, sender
 
 
-def test_the_stream_keeps_its_rate_while_the_main_thread_holds_the_interpreter():
-    """1 s of pure-Python work in the main thread (it holds the GIL but for the switch
-    interval): the thread still sends every 50 ms, each message seen from where the
-    vehicle is at the send (the wall ahead nearer by the velocity times the time)."""
+def test_the_stream_keeps_its_rate_while_the_main_thread_matches_frames():
+    """1 s of the companion's frame work in the main thread (OpenCV's matcher on a
+    320×240 pair, which releases the interpreter, and Python between the calls): the
+    thread still sends at >= 10 Hz, no gap near the autopilots' 0.5 s timeout, each
+    message seen from where the vehicle is at the send (the wall ahead nearer by the
+    velocity times the time)."""
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 255, (240, 320), dtype=np.uint8)
+    right = np.roll(left, -8, axis=1)
+    matcher = cv2.StereoSGBM_create(numDisparities=64, blockSize=5)
     link = _Link(vel_n_mps=2.0)
     stream, sender = _stream(link)
     stream.start()
     try:
         assert sender.streamed and not sender.due(1e9)  # the core sends nothing itself
         busy_until = time.monotonic() + 1.0
-        n = 0
+        frames = 0
         while time.monotonic() < busy_until:
-            n += 1
+            matcher.compute(left, right)
+            frames += 1
     finally:
         stream.close()
     times = np.array([t for t, _ in link.sent])
-    assert len(times) >= 15, len(times)
+    assert len(times) >= 10, len(times)
     gaps = np.diff(times)
     assert gaps.max() < 0.45, gaps.max()  # the autopilots' timeout is 0.5 s
     assert sender.late == 0 and stream.errors == 0
     for t, msg in link.sent:
         assert msg.time_usec == 5_000  # the snapshot's capture time
         expected = WALL_N_M - link.vel_n_mps * (t - link.t0)
-        # floor to cm, the far layer's footprint, and the send's own few ms of travel
-        assert expected - VOXEL_DIAG_M - 0.05 <= msg.distances[0] / 100.0 <= expected + 0.02
-    print(f"busy main thread: {len(times)} sends in 1 s, longest gap {gaps.max() * 1e3:.0f} ms")
+        # below: floor to cm and the far layer's footprint; above: the vehicle moves on
+        # while the sectors are computed (up to 50 ms on a loaded machine)
+        travel_m = link.vel_n_mps * 0.05
+        got_m = msg.distances[0] / 100.0
+        assert expected - VOXEL_DIAG_M - 0.05 <= got_m <= expected + 0.01 + travel_m
+    print(f"{frames} frames matched: {len(times)} sends in 1 s, longest gap {gaps.max():.3f} s")
 
 
 def test_a_position_older_than_half_a_second_makes_every_sector_unknown():

@@ -45,6 +45,7 @@ import numpy as np
 
 from companion.known_space import KnownSpace, KnownSpaceConfig
 from companion.link.messages import obstacle_distance_message
+from companion.proximity.sectors import ProximityConfig, sectors_from_map
 from companion.proximity.sender import ProximitySender, position_at_send
 
 __all__ = ["SLAB_MARGIN_M", "MapSnapshot", "ProximityStream", "VehiclePose", "snapshot_map"]
@@ -52,6 +53,7 @@ __all__ = ["SLAB_MARGIN_M", "MapSnapshot", "ProximityStream", "VehiclePose", "sn
 #: The snapshot keeps this much of the map [m] above and below the height band and its
 #: unseen extension: 2.5 m/s of climb (ArduCopter's PILOT_SPEED_UP) for 0.8 s.
 SLAB_MARGIN_M = 2.0
+_WARM_CONFIG = ProximityConfig()  # the warm-up's (the kernel's types do not depend on it)
 _MAX_POS_M = 1e5  # as the core's telemetry checks (companion.core.telemetry_job)
 _MAX_SPEED_MPS = 300.0
 
@@ -156,6 +158,11 @@ class ProximityStream:
 
     # ---- main loop side ----------------------------------------------------------------
     def start(self) -> None:
+        """Compile (or load from numba's cache) the sector kernel here, not on the thread
+        in flight, then start sending."""
+        tiny = KnownSpace(KnownSpaceConfig(size_xy_vox=8, size_z_vox=8, far_range_m=0.0))
+        tiny.frames = 1
+        sectors_from_map(snapshot_map(tiny, -0.8, 0.4, None), (0.0, 0.0, 0.0), 0.0, _WARM_CONFIG)
         self.sender.streamed = True
         self._thread = threading.Thread(target=self._run, name="obstacle-distance", daemon=True)
         self._thread.start()
