@@ -5,12 +5,13 @@ waits on the MAVLink socket and the frame slot (``select``), then hands the core
 (:mod:`companion.core.events`) stamped with the host's monotonic clock, every MAVLink
 message received, a clock tick and the newest frame, and carries out what it returns:
 MAVLink messages and setpoints onto the link, ``COMPANION EVENT <name> {json}`` lines on
-stdout, status documents on Zenoh. OBSTACLE_DISTANCE goes out from a thread of its own
-(:mod:`companion.proximity.stream`) that also reads the link while the main thread is busy
-with a frame (one lock for the link; the main loop takes what it read first), on a copy
-of the map taken after each frame. With a recorder or viewer attached the core sends it
-instead, so a recording replays bit for bit. Around that, reporting only: the health file, the
-progress log, signing refusals and "no frames on our key" hints. The log goes to stderr.
+stdout, status documents on Zenoh. When the main loop has sent no OBSTACLE_DISTANCE for
+1.5 periods (a long frame), a watchdog thread sends it (:mod:`companion.proximity.stream`),
+reading the link itself for a fresh position (one lock for the link; the main loop takes
+what it read first), on a copy of the map taken after each frame. Not with a recorder or
+viewer attached: a recording replays the core's sends bit for bit. Around that,
+reporting only: the health file, the progress log, signing refusals and "no frames on
+our key" hints. The log goes to stderr.
 Recorders and viewers (``--record``, ``--rerun``) see every step's input and outputs
 through :mod:`companion.observe`.
 """

@@ -23,9 +23,8 @@ class ProximityJob:
     def _send_proximity_frame(self, capture_ns: int, pose) -> None:
         """OBSTACLE_DISTANCE of the map this frame updated, stamped with its capture time,
         seen from where the vehicle is now (not where it was when the frame was taken:
-        the frame's processing time is not added to the autopilot's reaction). Not when
-        the service's own thread sends (``streamed``, :mod:`companion.proximity.stream`)."""
-        if self.proximity is None or self.proximity.streamed:
+        the frame's processing time is not added to the autopilot's reaction)."""
+        if self.proximity is None:
             return
         pos, yaw = self._proximity_pose()
         if pos is None and self._position_host_ns is None:
@@ -45,7 +44,7 @@ class ProximityJob:
         self.out.send(obstacle_distance_message(max(stamp_ns or 0, 0) // 1000, sectors))
 
     def frame_clock_rate(self) -> float:
-        """Frame-clock seconds per host second: the service's OBSTACLE_DISTANCE thread
+        """Frame-clock seconds per host second: the service's OBSTACLE_DISTANCE watchdog
         carries positions forward with it (:mod:`companion.proximity.stream`)."""
         return self._frame_clock_rate()
 

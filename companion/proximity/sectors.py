@@ -87,9 +87,9 @@ class ProximityConfig:
     enabled : bool
         Send OBSTACLE_DISTANCE (on by default, for ArduPilot and PX4 alike).
     thread : bool
-        Send from a thread of its own that does not wait for frame processing
-        (:mod:`companion.proximity.stream`; on by default). Off: from the companion's main
-        loop between frames, as its core steps (what a replay reproduces).
+        A watchdog thread sends when the main loop has sent nothing for 1.5 periods (a
+        long frame, a starved processor; :mod:`companion.proximity.stream`; on by
+        default). Off: the main loop alone (what a replay reproduces).
     rate_hz : float
         Least send rate [Hz wall]: every processed frame sends one, and a timer fills the
         gaps (before the first frame, during a takeoff, when frames stop) from the map at

@@ -27,11 +27,10 @@ would otherwise think it has left. A position older than :data:`POSE_STALE_S` is
 carried forward: the vehicle could be anywhere, and the sectors are sent unknown
 (never clear, never an obstacle where there is none) until telemetry returns.
 
-Pure: the caller passes the wall time (``now_s``) and the map; no clock, no I/O. The
-companion process sends from a thread of its own (:mod:`companion.proximity.stream`):
-then :attr:`ProximitySender.streamed` is set, the core's step sends nothing and
-:meth:`ProximitySender.due` is never true; the figures are kept under a lock, as the
-thread counts while the main loop reads them for the status.
+Pure: the caller passes the wall time (``now_s``) and the map; no clock, no I/O. In the
+companion process a watchdog thread (:mod:`companion.proximity.stream`) also sends when
+the main loop has sent nothing for 1.5 periods (a long frame, a starved processor): the
+figures are kept under a lock, as both count while the main loop reads them.
 """
 
 from __future__ import annotations
@@ -93,17 +92,19 @@ class ProximitySender:
         self.late = 0
         self.longest_gap_s = 0.0
         self.last: ProximitySectors | None = None
-        # sent by companion.proximity.stream's thread, not by the core's step
-        self.streamed = False
         self._last_send_s = float("-inf")
         self._times: deque[float] = deque()
         self._lock = threading.Lock()
 
     def due(self, now_s: float) -> bool:
         """The timer must send now (nothing went out for a period, less a millisecond
-        of slack so that a caller ticking at a divisor of the period keeps the rate);
-        never when :attr:`streamed`."""
-        return not self.streamed and now_s - self._last_send_s >= self.period_s - _SLACK_S
+        of slack so that a caller ticking at a divisor of the period keeps the rate)."""
+        return now_s - self._last_send_s >= self.period_s - _SLACK_S
+
+    def since_send_s(self, now_s: float) -> float:
+        """Seconds since the last send (inf: none yet)."""
+        with self._lock:
+            return now_s - self._last_send_s
 
     def count_stale_pose(self) -> None:
         """One send made all unknown because the position was too old."""

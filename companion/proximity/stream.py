@@ -1,11 +1,13 @@
-"""OBSTACLE_DISTANCE on a thread of its own: the proximity stream never waits for a frame.
+"""OBSTACLE_DISTANCE watchdog thread: the proximity stream does not wait for a frame.
 
 The autopilot drops the companion's proximity data 0.5 s after the last message
 (:mod:`companion.proximity.sender`), and a pilot then flies on without avoidance. Sent
 from the companion's one loop, the stream stopped while a frame was processed: on a loaded
 2-core machine the loop once sent nothing for 0.87 s (issue 34), and the held stick flew
-the vehicle into the wall. So the service (:mod:`companion.service`) runs
-:class:`ProximityStream`, a thread that every ``1 / rate_hz`` seconds
+the vehicle into the wall. The main loop still sends (each frame's sectors, and between
+frames), and the service (:mod:`companion.service`) runs :class:`ProximityStream`, a
+thread that looks every half period and, when nothing went out for :data:`GAP_PERIODS`
+periods (75 ms at 20 Hz), sends itself:
 
 1. reads the MAVLink link itself (under the link's lock) and hands what it read to the
    main loop (:meth:`ProximityStream.take_inbox`, a wake-up pipe for its ``select``): the
@@ -19,11 +21,11 @@ the vehicle into the wall. So the service (:mod:`companion.service`) runs
    time.
 
 The sector kernel (:func:`~companion.proximity.sectors.sectors_from_map`) is compiled
-with ``nogil``, the matcher (OpenCV) releases the GIL, and the map update and the
-planner hold it for a few milliseconds at a time: the thread gets the interpreter within
-the switch interval. The core's own sends are switched off
-(:attr:`~companion.proximity.sender.ProximitySender.streamed`); its figures (count, rate,
-late sends, stale poses) are the same object's, counted here.
+with ``nogil``, and the matcher (OpenCV) releases the GIL. In normal running the thread
+only reads a time (microseconds of the interpreter), so the main loop's work is as
+before; a thread that sent every period competed for the GIL on a loaded machine and slowed
+the frames it was meant not to wait for. Its sends are counted in the core's sender
+(count, rate, late sends, stale poses) and as ``fills`` here.
 
 A snapshot's slab is the height band widened by :data:`SLAB_MARGIN_M` each way: a vehicle
 that has climbed or sunk beyond it before the next frame sees its band as outside the
@@ -33,6 +35,7 @@ grid, unknown — never clear.
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import os
 import threading
@@ -48,12 +51,23 @@ from companion.link.messages import obstacle_distance_message
 from companion.proximity.sectors import ProximityConfig, sectors_from_map
 from companion.proximity.sender import ProximitySender, position_at_send
 
-__all__ = ["SLAB_MARGIN_M", "MapSnapshot", "ProximityStream", "VehiclePose", "snapshot_map"]
+__all__ = [
+    "GAP_PERIODS",
+    "SLAB_MARGIN_M",
+    "MapSnapshot",
+    "ProximityStream",
+    "VehiclePose",
+    "snapshot_map",
+]
 
+#: The watchdog sends when nothing went out for this many periods.
+GAP_PERIODS = 1.5
 #: The snapshot keeps this much of the map [m] above and below the height band and its
 #: unseen extension: 2.5 m/s of climb (ArduCopter's PILOT_SPEED_UP) for 0.8 s.
 SLAB_MARGIN_M = 2.0
 _WARM_CONFIG = ProximityConfig()  # the warm-up's (the kernel's types do not depend on it)
+_LATE_S = 0.25  # a send this long after the previous one is logged [s host]
+_log = logging.getLogger("companion")
 _MAX_POS_M = 1e5  # as the core's telemetry checks (companion.core.telemetry_job)
 _MAX_SPEED_MPS = 300.0
 
@@ -153,7 +167,7 @@ class ProximityStream:
         self._rfd, self._wfd = os.pipe()
         os.set_blocking(self._rfd, False)
         os.set_blocking(self._wfd, False)
-        self.intervals_s: deque[float] = deque(maxlen=10_000)  # between sends [s host]
+        self.fills = 0  # sends of the thread's own (the main loop was late)
         self.errors = 0
 
     # ---- main loop side ----------------------------------------------------------------
@@ -163,7 +177,6 @@ class ProximityStream:
         tiny = KnownSpace(KnownSpaceConfig(size_xy_vox=8, size_z_vox=8, far_range_m=0.0))
         tiny.frames = 1
         sectors_from_map(snapshot_map(tiny, -0.8, 0.4, None), (0.0, 0.0, 0.0), 0.0, _WARM_CONFIG)
-        self.sender.streamed = True
         self._thread = threading.Thread(target=self._run, name="obstacle-distance", daemon=True)
         self._thread.start()
 
@@ -208,38 +221,35 @@ class ProximityStream:
                 self._stamp_ns = max(int(stamp_ns), 0)
 
     def figures(self) -> dict:
-        """The thread's send intervals [ms host]: p50, p99, max (of the last 10 000), and
-        its errors."""
-        gaps = np.array(self.intervals_s, dtype=float)  # a copy: the thread appends
-        if gaps.size == 0:
-            return {"sends": 0, "errors": self.errors}
-        p50, p99 = np.percentile(gaps, [50.0, 99.0]) * 1e3
+        """The thread's own sends (the main loop was late), its errors, and the longest
+        time between any two sends [s host]."""
         return {
-            "sends": int(gaps.size) + 1,
-            "interval_p50_ms": round(float(p50), 1),
-            "interval_p99_ms": round(float(p99), 1),
-            "interval_max_ms": round(float(gaps.max()) * 1e3, 1),
+            "fills": self.fills,
             "errors": self.errors,
+            "longest_gap_s": round(self.sender.longest_gap_s, 3),
         }
 
     # ---- the thread --------------------------------------------------------------------
     def _run(self) -> None:
         period_s = self.sender.period_s
-        next_s = time.monotonic()
-        last_s: float | None = None
-        while not self._stop.wait(max(0.0, next_s - time.monotonic())):
+        gap_s = GAP_PERIODS * period_s
+        while not self._stop.wait(0.5 * period_s):
             now_s = time.monotonic()
+            since_s = self.sender.since_send_s(now_s)
+            if since_s < gap_s:
+                continue  # the main loop keeps the rate
+            if math.isfinite(since_s) and since_s > _LATE_S:
+                _log.warning(
+                    "OBSTACLE_DISTANCE late: %.3f s since the previous send (the autopilots "
+                    "drop the data after 0.5 s)",
+                    since_s,
+                )
             try:
                 self._read_link()
                 self._send_now(now_s)
+                self.fills += 1
             except Exception:  # a bug here must not end the stream: counted
                 self.errors += 1
-            if last_s is not None:
-                self.intervals_s.append(now_s - last_s)
-            last_s = now_s
-            next_s += period_s
-            if next_s < now_s:  # late: keep the period from now, do not burst
-                next_s = now_s + period_s
 
     def _read_link(self) -> None:
         messages = self._poll()
