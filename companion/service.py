@@ -1,12 +1,17 @@
 """The companion process: sockets and threads around the pure :class:`CompanionCore`.
 
-One thread (Zenoh's callback only decodes into the latest-frame slot). Each pass waits on
-the MAVLink socket and the frame slot (``select``), then hands the core, as typed inputs
+One main thread (Zenoh's callback only decodes into the latest-frame slot). Each pass
+waits on the MAVLink socket and the frame slot (``select``), then hands the core, as typed inputs
 (:mod:`companion.core.events`) stamped with the host's monotonic clock, every MAVLink
 message received, a clock tick and the newest frame, and carries out what it returns:
 MAVLink messages and setpoints onto the link, ``COMPANION EVENT <name> {json}`` lines on
-stdout, status documents on Zenoh. Around that, reporting only: the health file, the
-progress log, signing refusals and "no frames on our key" hints. The log goes to stderr.
+stdout, status documents on Zenoh. When the main loop has sent no OBSTACLE_DISTANCE for
+1.5 periods (a long frame), a watchdog thread sends it (:mod:`companion.proximity.stream`),
+reading the link itself for a fresh position (one lock for the link; the main loop takes
+what it read first), on a copy of the map taken after each frame. Not with a recorder or
+viewer attached: a recording replays the core's sends bit for bit. Around that,
+reporting only: the health file, the progress log, signing refusals and "no frames on
+our key" hints. The log goes to stderr.
 Recorders and viewers (``--record``, ``--rerun``) see every step's input and outputs
 through :mod:`companion.observe`.
 """
@@ -18,6 +23,7 @@ import logging
 import random
 import select
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any, TextIO
@@ -42,6 +48,7 @@ from companion.health import HealthFile, HealthInputs
 from companion.intake import FrameIntake
 from companion.link.connection import MavlinkConnection
 from companion.observe import CompanionObserver, Observers
+from companion.proximity.stream import SLAB_MARGIN_M, ProximityStream, snapshot_map
 from companion.status import StatusPublisher
 from protocols.keys import companion_status_key, stereo_key
 from protocols.zenoh_session import zenoh_config
@@ -92,6 +99,9 @@ class CompanionService:
             lambda capture_ns: self.core.frame_time_plausible(capture_ns, time.monotonic_ns()),
         )
         self._session: zenoh.Session | None = None
+        self._link_lock = threading.Lock()  # the link is read and written by two threads
+        self.proximity: ProximityStream | None = None  # OBSTACLE_DISTANCE's own thread
+        self._mission = self.core.mission  # whose map the thread has a copy of
         self._status: StatusPublisher | None = None
         self.health: HealthFile | None = None  # --health-file: rewritten once a second
         self._next_report_s = 0.0
@@ -105,8 +115,18 @@ class CompanionService:
 
     # ---- lifecycle -----------------------------------------------------------------
     def open(self) -> None:
-        """Open MAVLink and Zenoh."""
+        """Open MAVLink and Zenoh; start the OBSTACLE_DISTANCE thread."""
         self.link.open()
+        sender = self.core.proximity
+        if sender is not None and self.config.proximity.thread and not self.observers:
+            link = self.config.link
+            self.proximity = ProximityStream(
+                sender,
+                self._poll_link,
+                self._send,
+                (link.target_system, link.target_component),
+            )
+            self.proximity.start()
         self._session = zenoh.open(zenoh_config(self.config.zenoh))
         self.intake.open(self._session, time.monotonic())
         self._status = StatusPublisher(self._session, self.status_key)
@@ -123,6 +143,8 @@ class CompanionService:
         )
 
     def close(self) -> dict[str, Any]:
+        if self.proximity is not None:
+            self.proximity.close()
         self.intake.close()  # first: no frame is counted after the final figures are taken
         stats = self.stats()
         if self.health is not None:
@@ -148,11 +170,16 @@ class CompanionService:
             "frames_implausible_at_intake": f.implausible_time,
             "frames_before_clock": f.no_clock,
             "mavlink": self.link.counters.as_dict(),
+            "obstacle_distance_thread": None
+            if self.proximity is None
+            else self.proximity.figures(),
         }
 
     # ---- main loop -----------------------------------------------------------------
     def run(self, should_stop: Callable[[], bool]) -> None:
         fds = [self.slot.fileno()]
+        if self.proximity is not None:
+            fds.append(self.proximity.fileno())
         link_fd = self.link.fileno()
         if link_fd is not None:
             fds.append(link_fd)
@@ -162,13 +189,14 @@ class CompanionService:
                 select.select(fds, [], [], timeout)
             except InterruptedError:
                 continue
-            for msg in self.link.poll():
+            for msg in self._received():
                 self._step(MavlinkReceived(msg, time.monotonic_ns()))
             self._step(Tick(time.monotonic_ns()))
             frame = self.slot.take()
             if frame is not None:
                 now_ns = time.monotonic_ns()
                 self._step(FrameReceived(frame, now_ns, now_ns))
+                self._snapshot_map(frame.capture_ns)
                 # at once: the core takes the frame's data age (capture → its setpoint on
                 # the wire) from the next input's clock (companion.guidance.latency)
                 self._step(Tick(time.monotonic_ns()))
@@ -180,6 +208,43 @@ class CompanionService:
         self._carry_out(outputs)
         if self.observers:
             self.observers.on_step(event, outputs)
+        if self.proximity is not None:
+            self.proximity.set_clock(self.core.frame_clock_rate(), self.core.poses.newest_ns)
+            if self.core.mission is not self._mission:  # reset: the old map goes too
+                self._mission = self.core.mission
+                self.proximity.set_map(None)
+
+    # ---- the link, shared with the OBSTACLE_DISTANCE thread ----------------------------
+    def _poll_link(self) -> list:
+        with self._link_lock:
+            return self.link.poll()
+
+    def _send(self, msg) -> None:
+        with self._link_lock:
+            self.link.send(msg)
+
+    def _received(self) -> list:
+        """What the OBSTACLE_DISTANCE thread read, then what waits on the link."""
+        if self.proximity is None:
+            return self._poll_link()
+        earlier = self.proximity.take_inbox()
+        now = self._poll_link()
+        self.proximity.observe(now, time.monotonic_ns())
+        return earlier + now
+
+    def _snapshot_map(self, capture_ns: int) -> None:
+        """Hand the OBSTACLE_DISTANCE thread a copy of the map the frame just updated."""
+        if self.proximity is None:
+            return
+        space = self.core.mission.pipeline.known_space
+        if space is None or space.frames == 0:
+            self.proximity.set_map(None)
+            return
+        pose = self.proximity.pose()
+        cfg = self.config.proximity
+        half_m = cfg.band_half_height_m + cfg.unseen_extension_m + SLAB_MARGIN_M
+        down_m = None if pose is None else pose.pos_ned_m[2]
+        self.proximity.set_map(snapshot_map(space, down_m, half_m, capture_ns))
 
     def _carry_out(self, outputs: Iterable[Output]) -> None:
         """Do what the core asked, in order; stamp when setpoints went on the wire."""
@@ -187,10 +252,10 @@ class CompanionService:
         sent_ns: int | None = None
         for out in outputs:
             if isinstance(out, SendSetpoint):
-                self.link.send(out.message)
+                self._send(out.message)
                 sent_ns = time.monotonic_ns()
             elif isinstance(out, SendMavlink):
-                self.link.send(out.message)
+                self._send(out.message)
             elif isinstance(out, Event):
                 self._event(out)
             elif isinstance(out, Status) and self._status is not None:

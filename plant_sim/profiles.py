@@ -7,7 +7,9 @@
   10 m/s): translational drag ``k_t = (0.3, 0.3, 0.6) kg/s`` (a streamlined 0.65 kg
   airframe), ±35° tilt (ArduCopter's ANGLE_MAX default is 30°, racers fly 45°+) and
   thrust-to-weight 2.5. Drag-limited speed ``m·g·tan 35° / k_t = 14.9 m/s``; reaches
-  ≥ 5 m/s within about 2 s of a far position target (``tests/test_vehicle_profiles.py``).
+  ≥ 5 m/s within about 1.2 s of a far position target (``tests/test_vehicle_profiles.py``).
+  Its tilt follows a command as fast as ArduCopter's does (:data:`FAST_ATTITUDE_Q`), not
+  at the paper's pace.
 
 A scenario selects one with ``profile = "fast"``; its ``[vehicle]`` and ``[control]``
 sections then override single fields.
@@ -20,7 +22,31 @@ from dataclasses import dataclass, field
 
 from plant_sim.params import ControlParams, QuadrotorParams
 
-__all__ = ["PROFILES", "VehicleProfile", "profile", "terminal_speed_mps"]
+__all__ = [
+    "FAST_ATTITUDE_Q",
+    "FAST_TILT_LAG_S",
+    "PROFILES",
+    "VehicleProfile",
+    "profile",
+    "terminal_speed_mps",
+]
+
+#: The ``fast`` airframe's tilt lag behind a ramped command [s]: ArduCopter's
+#: ``ATC_INPUT_TC`` default (``AC_ATTITUDE_CONTROL_INPUT_TC_DEFAULT`` 0.15 s,
+#: ``libraries/AC_AttitudeControl/AC_AttitudeControl.cpp``). ArduCopter shapes each
+#: attitude command with that time constant and feeds the shaped target's rate forward
+#: (``ATC_RATE_FF_ENAB`` 1) to a rate loop tens of rad/s fast, behind ``ATC_ANG_PIT_P``
+#: 4.5 /s that only corrects what is left: the vehicle's tilt trails its command by about
+#: the input time constant. The paper's attitude LQ (Eq. 29-31: poles −1.3 and −7.6 rad/s)
+#: trails a ramp by ``k_d/k_p = 0.89 s``, six times that: a fast airframe flown by it
+#: carried its own avoidance's stop 0.3-0.45 m past the margin (issue 34).
+FAST_TILT_LAG_S = 0.154
+#: Roll and pitch weights ``(q_angle, q_rate)`` of the ``fast`` airframe's attitude LQ
+#: (Eq. 29's form, ``R`` = 0.1 as Eq. 30). A double integrator's LQ gains are
+#: ``k_p = √(q_angle/r)``, ``k_d = √(q_rate/r + 2 k_p)``: these give ``k_p = 169 /s²``,
+#: ``k_d = 26 /s`` (poles −13 ± 0 rad/s, critically damped) and a ramp lag
+#: ``k_d/k_p`` = :data:`FAST_TILT_LAG_S`. Yaw keeps the paper's weights.
+FAST_ATTITUDE_Q = (2856.1, 33.8)
 
 
 @dataclass(frozen=True)
@@ -40,7 +66,10 @@ def _fast() -> VehicleProfile:
             drag_force_kgps=(0.3, 0.3, 0.6),
             rotor_thrust_max_n=2.5 * mass_kg * 9.81 / 4.0,
         ),
-        control=ControlParams(max_tilt_deg=35.0),
+        control=ControlParams(
+            max_tilt_deg=35.0,
+            q_attitude=(*FAST_ATTITUDE_Q, *FAST_ATTITUDE_Q, *ControlParams().q_attitude[4:]),
+        ),
     )
 
 

@@ -36,7 +36,7 @@ def paper_kills(paper_flight):
 
 @pytest.fixture(scope="module")
 def fast_kills():
-    return _flight_with_kills("fast", 17.0)  # the flight takes ~18.1 s
+    return _flight_with_kills("fast", 15.8)  # the flight takes ~16.8 s
 
 
 @pytest.mark.parametrize("which", ["paper_kills", "fast_kills"])

@@ -275,16 +275,16 @@ def _companion_at(mav_port: int, zenoh: str) -> Iterator[ChildProcess]:
         child.close()
 
 
-# At 8 m/s (issue 34, second pass, load 13-25): ArduCopter's first approach comes to rest
-# 1.85-3.35 m out; the held stick's re-approach then overshoots the margin on the fast
-# airframe's slow tilt loop (1.64-1.69 m), and a starved companion (0.87 s silent, past
-# ArduPilot's 0.5 s timeout) let the stick fly it into the wall (-0.10 m). 4 of 11
-# ArduCopter runs below 1.7 m, 7 kept 0.08-0.18 m; PX4 1.87-2.34 m in 8 runs
-# (docs/autopilots.md). Not strict: they run and report.
+# At 8 m/s (issue 34, third pass: the fast airframe tilts with ArduCopter's 0.15 s lag;
+# OBSTACLE_DISTANCE has a watchdog thread): 18 of 20 runs at load 11-24 held, 2.02-2.34 m
+# (ArduCopter and PX4). The two that did not were stalls of seconds on a machine loaded 10x
+# over its cores: -1.49 m with the ground station 4.35 s without the message (plant-sim
+# fell behind too), 1.68 m with the watchdog off (2.18 s). docs/autopilots.md. Not strict:
+# they run and report; the stalls are not the avoidance's to mend.
 _LOAD_AT_8 = pytest.mark.xfail(
     strict=False,
-    reason="8 m/s real-time approach: 0.08-0.18 m to spare; the re-approach overshoot or a "
-    "starved companion takes it below 1.7 m on a loaded machine",
+    reason="8 m/s real-time approach: holds 2.02-2.34 m unless the machine stalls the "
+    "companion or plant-sim for seconds (18 of 20 runs at load 11-24)",
 )
 
 

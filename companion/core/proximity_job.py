@@ -43,6 +43,11 @@ class ProximityJob:
         stamp_ns = self._last_capture_ns if self._last_capture_ns is not None else newest
         self.out.send(obstacle_distance_message(max(stamp_ns or 0, 0) // 1000, sectors))
 
+    def frame_clock_rate(self) -> float:
+        """Frame-clock seconds per host second: the service's OBSTACLE_DISTANCE watchdog
+        carries positions forward with it (:mod:`companion.proximity.stream`)."""
+        return self._frame_clock_rate()
+
     def _proximity_pose(self):
         """(position [m, LOCAL_NED], yaw [rad]) of the vehicle at this send: the newest
         telemetry carried forward over the host time since its position arrived, on the

@@ -86,6 +86,10 @@ class ProximityConfig:
     ----------
     enabled : bool
         Send OBSTACLE_DISTANCE (on by default, for ArduPilot and PX4 alike).
+    thread : bool
+        A watchdog thread sends when the main loop has sent nothing for 1.5 periods (a
+        long frame, a starved processor; :mod:`companion.proximity.stream`; on by
+        default). Off: the main loop alone (what a replay reproduces).
     rate_hz : float
         Least send rate [Hz wall]: every processed frame sends one, and a timer fills the
         gaps (before the first frame, during a takeoff, when frames stop) from the map at
@@ -111,6 +115,7 @@ class ProximityConfig:
     """
 
     enabled: bool = True
+    thread: bool = True
     rate_hz: float = bounded(20.0, "Hz", gt=0)
     n_sectors: int = bounded(72, integer=True, ge=1, le=MAX_SECTORS)
     increment_deg: float = bounded(5.0, "deg", gt=0)
@@ -122,8 +127,9 @@ class ProximityConfig:
     unseen_extension_m: float = bounded(1.0, "m", ge=0)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.enabled, bool):
-            raise ConfigError(f"must be true or false, got {self.enabled!r}", key="enabled")
+        for key in ("enabled", "thread"):
+            if not isinstance(getattr(self, key), bool):
+                raise ConfigError(f"must be true or false, got {getattr(self, key)!r}", key=key)
         check_fields(self)
         if self.n_sectors * self.increment_deg > 360.0 + 1e-9:
             raise ConfigError(
@@ -261,7 +267,7 @@ def _cm(value_m: float) -> int:
     return round(value_m * 100.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _scan(
     grid,
     origin,
@@ -357,7 +363,7 @@ def _scan(
                     unk[kk] = near
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _joined(grid, i, j, k_edge, step, n_ext):
     """An OCCUPIED voxel of column (``i``, ``j``) within ``n_ext`` voxels beyond the band's
     edge voxel ``k_edge`` (``step`` -1: up, 1: down), reached from it through voxels that

@@ -27,12 +27,16 @@ would otherwise think it has left. A position older than :data:`POSE_STALE_S` is
 carried forward: the vehicle could be anywhere, and the sectors are sent unknown
 (never clear, never an obstacle where there is none) until telemetry returns.
 
-Pure: the caller passes the wall time (``now_s``) and the map; no clock, no I/O.
+Pure: the caller passes the wall time (``now_s``) and the map; no clock, no I/O. In the
+companion process a watchdog thread (:mod:`companion.proximity.stream`) also sends when
+the main loop has sent nothing for 1.5 periods (a long frame, a starved processor): the
+figures are kept under a lock, as both count while the main loop reads them.
 """
 
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
 from typing import Any
 
@@ -90,18 +94,30 @@ class ProximitySender:
         self.last: ProximitySectors | None = None
         self._last_send_s = float("-inf")
         self._times: deque[float] = deque()
+        self._lock = threading.Lock()
 
     def due(self, now_s: float) -> bool:
         """The timer must send now (nothing went out for a period, less a millisecond
         of slack so that a caller ticking at a divisor of the period keeps the rate)."""
         return now_s - self._last_send_s >= self.period_s - _SLACK_S
 
+    def since_send_s(self, now_s: float) -> float:
+        """Seconds since the last send (inf: none yet)."""
+        with self._lock:
+            return now_s - self._last_send_s
+
+    def count_stale_pose(self) -> None:
+        """One send made all unknown because the position was too old."""
+        with self._lock:
+            self.stale_pose += 1
+
     def on_frame(
         self, space: KnownSpace, pos_ned_m, yaw_rad: float | None, now_s: float
     ) -> ProximitySectors:
         """Sectors of the map just updated by a frame, at the vehicle's position at the
         send (None: stale → all unknown)."""
-        self.from_frames += 1
+        with self._lock:
+            self.from_frames += 1
         return self.on_timer(space, pos_ned_m, yaw_rad, now_s)
 
     def on_timer(
@@ -116,6 +132,10 @@ class ProximitySender:
 
     def figures(self, now_s: float) -> dict[str, Any]:
         """Message count, send rate over the last 2 s [Hz wall] and the last sectors."""
+        with self._lock:
+            return self._figures(now_s)
+
+    def _figures(self, now_s: float) -> dict[str, Any]:
         self._trim(now_s)
         counts = (None, None, None) if self.last is None else self.last.counts()
         return {
@@ -132,6 +152,11 @@ class ProximitySender:
         }
 
     def _sent(self, sectors: ProximitySectors, now_s: float) -> ProximitySectors:
+        with self._lock:
+            self._count_sent(sectors, now_s)
+        return sectors
+
+    def _count_sent(self, sectors: ProximitySectors, now_s: float) -> None:
         gap_s = now_s - self._last_send_s
         if math.isfinite(gap_s):
             self.longest_gap_s = max(self.longest_gap_s, gap_s)
@@ -142,7 +167,6 @@ class ProximitySender:
         self._last_send_s = now_s
         self._times.append(now_s)
         self._trim(now_s)
-        return sectors
 
     def _trim(self, now_s: float) -> None:
         while self._times and self._times[0] <= now_s - _RATE_WINDOW_S:
