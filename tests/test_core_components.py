@@ -14,7 +14,11 @@ from companion.core.counters import CoreCounters
 from companion.core.events import SendMavlink
 from companion.core.outbox import Outbox
 from companion.core.param_job import WPNAV_SPEED, ParamJob
+from companion.core.status_job import StateView, companion_state
 from companion.core.streams_job import STREAMS, StreamsJob
+from companion.failsafe import Response
+from companion.link.messages import CompanionState
+from companion.link.mode_watch import ControlPhase
 
 
 def _sent(out: Outbox) -> list:
@@ -104,3 +108,34 @@ def test_timesync_answers_the_autopilot_and_matches_our_requests():
     assert streams.on_timesync(answer, 7_000) == SyncSample(1_000, 42_000, 7_000)
     assert streams.on_timesync(answer, 8_000) is None
     assert counters.timesync_unmatched == 2
+
+
+def _view(**kw) -> StateView:
+    fields = dict(
+        link_up=True,
+        link_lost_before=False,
+        may_steer=True,
+        phase=ControlPhase.ACTIVE,
+        hold=Response.STEER,
+        steering=True,
+        health_ok=True,
+        frame_processed=True,
+    )
+    return StateView(**{**fields, **kw})
+
+
+@pytest.mark.parametrize(
+    ("change", "state"),
+    [
+        ({}, CompanionState.ACTIVE),
+        ({"link_up": False}, CompanionState.BOOT),
+        ({"link_up": False, "link_lost_before": True}, CompanionState.LINK_LOST),
+        ({"may_steer": False, "phase": ControlPhase.HOLD}, CompanionState.STANDBY),
+        ({"phase": ControlPhase.HOLD}, CompanionState.HOLD),
+        ({"hold": Response.HOLD_POSITION}, CompanionState.HOLD),
+        ({"health_ok": False}, CompanionState.STANDBY),
+        ({"steering": False, "frame_processed": False}, CompanionState.BOOT),
+    ],
+)
+def test_the_companion_state_follows_link_takeover_hold_and_health_in_that_order(change, state):
+    assert companion_state(_view(**change)) is state

@@ -1,10 +1,12 @@
 """Status: the state in the heartbeat, the pipeline figures, the progress line and stats.
 
 A mixin of :class:`~companion.core.CompanionCore`; reads the other jobs' state, owns none.
+The state itself is a pure function of a typed view (:func:`companion_state`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from companion.failsafe import Response
@@ -13,24 +15,55 @@ from companion.link.messages import CompanionState
 from companion.link.mode_watch import ControlPhase
 from companion.status import status_document
 
-__all__ = ["StatusJob"]
+__all__ = ["StateView", "StatusJob", "companion_state"]
+
+
+@dataclass(frozen=True)
+class StateView:
+    """What the companion's state is decided from (:func:`companion_state`)."""
+
+    link_up: bool  # an autopilot message within the link timeout
+    link_lost_before: bool  # the link was lost at least once
+    may_steer: bool  # alone on the link and heard long enough
+    phase: ControlPhase
+    hold: Response  # the hold the failsafe commands (STEER: none)
+    steering: bool  # the mode watch lets guidance steer
+    health_ok: bool  # frames and telemetry fresh
+    frame_processed: bool  # a frame went through the pipeline (or proved the camera)
+
+
+def companion_state(view: StateView) -> CompanionState:
+    """The state in the heartbeat and the status: BOOT until the link and a frame, LINK_LOST
+    after a loss, STANDBY when it may not or does not steer, HOLD in a hold, ACTIVE."""
+    if not view.link_up:
+        return CompanionState.LINK_LOST if view.link_lost_before else CompanionState.BOOT
+    if not view.may_steer:
+        return CompanionState.STANDBY
+    if view.phase is ControlPhase.HOLD or view.hold is not Response.STEER:
+        return CompanionState.HOLD
+    if view.steering and view.health_ok:
+        return CompanionState.ACTIVE
+    if not view.frame_processed:
+        return CompanionState.BOOT
+    return CompanionState.STANDBY
 
 
 class StatusJob:
     """The companion's state, figures, progress line and exit statistics."""
 
     def _state(self) -> CompanionState:
-        if not self._link_up:
-            return CompanionState.LINK_LOST if self.counters.link_losses else CompanionState.BOOT
-        if not self._may_steer(self._now_s):
-            return CompanionState.STANDBY
-        if self.modes.phase is ControlPhase.HOLD or self._hold is not Response.STEER:
-            return CompanionState.HOLD
-        if self.modes.steering and self.failsafe.status.health.ok:
-            return CompanionState.ACTIVE
-        if self._newest_frame_ns is None:
-            return CompanionState.BOOT
-        return CompanionState.STANDBY
+        return companion_state(
+            StateView(
+                link_up=self._link_up,
+                link_lost_before=self.counters.link_losses > 0,
+                may_steer=self._may_steer(self._now_s),
+                phase=self.modes.phase,
+                hold=self._hold,
+                steering=self.modes.steering,
+                health_ok=self.failsafe.status.health.ok,
+                frame_processed=self._newest_frame_ns is not None,
+            )
+        )
 
     def stats(self) -> dict[str, Any]:
         """Counters and state for the exit statistics."""
