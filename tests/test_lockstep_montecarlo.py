@@ -84,8 +84,9 @@ def test_monte_carlo_sample_has_no_collision(seed):
     # invariant 3 of the envelope: no target (carrot or hold) inside a boundary guidance
     # had; before keep_target_out seeds 103 and 105 sent 39 and 16 (2-12 cm deep)
     assert v.targets_inside_boundary == 0, v
-    # Not asserted: overspeed_frames == 0 (issue 31's bar; 0 on all 8 seeds since the
-    # climb and descent statements, tests/test_lockstep_speed_bound.py).
+    # invariant 2 of the envelope, issue 31's bar: the companion's overspeed warning never
+    # fires (seeds 101 and 107 had 1 and 5 frames before the climb and descent statements)
+    assert v.overspeed_frames == 0, v
 
 
 # The nearest passes found by the 1000-scene ground-truth Monte Carlo runs (flown past a
