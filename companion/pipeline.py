@@ -143,6 +143,15 @@ class AvoidancePipeline:
         self._widen(self.perception.config.position_uncertainty_m)
         warm_up()
 
+    def _widened(self, h_acc_m: float | None) -> Widening:
+        """This frame's widening for the stated accuracy ``h_acc_m`` [m]; the margins
+        follow it."""
+        p = self.perception.config
+        widened = widening(h_acc_m, p.position_uncertainty_m, p.max_position_uncertainty_m)
+        if widened.widen_m != self.widen_m:
+            self._widen(widened.widen_m)
+        return widened
+
     def _widen(self, widen_m: float) -> None:
         """Count the vehicle ``widen_m`` wider in boundaries, the known-space path and the
         envelope's swept section (:mod:`companion.position_uncertainty`); a path found
@@ -174,10 +183,7 @@ class AvoidancePipeline:
         ``steering``: whether the vehicle flies the output (guidance's stall count);
         ``latency_s``: the measured latency budget [s] for the stopping rule (None: the
         envelope's configured ``latency_s``; :mod:`companion.guidance.latency`)."""
-        p = self.perception.config
-        widened = widening(pose.h_acc_m, p.position_uncertainty_m, p.max_position_uncertainty_m)
-        if widened.widen_m != self.widen_m:
-            self._widen(widened.widen_m)
+        widened = self._widened(pose.h_acc_m)
         seen = self.perception.process(frame, pose.pos_ned_m, pose.R_ned_from_frd)
         if seen.depth_m is not None:
             self.known_space.integrate(
