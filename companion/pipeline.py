@@ -137,6 +137,15 @@ class AvoidancePipeline:
         self._widen(self.perception.config.position_uncertainty_m)
         warm_up()
 
+    def _widened(self, h_acc_m: float | None) -> Widening:
+        """This frame's widening for the stated accuracy ``h_acc_m`` [m]; the margins
+        follow it."""
+        p = self.perception.config
+        widened = widening(h_acc_m, p.position_uncertainty_m, p.max_position_uncertainty_m)
+        if widened.widen_m != self.widen_m:
+            self._widen(widened.widen_m)
+        return widened
+
     def _widen(self, widen_m: float) -> None:
         """Count the vehicle ``widen_m`` wider in boundaries, the known-space path and the
         envelope's swept section (:mod:`companion.position_uncertainty`); a path found
@@ -168,10 +177,7 @@ class AvoidancePipeline:
         ``steering``: whether the vehicle flies the output (guidance's stall count);
         ``latency_s``: the measured latency budget [s] for the stopping rule (None: the
         envelope's configured ``latency_s``; :mod:`companion.guidance.latency`)."""
-        p = self.perception.config
-        widened = widening(pose.h_acc_m, p.position_uncertainty_m, p.max_position_uncertainty_m)
-        if widened.widen_m != self.widen_m:
-            self._widen(widened.widen_m)
+        widened = self._widened(pose.h_acc_m)
         seen = self._see(frame, pose)
         boundaries = map_boundaries(
             self.known_space, pose.pos_ned_m, self.goal_ned_m, self.boundary_config
