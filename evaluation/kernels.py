@@ -42,12 +42,14 @@ def _renderer() -> None:
 
 
 def _companion() -> None:
-    """The companion's perception and known-space kernels (their own warm-ups)."""
+    """The companion's perception, known-space and proximity kernels (their own warm-ups)."""
     from companion.known_space import KnownSpace
     from companion.perception import StereoPerception
+    from companion.proximity.stream import warm_up as warm_up_proximity
 
     StereoPerception()
     KnownSpace()
+    warm_up_proximity()
 
 
 def _plant() -> None:

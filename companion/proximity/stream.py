@@ -58,6 +58,7 @@ __all__ = [
     "ProximityStream",
     "VehiclePose",
     "snapshot_map",
+    "warm_up",
 ]
 
 #: The watchdog sends when nothing went out for this many periods.
@@ -94,6 +95,13 @@ class VehiclePose:
     vel_ned_mps: tuple[float, float, float]
     received_ns: int  # host monotonic clock
     yaw_rad: float | None
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the sector kernels: sectors of a tiny map."""
+    tiny = KnownSpace(KnownSpaceConfig(size_xy_vox=8, size_z_vox=8, far_range_m=0.0))
+    tiny.frames = 1
+    sectors_from_map(snapshot_map(tiny, -0.8, 0.4, None), (0.0, 0.0, 0.0), 0.0, _WARM_CONFIG)
 
 
 def snapshot_map(
@@ -174,9 +182,7 @@ class ProximityStream:
     def start(self) -> None:
         """Compile (or load from numba's cache) the sector kernel here, not on the thread
         in flight, then start sending."""
-        tiny = KnownSpace(KnownSpaceConfig(size_xy_vox=8, size_z_vox=8, far_range_m=0.0))
-        tiny.frames = 1
-        sectors_from_map(snapshot_map(tiny, -0.8, 0.4, None), (0.0, 0.0, 0.0), 0.0, _WARM_CONFIG)
+        warm_up()
         self._thread = threading.Thread(target=self._run, name="obstacle-distance", daemon=True)
         self._thread.start()
 
