@@ -26,8 +26,12 @@ its own estimate, as GPS_RAW_INT ``h_acc``/``v_acc`` do (ArduPilot's
 accuracy; PX4's ``MavlinkStreamGPSRawInt`` likewise). It follows the error simulated: the
 root sum of squares of the wander's standard deviation, the jump size (while jumps are
 on) and the drift accumulated so far, horizontal and vertical apart; (0, 0) with no
-estimate error. A receiver states its accuracy, not its error: the stated figure never
-reveals ``e`` itself.
+estimate error. ``stated_floor_m`` raises both to at least a fixed figure, as ArduPilot's
+SITL does: its simulated receiver states ``SIM_GPS_ACC`` (0.3 m by default) for
+``h_acc`` and ``v_acc`` whatever its wander (``libraries/SITL/SIM_GPS.cpp``,
+``GPS::update``), so a companion flown against SITL widens its margins by 0.3 m. A
+receiver states its accuracy, not its error: the stated figure never reveals ``e``
+itself.
 
 Pure: a seeded generator, time passed in; nothing here reads a clock.
 """
@@ -78,6 +82,9 @@ class EstimateConfig:
     jump_m: float = bounded(0.0, "m", ge=0)  # size of a jump, horizontal
     # mean time between jumps; inf: none
     jump_every_s: float = bounded(math.inf, "s", gt=0, finite=False)
+    # the accuracy the receiver states at least, whatever its error (ArduPilot SITL's
+    # SIM_GPS_ACC: SITL states 0.3 m by default with no wander at all)
+    stated_floor_m: float = bounded(0.0, "m", ge=0)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -143,7 +150,7 @@ class Disturbances:
         jump = 0.0 if math.isinf(e.jump_every_s) else e.jump_m
         h = math.sqrt(e.wander_std_m**2 + jump**2 + self._drift[0] ** 2 + self._drift[1] ** 2)
         v = math.hypot(e.wander_vertical_std_m, float(self._drift[2]))
-        return h, v
+        return max(h, e.stated_floor_m), max(v, e.stated_floor_m)
 
     def advance(self, time_s: float) -> None:
         """Step both processes to ``time_s`` (no-op for a time not after the current)."""

@@ -73,6 +73,7 @@ error that names the key (``camera.fps`` → "unknown key 'camera.fps'"). Exampl
     drift_ned_mps = [0.0, 0.0, 0.0]
     jump_m = 0.5
     jump_every_s = 60.0
+    stated_floor_m = 0.3     # GPS_RAW_INT h_acc/v_acc at least this (SITL: SIM_GPS_ACC 0.3)
 
     profile = "paper"        # plant_sim.profiles: "paper" (default) or "fast"
     [vehicle]                # plant_sim.params.QuadrotorParams overrides (of the profile)

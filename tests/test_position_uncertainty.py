@@ -74,6 +74,16 @@ def test_stated_accuracy_follows_the_simulated_error():
     assert no_jumps.stated_accuracy_m[0] == pytest.approx(0.1)  # jump_every_s inf: none
 
 
+def test_a_stated_floor_is_what_sitl_states_without_any_error():
+    """ArduPilot SITL states SIM_GPS_ACC (0.3 m) for h_acc and v_acc with no wander at all:
+    ``stated_floor_m`` gives that, and a larger simulated error still shows through."""
+    sitl_like = Disturbances(DisturbanceConfig(estimate=EstimateConfig(stated_floor_m=0.3)))
+    assert sitl_like.stated_accuracy_m == (0.3, 0.3)
+    assert sitl_like.estimate_error_ned_m == (0.0, 0.0, 0.0)
+    worse = EstimateConfig(wander_std_m=0.4, wander_vertical_std_m=0.1, stated_floor_m=0.3)
+    assert Disturbances(DisturbanceConfig(estimate=worse)).stated_accuracy_m == (0.4, 0.3)
+
+
 def test_gps_raw_int_carries_the_stated_accuracy_in_mm():
     builder = TelemetryBuilder(VehicleIdentity(47.0, 8.0, 500.0))
     snap = Quadrotor(pos_ned_m=(0.0, 0.0, -7.0)).snapshot()
