@@ -8,14 +8,15 @@ import math
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.clock_model import SyncSample
-from companion.config import LinkConfig
+from companion.clock_model import FrameClock, SyncSample
+from companion.config import FailsafeConfig, LinkConfig
 from companion.core.counters import CoreCounters
 from companion.core.events import SendMavlink
 from companion.core.outbox import Outbox
 from companion.core.param_job import WPNAV_SPEED, ParamJob
 from companion.core.status_job import StateView, companion_state
 from companion.core.streams_job import STREAMS, StreamsJob
+from companion.core.telemetry_job import H_ACC_MAX_AGE_S, Restarted, TelemetryJob
 from companion.failsafe import Response
 from companion.link.messages import CompanionState
 from companion.link.mode_watch import ControlPhase
@@ -139,3 +140,89 @@ def _view(**kw) -> StateView:
 )
 def test_the_companion_state_follows_link_takeover_hold_and_health_in_that_order(change, state):
     assert companion_state(_view(**change)) is state
+
+
+def _telemetry(frame_clock: FrameClock = FrameClock.AUTOPILOT):
+    counters = CoreCounters()
+    link = LinkConfig(frame_clock=frame_clock)
+    return TelemetryJob(link, FailsafeConfig(), _outbox(), counters), counters
+
+
+def _position(boot_ms: int, x: float = 1.0, vx: float = 0.5):
+    return mavlink.MAVLink_local_position_ned_message(boot_ms, x, 2.0, -3.0, vx, 0.0, 0.0)
+
+
+def test_telemetry_goes_into_the_pose_history_on_the_autopilot_frame_clock():
+    job, counters = _telemetry()
+    assert job.on_local_position(_position(1_000), 0.0, 5) is None
+    attitude = mavlink.MAVLink_attitude_message(1_000, 0.1, -0.2, 1.5, 0, 0, 0)
+    assert job.on_attitude(attitude, 0.0) is None
+    assert (
+        job.on_attitude(mavlink.MAVLink_attitude_message(1_010, 0, 0, 1.5, 0, 0, 0), 0.01) is None
+    )
+    # frames on the autopilot clock: time_boot_ms is the frame clock, exactly
+    assert job.poses.newest_ns == 1_000_000_000  # the newest with position and attitude
+    assert job.telemetry_newest_ns == job.newest_seen_ns == 1_010_000_000
+    assert job.now_frame_ns(123) == 1_010_000_000  # the newest stamp is "now"
+    assert (job.position_host_ns, job.last_boot_ms) == (5, 1_010)
+    pose = job.poses.at(1_000_000_000).pose
+    assert pose.pos_ned_m == pytest.approx((1.0, 2.0, -3.0))
+    assert pose.yaw_rad == pytest.approx(1.5)
+    job.observe(2_000_000_000)  # a frame's capture time moves "now", not the telemetry's
+    assert (job.newest_seen_ns, job.telemetry_newest_ns) == (2_000_000_000, 1_010_000_000)
+    assert counters.telemetry_out_of_range == counters.telemetry_implausible_time == 0
+
+
+def test_out_of_range_telemetry_is_dropped_and_counted():
+    job, counters = _telemetry()
+    job.on_local_position(_position(1_000, x=math.nan), 0.0, 0)
+    job.on_local_position(_position(1_000, vx=301.0), 0.0, 0)  # > 300 m/s
+    job.on_attitude(mavlink.MAVLink_attitude_message(1_000, 0.0, 0.0, 7.0, 0, 0, 0), 0.0)
+    assert counters.telemetry_out_of_range == 3
+    assert job.poses.newest_ns is None and job.last_boot_ms is None
+
+
+def test_a_time_base_that_goes_back_is_a_restart_once_three_stamps_agree():
+    job, counters = _telemetry()
+    for i in range(5):  # 50 Hz from 10 s
+        assert job.on_local_position(_position(10_000 + 20 * i), 0.02 * i, i) is None
+    attitude = mavlink.MAVLink_attitude_message(10_080, 0.0, 0.0, 0.0, 0, 0, 0)
+    job.on_attitude(attitude, 0.08)
+    assert job.poses.newest_ns == 10_080_000_000
+    verdicts = [job.on_local_position(_position(200 + 20 * i), 0.1 + 0.02 * i, 9) for i in range(3)]
+    # two dropped (one bad stamp must not reset a mission), the third starts over
+    assert verdicts[:2] == [None, None] and counters.telemetry_implausible_time == 2
+    assert verdicts[2] == Restarted("time_boot_ms 10080 → 240")
+    # the stamp that showed it starts the new time base and is kept; nothing older is
+    assert job.last_boot_ms == 240 and job.position_host_ns == 9
+    assert job.telemetry_newest_ns == job.newest_seen_ns == 240_000_000
+    assert job.poses.newest_ns is None  # the old attitude went with the old time base
+
+
+def test_the_stated_accuracy_is_used_for_5_s_and_none_means_none():
+    job, _ = _telemetry()
+    gps = mavlink.MAVLink_gps_raw_int_message(0, 3, 0, 0, 0, 0, 0, 0, 0, 0, h_acc=350)
+    job.on_gps_raw(gps, 10.0)
+    assert job.stated_h_acc_m(10.0 + H_ACC_MAX_AGE_S) == pytest.approx(0.35)
+    assert job.stated_h_acc_m(10.0 + H_ACC_MAX_AGE_S + 1e-6) is None
+    for none_stated in (0, 0xFFFFFFFF):
+        job.on_gps_raw(mavlink.MAVLink_gps_raw_int_message(*[0] * 10, h_acc=none_stated), 11.0)
+        assert job.stated_h_acc_m(11.0) is None
+
+
+def test_the_frame_clock_rate_is_the_timesync_fit_on_the_autopilot_clock_only():
+    job, _ = _telemetry()
+    assert job.frame_clock_rate() == 1.0  # no fit yet: the default rate
+    host = _telemetry(FrameClock.HOST)[0]
+    # autopilot time at 4x host time (plant-sim --speedup 4), round trips of 2 ms
+    for i in range(40):
+        host_ns = i * 100_000_000
+        sample = SyncSample(host_ns, 4 * (host_ns + 1_000_000), host_ns + 2_000_000)
+        assert job.on_sync_sample(sample) is None
+        host.on_sync_sample(sample)
+    assert job.frame_clock_rate() == pytest.approx(4.0, rel=1e-9)
+    assert host.frame_clock_rate() == 1.0  # frames on the host clock: host seconds
+    # the autopilot's clock went back: a restart, and the fit starts over
+    back = SyncSample(4_000_000_000, 1_000, 4_002_000_000)
+    assert job.on_sync_sample(back) == Restarted("TIMESYNC went backwards")
+    assert job.frame_clock_rate() == 1.0 and job.poses.newest_ns is None

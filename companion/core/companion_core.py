@@ -23,15 +23,16 @@ Outputs are MAVLink messages to send, setpoints, events and status documents, re
 order by :meth:`CompanionCore.step`. Log lines go to the ``companion`` logger.
 
 The work is split by job, one module each: :mod:`~companion.core.link_job` (link and
-heartbeats), :mod:`~companion.core.telemetry_job` (poses, boot time),
-:mod:`~companion.core.modes_job` (modes and takeover), :mod:`~companion.core.frame_job`
-(frame step and latency budget), :mod:`~companion.core.setpoint_job` (setpoints and
-speed), :mod:`~companion.core.proximity_job`, :mod:`~companion.core.failsafe_job` and
+heartbeats), :mod:`~companion.core.modes_job` (modes and takeover),
+:mod:`~companion.core.frame_job` (frame step and latency budget),
+:mod:`~companion.core.setpoint_job` (setpoints and speed),
+:mod:`~companion.core.proximity_job`, :mod:`~companion.core.failsafe_job` and
 :mod:`~companion.core.status_job` are mixed into :class:`CompanionCore`;
-:mod:`~companion.core.takeoff_job`, :mod:`~companion.core.streams_job` (streams and
-TIMESYNC) and :mod:`~companion.core.param_job` (the autopilot's WPNAV_SPEED) are
-components it composes: each owns its state, takes typed inputs and returns
-typed decisions. Counters are one typed record
+:mod:`~companion.core.telemetry_job` (poses on the frame clock, boot time, stated
+accuracy), :mod:`~companion.core.takeoff_job`, :mod:`~companion.core.streams_job` (streams
+and TIMESYNC) and :mod:`~companion.core.param_job` (the autopilot's WPNAV_SPEED) are
+components it composes: each owns its state, takes typed inputs and returns typed
+decisions. Counters are one typed record
 (:class:`~companion.core.counters.CoreCounters`); outputs collect in an
 :class:`~companion.core.outbox.Outbox`.
 """
@@ -40,7 +41,7 @@ from __future__ import annotations
 
 import math
 
-from companion.clock_model import BootTimeMonitor, ClockModel
+from companion.clock_model import ClockModel
 from companion.config import CompanionConfig
 from companion.core.counters import CoreCounters
 from companion.core.events import FrameReceived, Input, MavlinkReceived, Output, Tick
@@ -56,7 +57,7 @@ from companion.core.setpoint_job import SetpointJob
 from companion.core.status_job import StatusJob
 from companion.core.streams_job import STREAMS, StreamsJob
 from companion.core.takeoff_job import Engage, TakeoffJob
-from companion.core.telemetry_job import REBOOT_BACKSTEP_MS, TelemetryJob
+from companion.core.telemetry_job import TelemetryJob
 from companion.failsafe import Response
 from companion.guidance.latency import DataAgeWindow
 from companion.link.mode_watch import ControlPhase, ModeWatch
@@ -72,7 +73,6 @@ __all__ = ["STREAMS", "CompanionCore"]
 
 class CompanionCore(
     LinkJob,
-    TelemetryJob,
     ModesJob,
     FrameJob,
     SetpointJob,
@@ -117,12 +117,8 @@ class CompanionCore(
         self._silent_since_s: float | None = None
         self._silence_reported_s = -math.inf
         self._handler_error_kinds: set[str] = set()
-        # telemetry, TIMESYNC
-        self.clock = ClockModel(link.frame_clock)
-        self.poses = PoseHistory(
-            horizon_ns=round(fs.pose_history_s * 1e9),
-            max_extrapolation_ns=round(fs.max_pose_extrapolation_s * 1e9),
-        )
+        # telemetry (poses, frame clock), streams and TIMESYNC
+        self.telemetry = TelemetryJob(link, fs, self.out, self.counters)  # a component
         self.streams = StreamsJob(link, self.out, self.counters)  # a component
         self.params = ParamJob(link, self.out)  # a component: WPNAV_SPEED
         # modes and takeover
@@ -156,6 +152,21 @@ class CompanionCore(
         return self.modes.phase in (ControlPhase.ACTIVE, ControlPhase.HOLD)
 
     @property
+    def clock(self) -> ClockModel:
+        """The frame clock and the autopilot's TIMESYNC fit (the telemetry job's)."""
+        return self.telemetry.clock
+
+    @property
+    def poses(self) -> PoseHistory:
+        """The pose history on the frame clock (the telemetry job's)."""
+        return self.telemetry.poses
+
+    def frame_clock_rate(self) -> float:
+        """Frame-clock seconds per host second: the service's OBSTACLE_DISTANCE watchdog
+        carries positions forward with it (:mod:`companion.proximity.stream`)."""
+        return self.telemetry.frame_clock_rate()
+
+    @property
     def fatal(self) -> str | None:
         """A terminal error (a refused takeoff): the process stops."""
         return self.takeoff_job.fatal
@@ -166,8 +177,9 @@ class CompanionCore(
         return self.takeoff_job.sequence
 
     # ---- per-connection state ------------------------------------------------------
-    def _reset_vehicle_state(self) -> None:
-        """Link lost or autopilot restarted: everything learnt about the vehicle goes."""
+    def _reset_vehicle_state(self, *, telemetry: bool = True) -> None:
+        """Link lost or autopilot restarted: everything learnt about the vehicle goes
+        (``telemetry=False``: the telemetry job saw the restart and started over itself)."""
         cfg = self.config
         # frame step
         self.mission = Mission(
@@ -190,17 +202,10 @@ class CompanionCore(
         self._age_pending: tuple[int, int, float] | None = None
         self._speed_limit_mps: float | None = None  # the envelope's, last processed frame
         # telemetry, TIMESYNC, streams
-        self.clock.autopilot.reset()
-        self.poses.clear()
-        self.boot_time = BootTimeMonitor(backstep_ms=REBOOT_BACKSTEP_MS)
-        self._last_boot_ms: int | None = None
-        self._telemetry_newest_ns: int | None = None  # read by the Zenoh thread too
-        self._newest_seen_ns: int | None = None  # newest frame-clock stamp observed
-        self._position_host_ns: int | None = None  # host time the newest position came
+        if telemetry:
+            self.telemetry.reset()
         self.streams.reset()
-        # GPS_RAW_INT h_acc [m] and when it came [s, host]; the margins' widening notice
-        self._h_acc: tuple[float, float] | None = None
-        self._uncovered_told = False
+        self._uncovered_told = False  # the margins' widening notice
         # modes
         self.modes.reset()
         # setpoints and speed

@@ -30,7 +30,7 @@ class FailsafeJob:
     def _check_failsafe(self, now_s: float) -> None:
         """Late inputs: a position hold in the control mode; lost inputs: the autopilot's
         hold mode (the last resort); healthy for the settle time: steer again."""
-        now_frame = self.clock.now_frame_ns(self._now_ns, self._newest_seen_ns)
+        now_frame = self.telemetry.now_frame_ns(self._now_ns)
         changed = self.failsafe.update(now_frame, self._newest_frame_ns, self.poses.newest_ns)
         if self.modes.flavour is None:
             return  # (during a takeoff the health is tracked for the status line only)

@@ -10,7 +10,6 @@ each command (capture → on the wire, frame clock) feeds the latency budget.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 from companion.clock_model import FrameClock
 from companion.core.events import FrameProcessed, Status
@@ -31,17 +30,14 @@ class FrameJob:
 
     def frame_time_plausible(self, capture_ns: int, now_ns: int) -> bool | None:
         """Capture time within the window around the clock model's now (any thread)."""
-        window_ns = round(self.config.failsafe.frame_time_window_s * 1e9)
-        return self.clock.frame_time_plausible(
-            capture_ns, now_ns, self._telemetry_newest_ns, window_ns
-        )
+        return self.telemetry.frame_time_plausible(capture_ns, now_ns)
 
     def _on_frame(self, frame: StereoFrame, recv_ns: int) -> None:
         lookup = self._frame_pose(frame)
         if lookup is None:
             return
         assert lookup.pose is not None
-        pose = dataclasses.replace(lookup.pose, h_acc_m=self._stated_h_acc_m(self._now_s))
+        pose = dataclasses.replace(lookup.pose, h_acc_m=self.telemetry.stated_h_acc_m(self._now_s))
         # Whether the vehicle flies what this frame yields (not in our failsafe hold, a
         # pilot's mode or beside another source): time it does not, guidance does not
         # count as its own lack of progress.
@@ -101,7 +97,7 @@ class FrameJob:
         if self.frame_time_plausible(frame.capture_ns, self._now_ns) is False:
             # frames never move the clock nor reset the mission: only telemetry may
             self.counters.frames_implausible_time += 1
-            self._log_drop(
+            self.out.dropped(
                 "frames_implausible_time",
                 self.counters.frames_implausible_time,
                 "frame",
@@ -127,7 +123,7 @@ class FrameJob:
         if lookup.status is PoseStatus.EXTRAPOLATED:
             self.counters.pose_extrapolated += 1
         self._last_capture_ns = frame.capture_ns
-        self._observe(frame.capture_ns)
+        self.telemetry.observe(frame.capture_ns)
         return lookup
 
     def _processed(self, capture_ns: int, out, age_s: float | None, pos_ned_m) -> None:
@@ -142,15 +138,8 @@ class FrameJob:
 
     def _frame_age_s(self, capture_ns: int) -> float | None:
         """Age of a frame's data now [s, frame clock] (None: no clock yet)."""
-        now_frame = self.clock.now_frame_ns(self._now_ns, self._newest_seen_ns)
+        now_frame = self.telemetry.now_frame_ns(self._now_ns)
         return None if now_frame is None else (now_frame - capture_ns) * 1e-9
-
-    def _frame_clock_rate(self) -> float:
-        """Frame-clock seconds per host second (plant-sim at --speedup N: N)."""
-        if self.clock.frame_clock is FrameClock.HOST:
-            return 1.0
-        rate = self.clock.autopilot.rate
-        return min(max(rate, 0.01), 1000.0) if math.isfinite(rate) else 1.0
 
     def _measure_data_age(self) -> None:
         """The last frame's command left during its step: its data age is its age at the
@@ -160,12 +149,12 @@ class FrameJob:
             return
         capture_ns, started_ns, age_at_start_s = self._age_pending
         self._age_pending = None
-        compute_s = (self._now_ns - started_ns) * 1e-9 * self._frame_clock_rate()
+        compute_s = (self._now_ns - started_ns) * 1e-9 * self.telemetry.frame_clock_rate()
         self.data_age.add(capture_ns, age_at_start_s + compute_s)
 
     def _frame_during_takeoff(self, frame: StereoFrame) -> None:
         """A frame while the takeoff runs: not steered on, it proves the camera works."""
-        self._observe(frame.capture_ns)
+        self.telemetry.observe(frame.capture_ns)
         self.counters.frames_during_takeoff += 1  # not steering before the climb
         if self._newest_frame_ns is None or frame.capture_ns > self._newest_frame_ns:
             self._newest_frame_ns = frame.capture_ns  # the camera works: health

@@ -13,7 +13,7 @@ import logging
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.core.telemetry_job import MAX_POS_M, in_range
+from companion.core.telemetry_job import MAX_POS_M, Restarted, in_range
 from companion.link.flavour import control_mode, detect_flavour, is_autopilot_heartbeat
 from companion.link.messages import heartbeat_message, mav_state
 from companion.link.setpoints import SetpointPolicy
@@ -87,13 +87,15 @@ class LinkJob:
         ):
             self._engage(self.takeoff_job.on_message(msg, mtype, now_s), now_s)
         if mtype == "LOCAL_POSITION_NED":
-            self._on_local_position(msg, now_s)
+            self._restarted(self.telemetry.on_local_position(msg, now_s, self._now_ns), now_s)
         elif mtype == "ATTITUDE":
-            self._on_attitude(msg, now_s)
+            self._restarted(self.telemetry.on_attitude(msg, now_s), now_s)
         elif mtype == "GPS_RAW_INT":
-            self._on_gps_raw(msg, now_s)
+            self.telemetry.on_gps_raw(msg, now_s)
         elif mtype == "TIMESYNC":
-            self._on_timesync(msg, now_s)
+            sample = self.streams.on_timesync(msg, self._now_ns)
+            if sample is not None:
+                self._restarted(self.telemetry.on_sync_sample(sample), now_s)
         elif mtype == "COMMAND_ACK":
             self._on_ack(msg, now_s)
         elif mtype == "STATUSTEXT":
@@ -113,11 +115,16 @@ class LinkJob:
             _log.info("autopilot link up on %s", self.config.link.url)
             self.streams.link_up(now_s)
 
-    def _autopilot_restarted(self, now_s: float, why: str) -> None:
+    def _restarted(self, restarted: Restarted | None, now_s: float) -> None:
+        """The telemetry job saw the autopilot restart (and started its new time base):
+        everything else learnt about the vehicle goes, the streams are asked for again."""
+        if restarted is None:
+            return
+        why = restarted.reason
         self.counters.autopilot_restarts += 1
         _log.warning("autopilot restarted (%s): starting over", why)
         self.out.event("autopilot_restart", reason=why)
-        self._reset_vehicle_state()
+        self._reset_vehicle_state(telemetry=False)
         self.streams.request_streams_now(now_s)
 
     def _on_heartbeat(self, msg, now_s: float) -> None:

@@ -27,7 +27,7 @@ class ProximityJob:
         if self.proximity is None:
             return
         pos, yaw = self._proximity_pose()
-        if pos is None and self._position_host_ns is None:
+        if pos is None and self.telemetry.position_host_ns is None:
             pos, yaw = pose.pos_ned_m, pose.yaw_rad  # no telemetry of its own yet
         sectors = self.proximity.on_frame(self.mission.pipeline.known_space, pos, yaw, self._now_s)
         self.out.send(obstacle_distance_message(capture_ns // 1000, sectors))
@@ -43,22 +43,18 @@ class ProximityJob:
         stamp_ns = self._last_capture_ns if self._last_capture_ns is not None else newest
         self.out.send(obstacle_distance_message(max(stamp_ns or 0, 0) // 1000, sectors))
 
-    def frame_clock_rate(self) -> float:
-        """Frame-clock seconds per host second: the service's OBSTACLE_DISTANCE watchdog
-        carries positions forward with it (:mod:`companion.proximity.stream`)."""
-        return self._frame_clock_rate()
-
     def _proximity_pose(self):
         """(position [m, LOCAL_NED], yaw [rad]) of the vehicle at this send: the newest
         telemetry carried forward over the host time since its position arrived, on the
         frame clock's rate; (None, None) without one or when it is stale (counted)."""
         newest = self.poses.newest_ns
-        if newest is None or self._position_host_ns is None:
+        if newest is None or self.telemetry.position_host_ns is None:
             return None, None
         pose = self.poses.at(newest).pose
         if pose is None:
             return None, None
-        age_s = (self._now_ns - self._position_host_ns) * 1e-9 * self._frame_clock_rate()
+        telemetry = self.telemetry
+        age_s = (self._now_ns - telemetry.position_host_ns) * 1e-9 * telemetry.frame_clock_rate()
         pos = position_at_send(pose.pos_ned_m, pose.vel_ned_mps, age_s)
         if pos is None:
             self.proximity.stale_pose += 1

@@ -36,7 +36,7 @@ class SetpointJob:
         if frame_ns is not None:
             ap_ns = self.clock.frame_to_autopilot_ns(frame_ns)
         if ap_ns is None:
-            ap_ns = (self._last_boot_ms or 0) * 1_000_000
+            ap_ns = (self.telemetry.last_boot_ms or 0) * 1_000_000
         msg = position_target_message(
             target, ap_ns // 1_000_000, cfg.target_system, cfg.target_component
         )
@@ -47,10 +47,11 @@ class SetpointJob:
         self.counters.setpoints_sent += 1
         if not self._engaged:
             self._engaged = True
+            boot_ms = self.telemetry.last_boot_ms
             self.out.event(
                 "steering",
                 setpoint_ned_m=list(target.pos_ned_m),
-                autopilot_time_s=None if self._last_boot_ms is None else self._last_boot_ms / 1e3,
+                autopilot_time_s=None if boot_ms is None else boot_ms / 1e3,
             )
 
     def _setpoint_timer(self, now_s: float) -> None:
