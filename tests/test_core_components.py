@@ -11,13 +11,15 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.clock_model import FrameClock, SyncSample
 from companion.config import FailsafeConfig, LinkConfig
 from companion.core.counters import CoreCounters
-from companion.core.events import SendMavlink
+from companion.core.events import Event, SendMavlink
+from companion.core.modes_job import ModesJob, PhaseChange
 from companion.core.outbox import Outbox
 from companion.core.param_job import WPNAV_SPEED, ParamJob
 from companion.core.status_job import StateView, companion_state
 from companion.core.streams_job import STREAMS, StreamsJob
 from companion.core.telemetry_job import H_ACC_MAX_AGE_S, Restarted, TelemetryJob
 from companion.failsafe import Response
+from companion.link.flavour import Flavour
 from companion.link.messages import CompanionState
 from companion.link.mode_watch import ControlPhase
 
@@ -226,3 +228,49 @@ def test_the_frame_clock_rate_is_the_timesync_fit_on_the_autopilot_clock_only():
     back = SyncSample(4_000_000_000, 1_000, 4_002_000_000)
     assert job.on_sync_sample(back) == Restarted("TIMESYNC went backwards")
     assert job.frame_clock_rate() == 1.0 and job.poses.newest_ns is None
+
+
+_LOITER, _GUIDED = 5, 4  # ArduCopter custom modes
+
+
+def _events(out: Outbox) -> list:
+    return [o for o in out.take() if isinstance(o, Event)]
+
+
+def test_the_mode_is_requested_acknowledged_engaged_then_released_by_the_pilot():
+    out, counters = _outbox(), CoreCounters()
+    modes = ModesJob(LinkConfig(), 7, out, counters)
+    assert modes.on_heartbeat(Flavour.ARDUPILOT, _LOITER, 0.0) == PhaseChange(
+        ControlPhase.NO_AUTOPILOT, ControlPhase.REQUESTED
+    )
+    assert [e.fields["phase"] for e in _events(out)] == ["requested"]
+    assert modes.tick(0.0) is None  # the request is sent, the phase stays
+    (request,) = _sent(out)
+    assert (request.command, request.param2) == (mavlink.MAV_CMD_DO_SET_MODE, _GUIDED)
+    assert counters.mode_requests == 1
+    change = modes.on_mode_ack(True, "MAV_RESULT_ACCEPTED", 0.1)
+    assert change == PhaseChange(ControlPhase.REQUESTED, ControlPhase.ACTIVE) and change.engaging
+    assert modes.steering and not modes.must_stream()  # ArduPilot: setpoints persist
+    assert modes.on_heartbeat(Flavour.ARDUPILOT, _GUIDED, 1.0) is None  # no change: nothing
+    out.take()
+    released = modes.on_heartbeat(Flavour.ARDUPILOT, _LOITER, 5.0)  # the pilot takes over
+    assert released == PhaseChange(ControlPhase.ACTIVE, ControlPhase.RELEASED)
+    assert not released.engaging and counters.mode_releases == 1
+    out.take()  # the release's notice and event
+    assert modes.tick(6.0) is None and _sent(out) == []  # never asked again after a release
+    modes.reset()
+    assert modes.phase is ControlPhase.NO_AUTOPILOT and modes.flavour is None
+
+
+def test_a_foreign_setpoint_source_blocks_steering_until_quiet_for_3_s():
+    out, counters = _outbox(), CoreCounters()
+    modes = ModesJob(LinkConfig(), 7, out, counters)
+    modes.on_foreign_setpoint(10.0, (1, 191))
+    assert modes.takeover_blocked and counters.takeover_refusals == 1
+    assert [(e.name, e.fields["blocked"]) for e in _events(out)] == [("takeover", True)]
+    modes.on_foreign_setpoint(11.0, (1, 191))  # still there: said once
+    modes.check_takeover(11.0 + modes.takeover.quiet_s - 0.01)
+    assert modes.takeover_blocked and counters.takeover_refusals == 1 and _events(out) == []
+    modes.check_takeover(11.0 + modes.takeover.quiet_s + 0.01)
+    assert not modes.takeover_blocked
+    assert [(e.name, e.fields["blocked"]) for e in _events(out)] == [("takeover", False)]

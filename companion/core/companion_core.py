@@ -23,16 +23,16 @@ Outputs are MAVLink messages to send, setpoints, events and status documents, re
 order by :meth:`CompanionCore.step`. Log lines go to the ``companion`` logger.
 
 The work is split by job, one module each: :mod:`~companion.core.link_job` (link and
-heartbeats), :mod:`~companion.core.modes_job` (modes and takeover),
-:mod:`~companion.core.frame_job` (frame step and latency budget),
+heartbeats), :mod:`~companion.core.frame_job` (frame step and latency budget),
 :mod:`~companion.core.setpoint_job` (setpoints and speed),
 :mod:`~companion.core.proximity_job`, :mod:`~companion.core.failsafe_job` and
 :mod:`~companion.core.status_job` are mixed into :class:`CompanionCore`;
 :mod:`~companion.core.telemetry_job` (poses on the frame clock, boot time, stated
-accuracy), :mod:`~companion.core.takeoff_job`, :mod:`~companion.core.streams_job` (streams
-and TIMESYNC) and :mod:`~companion.core.param_job` (the autopilot's WPNAV_SPEED) are
-components it composes: each owns its state, takes typed inputs and returns typed
-decisions. Counters are one typed record
+accuracy), :mod:`~companion.core.modes_job` (modes and takeover; a
+:class:`~companion.core.modes_job.PhaseChange` out), :mod:`~companion.core.takeoff_job`,
+:mod:`~companion.core.streams_job` (streams and TIMESYNC) and
+:mod:`~companion.core.param_job` (the autopilot's WPNAV_SPEED) are components it composes:
+each owns its state, takes typed inputs and returns typed decisions. Counters are one typed record
 (:class:`~companion.core.counters.CoreCounters`); outputs collect in an
 :class:`~companion.core.outbox.Outbox`.
 """
@@ -49,7 +49,7 @@ from companion.core.failsafe_job import FailsafeJob, failsafe_monitor
 from companion.core.frame_job import FrameJob
 from companion.core.link_job import LinkJob
 from companion.core.mission import Mission
-from companion.core.modes_job import ModesJob
+from companion.core.modes_job import ModesJob, PhaseChange
 from companion.core.outbox import Outbox
 from companion.core.param_job import ParamJob
 from companion.core.proximity_job import ProximityJob
@@ -60,7 +60,7 @@ from companion.core.takeoff_job import Engage, TakeoffJob
 from companion.core.telemetry_job import TelemetryJob
 from companion.failsafe import Response
 from companion.guidance.latency import DataAgeWindow
-from companion.link.mode_watch import ControlPhase, ModeWatch
+from companion.link.mode_watch import ControlPhase
 from companion.link.setpoints import PositionTarget, SetpointPolicy
 from companion.link.speed_limit import SpeedLimitPolicy
 from companion.link.takeoff import TakeoffSequence
@@ -73,7 +73,6 @@ __all__ = ["STREAMS", "CompanionCore"]
 
 class CompanionCore(
     LinkJob,
-    ModesJob,
     FrameJob,
     SetpointJob,
     ProximityJob,
@@ -122,10 +121,7 @@ class CompanionCore(
         self.streams = StreamsJob(link, self.out, self.counters)  # a component
         self.params = ParamJob(link, self.out)  # a component: WPNAV_SPEED
         # modes and takeover
-        self.modes = ModeWatch(request_mode=link.request_mode, prestream_s=link.px4_prestream_s)
-        self.takeover = TakeoverGuard((link.system_id, link.component_id), instance_id)
-        self._takeover_blocked = False
-        self._last_mode_request = None
+        self.modes = ModesJob(link, instance_id, self.out, self.counters)  # a component
         # takeoff: a component of its own (its state, typed decisions out)
         self.takeoff_job = TakeoffJob(link, self.out)
         # setpoints and speed
@@ -165,6 +161,11 @@ class CompanionCore(
         """Frame-clock seconds per host second: the service's OBSTACLE_DISTANCE watchdog
         carries positions forward with it (:mod:`companion.proximity.stream`)."""
         return self.telemetry.frame_clock_rate()
+
+    @property
+    def takeover(self) -> TakeoverGuard:
+        """The twin and foreign-source rule (the modes job's)."""
+        return self.modes.takeover
 
     @property
     def fatal(self) -> str | None:
@@ -251,10 +252,33 @@ class CompanionCore(
             return
         self.streams.timers(now_s, self._now_ns)
         self._engage(self.takeoff_job.tick(now_s), now_s)
-        self._mode_timer(now_s)
+        self._after_phase_change(self.modes.tick(now_s), now_s)
         self._setpoint_timer(now_s)
 
     def _engage(self, engage: Engage | None, now_s: float) -> None:
         """The takeoff is over: the mode watch takes the heartbeat it held (at once)."""
         if engage is not None:
-            self._mode_heartbeat(engage.flavour, engage.custom_mode, now_s)
+            self._after_phase_change(
+                self.modes.on_heartbeat(engage.flavour, engage.custom_mode, now_s), now_s
+            )
+
+    def _after_phase_change(self, change: PhaseChange | None, now_s: float) -> None:
+        """Engaging the control mode: the first setpoint goes out at once."""
+        if change is not None and change.engaging and self.policy is not None:
+            self.policy.reset()
+            self.speed_policy.reset()  # ArduCopter resets its speed on entering GUIDED
+            self._resend_now(now_s)
+
+    def _steering(self, now_s: float) -> bool:
+        """Our setpoints are flown now: the autopilot in a mode we steer, healthy inputs,
+        and alone on the link."""
+        return (
+            self.modes.steering
+            and self.failsafe.status.health.ok
+            and self.policy is not None
+            and self._may_steer(now_s)
+        )
+
+    def _may_steer(self, now_s: float) -> bool:
+        """Alone on the link, and it was heard long enough to know (wall seconds)."""
+        return not self.modes.takeover_blocked and now_s >= self._listen_until_s

@@ -73,10 +73,10 @@ class FailsafeJob:
             else [round(x, 3) for x in self._hold_target.pos_ned_m],
         )
         if request is not None:
-            self._request_mode(request)
+            self.modes.request(request)
         else:
             self._resend_now(now_s)
-        self._after_phase_change(before, now_s)
+        self._after_phase_change(self.modes.changed(before), now_s)
 
     def _end_hold(self, now_s: float) -> None:
         """Healthy for the settle time: guidance's setpoints again (the control mode)."""
@@ -89,8 +89,8 @@ class FailsafeJob:
             if self.policy is not None:
                 self.policy.reset()  # the next guidance setpoint goes out at once
         if request is not None:
-            self._request_mode(request)
-        self._after_phase_change(before, now_s)
+            self.modes.request(request)
+        self._after_phase_change(self.modes.changed(before), now_s)
 
     def _current_hold(self) -> PositionTarget | None:
         """Hold where the vehicle is (out of a boundary it is in), no braking point."""

@@ -57,7 +57,7 @@ class LinkJob:
         cfg = self.config.link
         if src == (cfg.system_id, cfg.component_id):
             if mtype == "HEARTBEAT":
-                self.takeover.on_twin_heartbeat(
+                self.modes.on_twin_heartbeat(
                     now_s,
                     msg.custom_mode,
                     msg.system_status in _IN_CONTROL_STATES,
@@ -65,11 +65,9 @@ class LinkJob:
                     # still in control (else both yield and nobody steers)
                     mav_state(self._state()) in _IN_CONTROL_STATES,
                 )
-                self._check_takeover(now_s)
             return
         if mtype in SETPOINT_MESSAGES and getattr(msg, "target_system", 0) == target_sys:
-            self.takeover.on_foreign_setpoint(now_s, src)
-            self._check_takeover(now_s)
+            self.modes.on_foreign_setpoint(now_s, src)
             return
         if msg.get_srcSystem() != target_sys:
             return
@@ -102,6 +100,18 @@ class LinkJob:
             _log.info("autopilot: %s", statustext(msg))
         elif mtype == "PARAM_VALUE":
             self.params.on_param_value(msg)
+
+    def _on_ack(self, msg, now_s: float) -> None:
+        """COMMAND_ACK to the job whose command it answers."""
+        accepted = msg.result == mavlink.MAV_RESULT_ACCEPTED
+        if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            self.streams.on_stream_ack(accepted)
+        elif msg.command == mavlink.MAV_CMD_DO_CHANGE_SPEED:
+            self._on_speed_ack(accepted, msg.result)
+        elif msg.command == mavlink.MAV_CMD_DO_SET_MODE:
+            result = mavlink.enums["MAV_RESULT"].get(msg.result)
+            text = result.name if result else str(msg.result)
+            self._after_phase_change(self.modes.on_mode_ack(accepted, text, now_s), now_s)
 
     def _on_link_alive(self, now_s: float) -> None:
         self._last_rx_s = now_s
@@ -150,13 +160,13 @@ class LinkJob:
             engage = self.takeoff_job.on_heartbeat(flavour, msg.custom_mode, armed, now_s)
             self._engage(engage, now_s)
             return
-        self._mode_heartbeat(flavour, msg.custom_mode, now_s)
+        self._after_phase_change(self.modes.on_heartbeat(flavour, msg.custom_mode, now_s), now_s)
 
     def _heartbeat_timer(self, now_s: float) -> None:
         """Our heartbeat when due (and the twin rule re-checked with it)."""
         if now_s >= self._next_heartbeat_s:
             self.out.send(heartbeat_message(self._state(), self.instance_id))
-            self._check_takeover(now_s)
+            self.modes.check_takeover(now_s)
             self._next_heartbeat_s = now_s + self.config.link.heartbeat_period_s
 
     def _link_loss_timer(self, now_s: float) -> None:

@@ -58,7 +58,7 @@ class SetpointJob:
         """Keep-alive or stream: re-send when the policy says so."""
         policy = self.policy
         if policy is not None and (
-            policy.due(now_s) or (policy.last is None and self._must_stream())
+            policy.due(now_s) or (policy.last is None and self.modes.must_stream())
         ):
             self._resend_now(now_s)
 
@@ -68,11 +68,13 @@ class SetpointJob:
             return
         if self.modes.streaming_hold or (self.modes.steering and self._hold is not Response.STEER):
             target = self._hold_target or self._current_hold()
-        elif self.modes.steering and not self.failsafe.status.health.ok and self._must_stream():
+        elif (
+            self.modes.steering and not self.failsafe.status.health.ok and self.modes.must_stream()
+        ):
             target = self._current_hold()
         elif self.modes.steering and (self.failsafe.status.health.ok or self.policy.last is None):
             target = self.policy.last
-            if target is None and self._must_stream():
+            if target is None and self.modes.must_stream():
                 target = self._current_hold()
         else:
             return
@@ -110,6 +112,18 @@ class SetpointJob:
             )
             climb.sent(kind, vertical_mps, now_s)
             self.counters.speed_limits_sent += 1
+
+    def _on_speed_ack(self, accepted: bool, result: int) -> None:
+        """A COMMAND_ACK of DO_CHANGE_SPEED: counted (refused: said once)."""
+        if accepted:
+            self.counters.speed_limits_accepted += 1
+        else:
+            self.counters.speed_limits_refused += 1
+        if not accepted and self.counters.speed_limits_refused == 1:
+            _log.info(
+                "autopilot refuses DO_CHANGE_SPEED (result %d): the carrot alone bounds the speed",
+                result,
+            )
 
     def _check_overspeed(self, out) -> None:
         """Warn (log + STATUSTEXT, at most every 5 s) when telemetry exceeds the limit."""
