@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.clock_model import FrameClock, SyncSample
-from companion.config import FailsafeConfig, LinkConfig
+from companion.config import CompanionConfig, FailsafeConfig, LinkConfig
 from companion.core.counters import CoreCounters
 from companion.core.events import Event, SendMavlink
+from companion.core.failsafe_job import FailsafeJob, HoldView
 from companion.core.modes_job import ModesJob, PhaseChange
 from companion.core.outbox import Outbox
 from companion.core.param_job import WPNAV_SPEED, ParamJob
@@ -22,6 +24,7 @@ from companion.failsafe import Response
 from companion.link.flavour import Flavour
 from companion.link.messages import CompanionState
 from companion.link.mode_watch import ControlPhase
+from companion.pipeline import PoseAtCapture
 
 
 def _sent(out: Outbox) -> list:
@@ -274,3 +277,57 @@ def test_a_foreign_setpoint_source_blocks_steering_until_quiet_for_3_s():
     modes.check_takeover(11.0 + modes.takeover.quiet_s + 0.01)
     assert not modes.takeover_blocked
     assert [(e.name, e.fields["blocked"]) for e in _events(out)] == [("takeover", False)]
+
+
+_S = 1_000_000_000  # ns per s
+
+
+def test_late_frames_hold_at_the_braking_point_lost_frames_escalate_and_healthy_resumes():
+    out, counters = _outbox(), CoreCounters()
+    config = CompanionConfig()
+    job = FailsafeJob(config, out, counters)
+    fresh = dict(autopilot_known=True, engaged=True)
+    assert job.update(1 * _S, 1 * _S, 1 * _S, **fresh) is None  # healthy, steering
+    late = (1 * _S + 1.5 * _S, 1 * _S, int(2.5 * _S))  # frames 1.5 s old > 1.0 s timeout
+    assert job.update(*late, autopilot_known=True, engaged=False) is None  # nothing to hold
+    assert job.update(*late, autopilot_known=False, engaged=True) is None  # (a takeoff)
+    assert job.update(*late, **fresh) is Response.HOLD_POSITION
+    pose = PoseAtCapture(np.array([0.0, 0.0, -7.0]), np.array([2.0, 0.0, 0.0]), np.eye(3))
+    view = HoldView(pose, (), latency_s=0.2)
+    job.start_hold(Response.HOLD_POSITION, view)
+    accel = config.envelope.accel_mps2
+    brake_m = 0.2 * 2.0 + 2.0**2 / (2.0 * accel)  # τ·v + v²/(2a)
+    assert job.hold_target.pos_ned_m == pytest.approx((brake_m, 0.0, -7.0))
+    assert (counters.hold_commands, counters.mode_holds) == (1, 0)
+    latched = job.hold_target
+    lost = (int(3.5 * _S), 1 * _S, int(3.5 * _S))  # frames 2.5 s old > 2.0 s: lost
+    assert job.update(*lost, **fresh) is Response.HOLD_MODE
+    job.start_hold(Response.HOLD_MODE, HoldView(pose, (), latency_s=0.5))
+    assert job.hold_target is latched  # latched at the hold's start
+    assert (counters.hold_commands, counters.mode_holds) == (1, 1)
+    assert job.update(int(3.6 * _S), int(3.6 * _S), int(3.6 * _S), **fresh) is None  # settling
+    assert job.update(int(4.7 * _S), int(4.7 * _S), int(4.7 * _S), **fresh) is Response.STEER
+    out.take()
+    assert job.end_hold() and job.hold is Response.STEER and job.hold_target is None
+    assert [e.name for e in out.take() if isinstance(e, Event)] == ["resume"]
+    assert not job.end_hold()  # no hold: nothing said
+
+
+def test_a_hold_target_inside_a_boundary_moves_out_once_and_is_said_once():
+    out, counters = _outbox(), CoreCounters()
+    job = FailsafeJob(CompanionConfig(), out, counters)
+    pose = PoseAtCapture(np.array([0.0, 0.0, -7.0]), np.zeros(3), np.eye(3))
+    job.start_hold(Response.HOLD_POSITION, HoldView(pose, (), latency_s=0.2))
+    assert job.hold_target.pos_ned_m == pytest.approx((0.0, 0.0, -7.0))
+
+    class Ball:  # the vehicle 0.4 m inside a boundary to its north
+        center_ned_m = np.array([0.6, 0.0, -7.0])
+        radius_m = 1.0
+
+    inside = HoldView(pose, (Ball(),), latency_s=0.2)
+    moved = job.recheck_target(pose.pos_ned_m, inside)
+    assert moved is job.hold_target and moved.pos_ned_m[0] < 0.6 - 1.0  # out, to the south
+    assert job.recheck_target(pose.pos_ned_m, inside) is None  # the same target: not resent
+    assert counters.hold_targets_moved == 1
+    told = [e for e in out.take() if isinstance(e, Event) and e.name == "hold_target_moved"]
+    assert len(told) == 1

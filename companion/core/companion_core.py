@@ -22,19 +22,26 @@ setpoint keep-alive). Per input:
 Outputs are MAVLink messages to send, setpoints, events and status documents, returned in
 order by :meth:`CompanionCore.step`. Log lines go to the ``companion`` logger.
 
-The work is split by job, one module each: :mod:`~companion.core.link_job` (link and
-heartbeats), :mod:`~companion.core.frame_job` (frame step and latency budget),
-:mod:`~companion.core.setpoint_job` (setpoints and speed),
-:mod:`~companion.core.proximity_job`, :mod:`~companion.core.failsafe_job` and
-:mod:`~companion.core.status_job` are mixed into :class:`CompanionCore`;
-:mod:`~companion.core.telemetry_job` (poses on the frame clock, boot time, stated
-accuracy), :mod:`~companion.core.modes_job` (modes and takeover; a
-:class:`~companion.core.modes_job.PhaseChange` out), :mod:`~companion.core.takeoff_job`,
-:mod:`~companion.core.streams_job` (streams and TIMESYNC) and
-:mod:`~companion.core.param_job` (the autopilot's WPNAV_SPEED) are components it composes:
-each owns its state, takes typed inputs and returns typed decisions. Counters are one typed record
-(:class:`~companion.core.counters.CoreCounters`); outputs collect in an
-:class:`~companion.core.outbox.Outbox`.
+The work is split by job, one module each. Components that :class:`CompanionCore`
+composes (each owns its state, takes typed inputs, returns typed decisions):
+
+* :mod:`~companion.core.telemetry_job` (poses, frame clock, boot time, accuracy; ``Restarted`` out)
+* :mod:`~companion.core.streams_job` (stream requests and TIMESYNC; a ``SyncSample`` out)
+* :mod:`~companion.core.param_job` (the autopilot's WPNAV_SPEED)
+* :mod:`~companion.core.modes_job` (modes and takeover; a ``PhaseChange`` out)
+* :mod:`~companion.core.failsafe_job` (holds and their targets; the hold to start or end out)
+* :mod:`~companion.core.takeoff_job` (``--takeoff-alt``; an ``Engage`` out)
+
+Still mixins of :class:`CompanionCore` (they share its attributes):
+
+* :mod:`~companion.core.setpoint_job` (setpoints and speed)
+* :mod:`~companion.core.link_job` (link and heartbeats)
+* :mod:`~companion.core.frame_job` (frame step and latency budget)
+* :mod:`~companion.core.status_job` (state, figures, progress line)
+* :mod:`~companion.core.proximity_job` (OBSTACLE_DISTANCE)
+
+Counters are one typed record (:class:`~companion.core.counters.CoreCounters`);
+outputs collect in an :class:`~companion.core.outbox.Outbox`.
 """
 
 from __future__ import annotations
@@ -45,7 +52,7 @@ from companion.clock_model import ClockModel
 from companion.config import CompanionConfig
 from companion.core.counters import CoreCounters
 from companion.core.events import FrameReceived, Input, MavlinkReceived, Output, Tick
-from companion.core.failsafe_job import FailsafeJob, failsafe_monitor
+from companion.core.failsafe_job import FailsafeJob, HoldView
 from companion.core.frame_job import FrameJob
 from companion.core.link_job import LinkJob
 from companion.core.mission import Mission
@@ -61,7 +68,7 @@ from companion.core.telemetry_job import TelemetryJob
 from companion.failsafe import Response
 from companion.guidance.latency import DataAgeWindow
 from companion.link.mode_watch import ControlPhase
-from companion.link.setpoints import PositionTarget, SetpointPolicy
+from companion.link.setpoints import SetpointPolicy
 from companion.link.speed_limit import SpeedLimitPolicy
 from companion.link.takeoff import TakeoffSequence
 from companion.pose_history import PoseHistory
@@ -76,7 +83,6 @@ class CompanionCore(
     FrameJob,
     SetpointJob,
     ProximityJob,
-    FailsafeJob,
     StatusJob,
 ):
     """Every decision of the companion, stepped by :meth:`step` (no sockets, no clock).
@@ -122,6 +128,7 @@ class CompanionCore(
         self.params = ParamJob(link, self.out)  # a component: WPNAV_SPEED
         # modes and takeover
         self.modes = ModesJob(link, instance_id, self.out, self.counters)  # a component
+        self.failsafe = FailsafeJob(config, self.out, self.counters)  # a component
         # takeoff: a component of its own (its state, typed decisions out)
         self.takeoff_job = TakeoffJob(link, self.out)
         # setpoints and speed
@@ -214,10 +221,7 @@ class CompanionCore(
         self._engaged = False  # a guidance setpoint was sent since the last reset
         self.params.reset()  # the autopilot's WPNAV_SPEED, asked for again
         # failsafe
-        self.failsafe = failsafe_monitor(cfg)
-        self._hold = Response.STEER  # the hold the companion commands (failsafe)
-        self._hold_target: PositionTarget | None = None  # latched at a hold's start
-        self._hold_moved_told = False  # "hold target moved out of a boundary" said
+        self.failsafe.reset()
         # takeoff
         self.takeoff_job.reset()
 
@@ -268,6 +272,54 @@ class CompanionCore(
             self.policy.reset()
             self.speed_policy.reset()  # ArduCopter resets its speed on entering GUIDED
             self._resend_now(now_s)
+
+    def _check_failsafe(self, now_s: float) -> None:
+        """Late inputs: a position hold in the control mode; lost inputs: the autopilot's
+        hold mode (the last resort); healthy for the settle time: steer again."""
+        now_frame = self.telemetry.now_frame_ns(self._now_ns)
+        response = self.failsafe.update(
+            now_frame,
+            self._newest_frame_ns,
+            self.poses.newest_ns,
+            autopilot_known=self.modes.flavour is not None,
+            engaged=self._engaged,
+        )
+        if response is None:
+            return
+        before = self.modes.phase
+        if response is Response.STEER:  # guidance's setpoints again (the control mode)
+            if self.failsafe.end_hold() and self.policy is not None:
+                self.policy.reset()  # the next guidance setpoint goes out at once
+            request = self.modes.set_hold(now_s, False)
+            if request is not None:
+                self.modes.request(request)
+        else:
+            self.failsafe.start_hold(response, self._hold_view())
+            request = None
+            if response is Response.HOLD_MODE:
+                request = self.modes.set_hold(now_s, True)
+            what = request.name if request is not None else "hold position"
+            self.failsafe.report_hold(what, now_frame, self._newest_frame_ns)
+            if request is not None:
+                self.modes.request(request)
+            else:
+                self._resend_now(now_s)
+        self._after_phase_change(self.modes.changed(before), now_s)
+
+    def _hold_view(self) -> HoldView:
+        """The newest pose, the last frame's boundaries and the latency budget."""
+        newest = self.poses.newest_ns
+        pose = None if newest is None else self.poses.at(newest).pose
+        return HoldView(pose, self._boundaries, self.data_age.budget_s())
+
+    def _recheck_hold_target(self, pos_ned_m) -> None:
+        """A processed frame in a position hold: the target moved out of a boundary the
+        frame shows is sent at once (when our setpoints are flown)."""
+        target = self.failsafe.recheck_target(pos_ned_m, self._hold_view())
+        if target is None:
+            return
+        if self.modes.steering and self.policy is not None and self._may_steer(self._now_s):
+            self._send_target(target, self._now_s, None)
 
     def _steering(self, now_s: float) -> bool:
         """Our setpoints are flown now: the autopilot in a mode we steer, healthy inputs,

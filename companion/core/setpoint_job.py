@@ -66,16 +66,17 @@ class SetpointJob:
         """Keep-alive / PX4 stream / hold: (re)send the appropriate target."""
         if self.policy is None or not self._may_steer(now_s):
             return
-        if self.modes.streaming_hold or (self.modes.steering and self._hold is not Response.STEER):
-            target = self._hold_target or self._current_hold()
+        hold = self.failsafe
+        if self.modes.streaming_hold or (self.modes.steering and hold.hold is not Response.STEER):
+            target = hold.hold_target or hold.current_hold(self._hold_view())
         elif (
             self.modes.steering and not self.failsafe.status.health.ok and self.modes.must_stream()
         ):
-            target = self._current_hold()
+            target = hold.current_hold(self._hold_view())
         elif self.modes.steering and (self.failsafe.status.health.ok or self.policy.last is None):
             target = self.policy.last
             if target is None and self.modes.must_stream():
-                target = self._current_hold()
+                target = hold.current_hold(self._hold_view())
         else:
             return
         if target is not None:

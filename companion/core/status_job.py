@@ -58,7 +58,7 @@ class StatusJob:
                 link_lost_before=self.counters.link_losses > 0,
                 may_steer=self._may_steer(self._now_s),
                 phase=self.modes.phase,
-                hold=self._hold,
+                hold=self.failsafe.hold,
                 steering=self.modes.steering,
                 health_ok=self.failsafe.status.health.ok,
                 frame_processed=self._newest_frame_ns is not None,
