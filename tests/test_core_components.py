@@ -12,11 +12,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.clock_model import FrameClock, SyncSample
 from companion.config import CompanionConfig, FailsafeConfig, LinkConfig
 from companion.core.counters import CoreCounters
-from companion.core.events import Event, SendMavlink
+from companion.core.events import Event, SendMavlink, SendSetpoint
 from companion.core.failsafe_job import FailsafeJob, HoldView
 from companion.core.modes_job import ModesJob, PhaseChange
 from companion.core.outbox import Outbox
 from companion.core.param_job import WPNAV_SPEED, ParamJob
+from companion.core.setpoint_job import SetpointJob
 from companion.core.status_job import StateView, companion_state
 from companion.core.streams_job import STREAMS, StreamsJob
 from companion.core.telemetry_job import H_ACC_MAX_AGE_S, Restarted, TelemetryJob
@@ -24,6 +25,7 @@ from companion.failsafe import Response
 from companion.link.flavour import Flavour
 from companion.link.messages import CompanionState
 from companion.link.mode_watch import ControlPhase
+from companion.link.setpoints import PositionTarget
 from companion.pipeline import PoseAtCapture
 
 
@@ -331,3 +333,61 @@ def test_a_hold_target_inside_a_boundary_moves_out_once_and_is_said_once():
     assert counters.hold_targets_moved == 1
     told = [e for e in out.take() if isinstance(e, Event) and e.name == "hold_target_moved"]
     assert len(told) == 1
+
+
+def test_setpoints_are_stamped_kept_alive_per_flavour_and_steering_is_said_once():
+    for flavour, period_s in ((Flavour.ARDUPILOT, 0.5), (Flavour.PX4, 1.0 / 20.0)):
+        out, counters = _outbox(), CoreCounters()
+        job = SetpointJob(LinkConfig(), out, counters)
+        assert not job.due(0.0, must_stream=True)  # no autopilot: no policy
+        job.found(flavour)
+        target = PositionTarget((1.0, 2.0, -7.0), 0.5)
+        job.send(target, 10.0, time_boot_ms=1_234, last_boot_ms=1_240)
+        job.send(target, 10.1, time_boot_ms=1_334, last_boot_ms=1_340)
+        items = out.take()
+        sent = [o for o in items if isinstance(o, SendSetpoint)]
+        assert [o.message.time_boot_ms for o in sent] == [1_234, 1_334]
+        assert all(o.target == target for o in sent) and counters.setpoints_sent == 2
+        (steering,) = [o.fields for o in items if isinstance(o, Event)]
+        assert steering["autopilot_time_s"] == pytest.approx(1.240)  # the first only
+        assert not job.due(10.1 + period_s * 0.99, must_stream=False)
+        assert job.due(10.1 + period_s * 1.01, must_stream=False)
+        job.reset()
+        assert job.policy is None and not job.engaged
+
+
+class _Envelope:
+    speed_limit_mps = 7.3
+    speed_mps = 2.0
+    path_dir_ned = np.array([1.0, 0.0, 0.0])  # level: no climb or descent statement
+    overspeed = True
+
+
+def test_the_stated_speed_is_the_envelopes_below_wpnav_speed_rounded_down():
+    out, counters = _outbox(), CoreCounters()
+    job = SetpointJob(LinkConfig(), out, counters)
+    job.state_speed_limit(_Envelope(), 5.1, 0.0)  # the pilot's own limit is lower
+    speeds = [(m.param1, m.param2) for m in _sent(out)]
+    assert speeds[0] == (1.0, pytest.approx(5.0))  # ground speed, 5.1 → 5.0 (0.25 steps)
+    job.state_speed_limit(_Envelope(), 9.0, 0.25)  # a raise is paced (0.5 s)
+    assert [m.param1 for m in _sent(out)] == []
+    job.state_speed_limit(_Envelope(), 9.0, 0.5 + job.speed_policy.raise_period_s)
+    assert [(m.param1, m.param2) for m in _sent(out)] == [(1.0, 7.25)]  # 7.3 → 7.25
+    job.found(Flavour.ARDUPILOT)
+    job.engaging()  # into GUIDED: ArduCopter forgot it; said again at once
+    job.state_speed_limit(_Envelope(), 9.0, 0.6 + job.speed_policy.raise_period_s)
+    assert [(m.param1, m.param2) for m in _sent(out)] == [(1.0, 7.25)]
+    job.on_speed_ack(True, 0)
+    job.on_speed_ack(False, 4)
+    job.on_speed_ack(False, 4)
+    assert (counters.speed_limits_accepted, counters.speed_limits_refused) == (1, 2)
+
+
+def test_overspeed_is_counted_every_frame_and_said_every_5_s():
+    out, counters = _outbox(), CoreCounters()
+    job = SetpointJob(LinkConfig(), out, counters)
+    for tenth in range(0, 120):  # 12 s of frames at 10 Hz, all over the limit
+        job.check_overspeed(_Envelope(), tenth / 10.0)
+    said = [m for m in _sent(out) if m.get_type() == "STATUSTEXT"]
+    assert counters.overspeed_frames == 120 and len(said) == 3  # at 0, 5 and 10 s
+    assert said[0].text.startswith("Speed 2.0 m/s above limit 7.3 m/s")

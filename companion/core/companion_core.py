@@ -30,11 +30,11 @@ composes (each owns its state, takes typed inputs, returns typed decisions):
 * :mod:`~companion.core.param_job` (the autopilot's WPNAV_SPEED)
 * :mod:`~companion.core.modes_job` (modes and takeover; a ``PhaseChange`` out)
 * :mod:`~companion.core.failsafe_job` (holds and their targets; the hold to start or end out)
+* :mod:`~companion.core.setpoint_job` (setpoints and speed)
 * :mod:`~companion.core.takeoff_job` (``--takeoff-alt``; an ``Engage`` out)
 
 Still mixins of :class:`CompanionCore` (they share its attributes):
 
-* :mod:`~companion.core.setpoint_job` (setpoints and speed)
 * :mod:`~companion.core.link_job` (link and heartbeats)
 * :mod:`~companion.core.frame_job` (frame step and latency budget)
 * :mod:`~companion.core.status_job` (state, figures, progress line)
@@ -67,9 +67,9 @@ from companion.core.takeoff_job import Engage, TakeoffJob
 from companion.core.telemetry_job import TelemetryJob
 from companion.failsafe import Response
 from companion.guidance.latency import DataAgeWindow
+from companion.link.flavour import profile_for
 from companion.link.mode_watch import ControlPhase
-from companion.link.setpoints import SetpointPolicy
-from companion.link.speed_limit import SpeedLimitPolicy
+from companion.link.setpoints import PositionTarget
 from companion.link.takeoff import TakeoffSequence
 from companion.pose_history import PoseHistory
 from companion.proximity.sender import ProximitySender
@@ -81,7 +81,6 @@ __all__ = ["STREAMS", "CompanionCore"]
 class CompanionCore(
     LinkJob,
     FrameJob,
-    SetpointJob,
     ProximityJob,
     StatusJob,
 ):
@@ -132,8 +131,7 @@ class CompanionCore(
         # takeoff: a component of its own (its state, typed decisions out)
         self.takeoff_job = TakeoffJob(link, self.out)
         # setpoints and speed
-        self.speed_policy = SpeedLimitPolicy()
-        self._overspeed_notice_s = -math.inf
+        self.setpoints = SetpointJob(link, self.out, self.counters)  # a component
         # OBSTACLE_DISTANCE from start-up, whatever the link, mode or phase
         self.proximity = ProximitySender(config.proximity) if config.proximity.enabled else None
         self._reset_vehicle_state()
@@ -147,7 +145,7 @@ class CompanionCore(
     @property
     def autopilot_seen(self) -> bool:
         """An autopilot heartbeat arrived since the (re)connection."""
-        return self.policy is not None
+        return self.setpoints.policy is not None
 
     @property
     def flying(self) -> bool:
@@ -217,8 +215,7 @@ class CompanionCore(
         # modes
         self.modes.reset()
         # setpoints and speed
-        self.policy: SetpointPolicy | None = None
-        self._engaged = False  # a guidance setpoint was sent since the last reset
+        self.setpoints.reset()
         self.params.reset()  # the autopilot's WPNAV_SPEED, asked for again
         # failsafe
         self.failsafe.reset()
@@ -257,7 +254,8 @@ class CompanionCore(
         self.streams.timers(now_s, self._now_ns)
         self._engage(self.takeoff_job.tick(now_s), now_s)
         self._after_phase_change(self.modes.tick(now_s), now_s)
-        self._setpoint_timer(now_s)
+        if self.setpoints.due(now_s, self.modes.must_stream()):  # keep-alive or stream
+            self._resend_now(now_s)
 
     def _engage(self, engage: Engage | None, now_s: float) -> None:
         """The takeoff is over: the mode watch takes the heartbeat it held (at once)."""
@@ -268,9 +266,8 @@ class CompanionCore(
 
     def _after_phase_change(self, change: PhaseChange | None, now_s: float) -> None:
         """Engaging the control mode: the first setpoint goes out at once."""
-        if change is not None and change.engaging and self.policy is not None:
-            self.policy.reset()
-            self.speed_policy.reset()  # ArduCopter resets its speed on entering GUIDED
+        if change is not None and change.engaging and self.setpoints.policy is not None:
+            self.setpoints.engaging()
             self._resend_now(now_s)
 
     def _check_failsafe(self, now_s: float) -> None:
@@ -282,14 +279,15 @@ class CompanionCore(
             self._newest_frame_ns,
             self.poses.newest_ns,
             autopilot_known=self.modes.flavour is not None,
-            engaged=self._engaged,
+            engaged=self.setpoints.engaged,
         )
         if response is None:
             return
         before = self.modes.phase
         if response is Response.STEER:  # guidance's setpoints again (the control mode)
-            if self.failsafe.end_hold() and self.policy is not None:
-                self.policy.reset()  # the next guidance setpoint goes out at once
+            policy = self.setpoints.policy
+            if self.failsafe.end_hold() and policy is not None:
+                policy.reset()  # the next guidance setpoint goes out at once
             request = self.modes.set_hold(now_s, False)
             if request is not None:
                 self.modes.request(request)
@@ -318,7 +316,11 @@ class CompanionCore(
         target = self.failsafe.recheck_target(pos_ned_m, self._hold_view())
         if target is None:
             return
-        if self.modes.steering and self.policy is not None and self._may_steer(self._now_s):
+        if (
+            self.modes.steering
+            and self.setpoints.policy is not None
+            and self._may_steer(self._now_s)
+        ):
             self._send_target(target, self._now_s, None)
 
     def _steering(self, now_s: float) -> bool:
@@ -327,9 +329,52 @@ class CompanionCore(
         return (
             self.modes.steering
             and self.failsafe.status.health.ok
-            and self.policy is not None
+            and self.setpoints.policy is not None
             and self._may_steer(now_s)
         )
+
+    # ---- setpoints: which target when (the setpoint job carries it out) ------------
+    def _send_target(self, target: PositionTarget, now_s: float, frame_ns: int | None) -> None:
+        """``target`` stamped with the frame's time on the autopilot clock (else the
+        newest autopilot time)."""
+        ap_ns = None if frame_ns is None else self.clock.frame_to_autopilot_ns(frame_ns)
+        last_boot_ms = self.telemetry.last_boot_ms
+        if ap_ns is None:
+            ap_ns = (last_boot_ms or 0) * 1_000_000
+        self.setpoints.send(target, now_s, ap_ns // 1_000_000, last_boot_ms)
+
+    def _resend_now(self, now_s: float) -> None:
+        """Keep-alive / PX4 stream / hold: (re)send the appropriate target."""
+        policy, modes, hold = self.setpoints.policy, self.modes, self.failsafe
+        if policy is None or not self._may_steer(now_s):
+            return
+        healthy = hold.status.health.ok
+        if modes.streaming_hold or (modes.steering and hold.hold is not Response.STEER):
+            target = hold.hold_target or hold.current_hold(self._hold_view())
+        elif modes.steering and not healthy and modes.must_stream():
+            target = hold.current_hold(self._hold_view())
+        elif modes.steering and (healthy or policy.last is None):
+            target = policy.last
+            if target is None and modes.must_stream():
+                target = hold.current_hold(self._hold_view())
+        else:
+            return
+        if target is not None:
+            self._send_target(target, now_s, None)
+
+    def _state_speed_limit(self, envelope, now_s: float) -> None:
+        """ArduPilot: the envelope's speed limit below the autopilot's WPNAV_SPEED, asked
+        for first (:class:`~companion.core.param_job.ParamJob`): never state a speed before
+        the pilot's own limit is known, the carrot bounds the speed meanwhile; other
+        autopilots: the carrot alone."""
+        flavour = self.modes.flavour
+        if flavour is None or not profile_for(flavour).states_speed_limit:
+            return
+        wpnav_speed_mps = self.params.wpnav_speed_mps
+        if wpnav_speed_mps is None:
+            self.params.request_if_due(now_s)
+        else:
+            self.setpoints.state_speed_limit(envelope, wpnav_speed_mps, now_s)
 
     def _may_steer(self, now_s: float) -> bool:
         """Alone on the link, and it was heard long enough to know (wall seconds)."""

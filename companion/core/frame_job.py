@@ -57,12 +57,13 @@ class FrameJob:
         sent = False
         target = PositionTarget(tuple(float(x) for x in out.setpoint_ned_m), float(out.yaw_rad))
         if self._steering(self._now_s):
-            assert self.policy is not None
-            if self.policy.on_new_target(target, self._now_s):
+            policy = self.setpoints.policy
+            assert policy is not None
+            if policy.on_new_target(target, self._now_s):
                 self._send_target(target, self._now_s, frame.capture_ns)
                 sent = True
             self._state_speed_limit(out.envelope, self._now_s)
-        self._check_overspeed(out)
+        self.setpoints.check_overspeed(out.envelope, self._now_s)
         self._tell_uncovered(out.widening)
         self.counters.targets_kept_out += out.target_kept_out is not None
         for notice in result.notices:

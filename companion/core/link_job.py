@@ -16,7 +16,6 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.core.telemetry_job import MAX_POS_M, Restarted, in_range
 from companion.link.flavour import control_mode, detect_flavour, is_autopilot_heartbeat
 from companion.link.messages import heartbeat_message, mav_state
-from companion.link.setpoints import SetpointPolicy
 from companion.takeover import SETPOINT_MESSAGES
 
 _log = logging.getLogger("companion")
@@ -107,7 +106,7 @@ class LinkJob:
         if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             self.streams.on_stream_ack(accepted)
         elif msg.command == mavlink.MAV_CMD_DO_CHANGE_SPEED:
-            self._on_speed_ack(accepted, msg.result)
+            self.setpoints.on_speed_ack(accepted, msg.result)
         elif msg.command == mavlink.MAV_CMD_DO_SET_MODE:
             result = mavlink.enums["MAV_RESULT"].get(msg.result)
             text = result.name if result else str(msg.result)
@@ -139,13 +138,9 @@ class LinkJob:
 
     def _on_heartbeat(self, msg, now_s: float) -> None:
         flavour = detect_flavour(msg.autopilot)
-        if self.policy is None:  # first heartbeat since the (re)start
+        if self.setpoints.policy is None:  # first heartbeat since the (re)start
             cfg = self.config.link
-            self.policy = SetpointPolicy(
-                flavour,
-                ardupilot_period_s=cfg.ardupilot_setpoint_period_s,
-                px4_rate_hz=cfg.px4_setpoint_rate_hz,
-            )
+            self.setpoints.found(flavour)
             self.out.event("autopilot", flavour=flavour.value, mode=msg.custom_mode)
             _log.info(
                 "autopilot found: %s (system %d), control mode %s",

@@ -67,10 +67,11 @@ class StatusJob:
 
     def stats(self) -> dict[str, Any]:
         """Counters and state for the exit statistics."""
+        policy = self.setpoints.policy  # made from the autopilot's first heartbeat
         return {
             **self.counters.as_dict(),
             "phase": self.modes.phase.value,
-            "flavour": None if self.policy is None else self.policy.flavour.value,
+            "flavour": None if policy is None else policy.flavour.value,
             "clock_rate": round(self.clock.autopilot.rate, 3),
             "waypoint": self.mission.waypoint,
             "takeoff": None if self.takeoff is None else self.takeoff.step.value,
