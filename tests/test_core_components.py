@@ -14,6 +14,7 @@ from companion.config import CompanionConfig, FailsafeConfig, LinkConfig
 from companion.core.counters import CoreCounters
 from companion.core.events import Event, SendMavlink, SendSetpoint
 from companion.core.failsafe_job import FailsafeJob, HoldView
+from companion.core.link_job import LISTEN_BEFORE_STEERING_S, LinkJob
 from companion.core.modes_job import ModesJob, PhaseChange
 from companion.core.outbox import Outbox
 from companion.core.param_job import WPNAV_SPEED, ParamJob
@@ -391,3 +392,54 @@ def test_overspeed_is_counted_every_frame_and_said_every_5_s():
     said = [m for m in _sent(out) if m.get_type() == "STATUSTEXT"]
     assert counters.overspeed_frames == 120 and len(said) == 3  # at 0, 5 and 10 s
     assert said[0].text.startswith("Speed 2.0 m/s above limit 7.3 m/s")
+
+
+def test_the_link_comes_up_listens_first_and_is_lost_after_the_timeout():
+    out, counters = _outbox(), CoreCounters()
+    failsafe = FailsafeConfig()
+    link = LinkJob(LinkConfig(), failsafe, 0xABCD, out, counters)
+    assert not link.up and link.listen_until_s == math.inf  # never steer before a link
+    assert link.alive(10.0) and not link.alive(10.2)  # up once
+    assert link.listen_until_s == pytest.approx(10.0 + LISTEN_BEFORE_STEERING_S)
+    assert [e.name for e in _events(out)] == ["link_up"]
+    silent_until = 10.2 + failsafe.link_timeout_s
+    assert not link.check_lost(silent_until)  # exactly the timeout: still up
+    assert link.check_lost(silent_until + 0.01) and not link.up
+    assert not link.check_lost(silent_until + 1.0)  # lost once
+    assert counters.link_losses == 1
+    (lost,) = _events(out)
+    assert lost.fields["silent_s"] == pytest.approx(failsafe.link_timeout_s + 0.01)
+
+
+def test_our_heartbeat_goes_once_per_period_with_the_state_and_our_id():
+    out = _outbox()
+    link = LinkJob(LinkConfig(), FailsafeConfig(), 0xABCD, out, CoreCounters())
+    period_s = LinkConfig().heartbeat_period_s
+    sent_at = []
+    for tenth in range(0, 35):
+        now_s = tenth / 10.0
+        if link.heartbeat_due(now_s):
+            link.send_heartbeat(CompanionState.STANDBY, now_s)
+            (hb,) = _sent(out)
+            assert hb.custom_mode == 0xABCD
+            sent_at.append(now_s)
+    assert sent_at == pytest.approx([0.0, period_s, 2 * period_s, 3 * period_s])
+
+
+def test_silence_is_reported_after_3_s_then_every_5_s_and_handler_errors_once_per_kind(
+    caplog,
+):
+    out, counters = _outbox(), CoreCounters()
+    link = LinkJob(LinkConfig(), FailsafeConfig(), 1, out, counters)
+    for tenth in range(0, 150):  # 15 s without the autopilot
+        link.report_silence(tenth / 10.0)
+    said = [e.fields["silent_s"] for e in _events(out) if e.name == "no_autopilot"]
+    assert said == pytest.approx([3.0, 8.0, 13.0])
+    msg = mavlink.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0, 0, 0)
+    caplog.clear()
+    for _ in range(3):
+        link.handler_error(msg, ValueError("bad"))
+    link.handler_error(msg, KeyError("other"))
+    assert counters.handler_errors == 4
+    logged = [r.getMessage() for r in caplog.records if "message dropped" in r.getMessage()]
+    assert len(logged) == 2  # ATTITUDE:ValueError, ATTITUDE:KeyError

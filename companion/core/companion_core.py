@@ -32,10 +32,10 @@ composes (each owns its state, takes typed inputs, returns typed decisions):
 * :mod:`~companion.core.failsafe_job` (holds and their targets; the hold to start or end out)
 * :mod:`~companion.core.setpoint_job` (setpoints and speed)
 * :mod:`~companion.core.takeoff_job` (``--takeoff-alt``; an ``Engage`` out)
+* :mod:`~companion.core.link_job` (link and heartbeats)
 
 Still mixins of :class:`CompanionCore` (they share its attributes):
 
-* :mod:`~companion.core.link_job` (link and heartbeats)
 * :mod:`~companion.core.frame_job` (frame step and latency budget)
 * :mod:`~companion.core.status_job` (state, figures, progress line)
 * :mod:`~companion.core.proximity_job` (OBSTACLE_DISTANCE)
@@ -46,7 +46,9 @@ outputs collect in an :class:`~companion.core.outbox.Outbox`.
 
 from __future__ import annotations
 
-import math
+import logging
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.clock_model import ClockModel
 from companion.config import CompanionConfig
@@ -54,7 +56,7 @@ from companion.core.counters import CoreCounters
 from companion.core.events import FrameReceived, Input, MavlinkReceived, Output, Tick
 from companion.core.failsafe_job import FailsafeJob, HoldView
 from companion.core.frame_job import FrameJob
-from companion.core.link_job import LinkJob
+from companion.core.link_job import LinkJob, statustext
 from companion.core.mission import Mission
 from companion.core.modes_job import ModesJob, PhaseChange
 from companion.core.outbox import Outbox
@@ -64,22 +66,31 @@ from companion.core.setpoint_job import SetpointJob
 from companion.core.status_job import StatusJob
 from companion.core.streams_job import STREAMS, StreamsJob
 from companion.core.takeoff_job import Engage, TakeoffJob
-from companion.core.telemetry_job import TelemetryJob
+from companion.core.telemetry_job import MAX_POS_M, Restarted, TelemetryJob, in_range
 from companion.failsafe import Response
 from companion.guidance.latency import DataAgeWindow
-from companion.link.flavour import profile_for
+from companion.link.flavour import (
+    control_mode,
+    detect_flavour,
+    is_autopilot_heartbeat,
+    profile_for,
+)
+from companion.link.messages import mav_state
 from companion.link.mode_watch import ControlPhase
 from companion.link.setpoints import PositionTarget
 from companion.link.takeoff import TakeoffSequence
 from companion.pose_history import PoseHistory
 from companion.proximity.sender import ProximitySender
-from companion.takeover import TakeoverGuard
+from companion.takeover import SETPOINT_MESSAGES, TakeoverGuard
+
+_log = logging.getLogger("companion")
+
+_IN_CONTROL_STATES = frozenset({mavlink.MAV_STATE_ACTIVE, mavlink.MAV_STATE_CRITICAL})
 
 __all__ = ["STREAMS", "CompanionCore"]
 
 
 class CompanionCore(
-    LinkJob,
     FrameJob,
     ProximityJob,
     StatusJob,
@@ -113,14 +124,7 @@ class CompanionCore(
         self._now_s = 0.0
         link, fs = config.link, config.failsafe
         # link
-        self._signing = link.signing_key is not None
-        self._link_up = False
-        self._last_rx_s = -math.inf
-        self._listen_until_s = math.inf  # no steering before the link was heard a while
-        self._next_heartbeat_s = 0.0
-        self._silent_since_s: float | None = None
-        self._silence_reported_s = -math.inf
-        self._handler_error_kinds: set[str] = set()
+        self.link = LinkJob(link, fs, instance_id, self.out, self.counters)  # a component
         # telemetry (poses, frame clock), streams and TIMESYNC
         self.telemetry = TelemetryJob(link, fs, self.out, self.counters)  # a component
         self.streams = StreamsJob(link, self.out, self.counters)  # a component
@@ -140,7 +144,7 @@ class CompanionCore(
     @property
     def link_up(self) -> bool:
         """An autopilot message arrived within the link timeout."""
-        return self._link_up
+        return self.link.up
 
     @property
     def autopilot_seen(self) -> bool:
@@ -244,12 +248,15 @@ class CompanionCore(
     def _timers(self, now_s: float) -> None:
         """Every timer, in this order: heartbeat, OBSTACLE_DISTANCE, link loss; with the
         link up, TIMESYNC and streams, takeoff, mode requests, setpoint keep-alive."""
-        self._heartbeat_timer(now_s)
+        if self.link.heartbeat_due(now_s):  # and the twin rule re-checked with it
+            self.link.send_heartbeat(self._state(), now_s)
+            self.modes.check_takeover(now_s)
         if self.proximity is not None and self.proximity.due(now_s):
             self._send_proximity_now(now_s)
-        self._link_loss_timer(now_s)
-        if not self._link_up:
-            self._report_silence(now_s)
+        if self.link.check_lost(now_s):
+            self._reset_vehicle_state()
+        if not self.link.up:
+            self.link.report_silence(now_s)
             return
         self.streams.timers(now_s, self._now_ns)
         self._engage(self.takeoff_job.tick(now_s), now_s)
@@ -378,4 +385,114 @@ class CompanionCore(
 
     def _may_steer(self, now_s: float) -> bool:
         """Alone on the link, and it was heard long enough to know (wall seconds)."""
-        return not self.modes.takeover_blocked and now_s >= self._listen_until_s
+        return not self.modes.takeover_blocked and now_s >= self.link.listen_until_s
+
+    # ---- messages: each to the job that reads it -----------------------------------
+    def _receive(self, msg, now_s: float) -> None:
+        try:
+            self._on_message(msg, now_s)
+        except Exception as exc:  # one handler's bug must not stop the companion
+            self.link.handler_error(msg, exc)
+
+    def _on_message(self, msg, now_s: float) -> None:
+        """Our twin's heartbeat, another source's setpoints, the autopilot's messages."""
+        mtype = msg.get_type()
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        cfg = self.config.link
+        if src == (cfg.system_id, cfg.component_id):
+            if mtype == "HEARTBEAT":
+                self.modes.on_twin_heartbeat(
+                    now_s,
+                    msg.custom_mode,
+                    msg.system_status in _IN_CONTROL_STATES,
+                    # the same test as for the twin's heartbeat: a companion in its hold is
+                    # still in control (else both yield and nobody steers)
+                    mav_state(self._state()) in _IN_CONTROL_STATES,
+                )
+            return
+        if mtype in SETPOINT_MESSAGES and getattr(msg, "target_system", 0) == cfg.target_system:
+            self.modes.on_foreign_setpoint(now_s, src)
+            return
+        if msg.get_srcSystem() != cfg.target_system:
+            return
+        from_autopilot = msg.get_srcComponent() == cfg.target_component
+        if mtype == "HEARTBEAT":
+            if from_autopilot and is_autopilot_heartbeat(msg.autopilot, msg.type):
+                self._link_alive(now_s)
+                self._on_heartbeat(msg, now_s)
+            return
+        if from_autopilot:
+            self._link_alive(now_s)
+            self._on_autopilot_message(msg, mtype, now_s)
+
+    def _on_autopilot_message(self, msg, mtype: str, now_s: float) -> None:
+        if self.takeoff_job.busy and not (
+            mtype == "LOCAL_POSITION_NED" and not in_range((msg.z,), MAX_POS_M)
+        ):
+            self._engage(self.takeoff_job.on_message(msg, mtype, now_s), now_s)
+        if mtype == "LOCAL_POSITION_NED":
+            self._restarted(self.telemetry.on_local_position(msg, now_s, self._now_ns), now_s)
+        elif mtype == "ATTITUDE":
+            self._restarted(self.telemetry.on_attitude(msg, now_s), now_s)
+        elif mtype == "GPS_RAW_INT":
+            self.telemetry.on_gps_raw(msg, now_s)
+        elif mtype == "TIMESYNC":
+            sample = self.streams.on_timesync(msg, self._now_ns)
+            if sample is not None:
+                self._restarted(self.telemetry.on_sync_sample(sample), now_s)
+        elif mtype == "COMMAND_ACK":
+            self._on_ack(msg, now_s)
+        elif mtype == "STATUSTEXT":
+            _log.info("autopilot: %s", statustext(msg))
+        elif mtype == "PARAM_VALUE":
+            self.params.on_param_value(msg)
+
+    def _link_alive(self, now_s: float) -> None:
+        if self.link.alive(now_s):  # the link came up: streams and TIMESYNC at once
+            self.streams.link_up(now_s)
+
+    def _on_ack(self, msg, now_s: float) -> None:
+        """COMMAND_ACK to the job whose command it answers."""
+        accepted = msg.result == mavlink.MAV_RESULT_ACCEPTED
+        if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            self.streams.on_stream_ack(accepted)
+        elif msg.command == mavlink.MAV_CMD_DO_CHANGE_SPEED:
+            self.setpoints.on_speed_ack(accepted, msg.result)
+        elif msg.command == mavlink.MAV_CMD_DO_SET_MODE:
+            result = mavlink.enums["MAV_RESULT"].get(msg.result)
+            text = result.name if result else str(msg.result)
+            self._after_phase_change(self.modes.on_mode_ack(accepted, text, now_s), now_s)
+
+    def _on_heartbeat(self, msg, now_s: float) -> None:
+        """The autopilot's heartbeat: found (setpoint policy, takeoff), then the takeoff's
+        while it runs, else the mode watch's."""
+        flavour = detect_flavour(msg.autopilot)
+        if self.setpoints.policy is None:  # first heartbeat since the (re)start
+            self.setpoints.found(flavour)
+            self.out.event("autopilot", flavour=flavour.value, mode=msg.custom_mode)
+            _log.info(
+                "autopilot found: %s (system %d), control mode %s",
+                flavour.value,
+                msg.get_srcSystem(),
+                control_mode(flavour).name,
+            )
+            if self.config.link.takeoff_alt_m > 0:
+                self.takeoff_job.start(flavour, now_s)
+        if self.takeoff_job.busy:
+            armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            engage = self.takeoff_job.on_heartbeat(flavour, msg.custom_mode, armed, now_s)
+            self._engage(engage, now_s)
+            return
+        self._after_phase_change(self.modes.on_heartbeat(flavour, msg.custom_mode, now_s), now_s)
+
+    def _restarted(self, restarted: Restarted | None, now_s: float) -> None:
+        """The telemetry job saw the autopilot restart (and started its new time base):
+        everything else learnt about the vehicle goes, the streams are asked for again."""
+        if restarted is None:
+            return
+        why = restarted.reason
+        self.counters.autopilot_restarts += 1
+        _log.warning("autopilot restarted (%s): starting over", why)
+        self.out.event("autopilot_restart", reason=why)
+        self._reset_vehicle_state(telemetry=False)
+        self.streams.request_streams_now(now_s)

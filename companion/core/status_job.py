@@ -54,7 +54,7 @@ class StatusJob:
     def _state(self) -> CompanionState:
         return companion_state(
             StateView(
-                link_up=self._link_up,
+                link_up=self.link.up,
                 link_lost_before=self.counters.link_losses > 0,
                 may_steer=self._may_steer(self._now_s),
                 phase=self.modes.phase,
