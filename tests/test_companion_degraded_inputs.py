@@ -176,7 +176,7 @@ def test_core_hold_target_moves_out_of_a_boundary_once():
     core = rig.core
     # what the map would give after a drift: the vehicle 0.4 m inside a boundary (blank
     # frames see nothing, so the boundary is put where a frame step would put it)
-    core._boundaries = (Ball(),)
+    core.frames.boundaries = (Ball(),)
     core.out.begin(core._now_s)
     core._recheck_hold_target(np.array(rig.pos_ned_m))
     moved = core.failsafe.hold_target.pos_ned_m

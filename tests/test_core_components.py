@@ -14,6 +14,7 @@ from companion.config import CompanionConfig, FailsafeConfig, LinkConfig
 from companion.core.counters import CoreCounters
 from companion.core.events import Event, SendMavlink, SendSetpoint
 from companion.core.failsafe_job import FailsafeJob, HoldView
+from companion.core.frame_job import FrameJob
 from companion.core.link_job import LISTEN_BEFORE_STEERING_S, LinkJob
 from companion.core.modes_job import ModesJob, PhaseChange
 from companion.core.outbox import Outbox
@@ -28,6 +29,7 @@ from companion.link.messages import CompanionState
 from companion.link.mode_watch import ControlPhase
 from companion.link.setpoints import PositionTarget
 from companion.pipeline import PoseAtCapture
+from companion.pose_history import PoseLookup, PoseStatus
 
 
 def _sent(out: Outbox) -> list:
@@ -443,3 +445,53 @@ def test_silence_is_reported_after_3_s_then_every_5_s_and_handler_errors_once_pe
     assert counters.handler_errors == 4
     logged = [r.getMessage() for r in caplog.records if "message dropped" in r.getMessage()]
     assert len(logged) == 2  # ATTITUDE:ValueError, ATTITUDE:KeyError
+
+
+class _Frame:
+    def __init__(self, sequence: int, capture_ns: int) -> None:
+        self.sequence, self.capture_ns = sequence, capture_ns
+
+
+def test_frames_are_admitted_newer_and_with_a_pose_only_each_drop_counted():
+    out, counters = _outbox(), CoreCounters()
+    frames = FrameJob(CompanionConfig(), out, counters)
+    pose = PoseAtCapture(np.zeros(3), np.zeros(3), np.eye(3))
+    ok = PoseLookup(PoseStatus.OK, pose)
+    assert frames.admit(_Frame(0, 100), PoseLookup(PoseStatus.EMPTY)) is False
+    assert frames.admit(_Frame(1, 200), PoseLookup(PoseStatus.TOO_NEW)) is False
+    assert frames.admit(_Frame(2, 300), PoseLookup(PoseStatus.EXTRAPOLATED, pose))
+    assert frames.admit(_Frame(3, 300), ok) is False  # not newer than the last admitted
+    assert frames.admit(_Frame(4, 250), ok) is False
+    assert frames.admit(_Frame(5, 400), ok) and frames.last_capture_ns == 400
+    assert (counters.pose_empty, counters.pose_too_new, counters.pose_extrapolated) == (1, 1, 1)
+    assert counters.frames_stale == 2
+    frames.during_takeoff(350)  # proves the camera works (health), not admitted
+    assert frames.newest_frame_ns == 350 and frames.last_capture_ns == 400
+    assert counters.frames_during_takeoff == 1
+
+
+def test_a_commands_data_age_is_its_age_at_the_step_plus_the_compute_time_on_the_frame_clock():
+    out, counters = _outbox(), CoreCounters()
+    frames = FrameJob(CompanionConfig(), out, counters)
+
+    class _Envelope:
+        speed_limit_mps = 3.25
+
+    class _Output:
+        envelope = _Envelope()
+        boundaries = ("b",)
+
+    class _Result:
+        output = _Output()
+
+    frames.processed(5 * _S, _Result(), 0.12, now_ns=100 * _S)
+    assert (frames.newest_frame_ns, frames.speed_limit_mps, frames.boundaries) == (
+        5 * _S,
+        3.25,
+        ("b",),
+    )
+    assert counters.frames_processed == 1
+    frames.measure_data_age(100 * _S + 30_000_000, frame_clock_rate=4.0)  # 30 ms host at 4x
+    frames.measure_data_age(101 * _S, frame_clock_rate=4.0)  # taken once
+    stats = frames.data_age.stats()
+    assert stats.samples == 1 and stats.p50_s == pytest.approx(0.12 + 0.030 * 4.0)

@@ -33,10 +33,10 @@ composes (each owns its state, takes typed inputs, returns typed decisions):
 * :mod:`~companion.core.setpoint_job` (setpoints and speed)
 * :mod:`~companion.core.takeoff_job` (``--takeoff-alt``; an ``Engage`` out)
 * :mod:`~companion.core.link_job` (link and heartbeats)
+* :mod:`~companion.core.frame_job` (frame step and latency budget)
 
 Still mixins of :class:`CompanionCore` (they share its attributes):
 
-* :mod:`~companion.core.frame_job` (frame step and latency budget)
 * :mod:`~companion.core.status_job` (state, figures, progress line)
 * :mod:`~companion.core.proximity_job` (OBSTACLE_DISTANCE)
 
@@ -46,14 +46,23 @@ outputs collect in an :class:`~companion.core.outbox.Outbox`.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.clock_model import ClockModel
+from companion.clock_model import ClockModel, FrameClock
 from companion.config import CompanionConfig
 from companion.core.counters import CoreCounters
-from companion.core.events import FrameReceived, Input, MavlinkReceived, Output, Tick
+from companion.core.events import (
+    FrameProcessed,
+    FrameReceived,
+    Input,
+    MavlinkReceived,
+    Output,
+    Status,
+    Tick,
+)
 from companion.core.failsafe_job import FailsafeJob, HoldView
 from companion.core.frame_job import FrameJob
 from companion.core.link_job import LinkJob, statustext
@@ -68,7 +77,6 @@ from companion.core.streams_job import STREAMS, StreamsJob
 from companion.core.takeoff_job import Engage, TakeoffJob
 from companion.core.telemetry_job import MAX_POS_M, Restarted, TelemetryJob, in_range
 from companion.failsafe import Response
-from companion.guidance.latency import DataAgeWindow
 from companion.link.flavour import (
     control_mode,
     detect_flavour,
@@ -79,9 +87,10 @@ from companion.link.messages import mav_state
 from companion.link.mode_watch import ControlPhase
 from companion.link.setpoints import PositionTarget
 from companion.link.takeoff import TakeoffSequence
-from companion.pose_history import PoseHistory
+from companion.pose_history import PoseHistory, PoseLookup
 from companion.proximity.sender import ProximitySender
 from companion.takeover import SETPOINT_MESSAGES, TakeoverGuard
+from protocols.stereo_frame import StereoFrame
 
 _log = logging.getLogger("companion")
 
@@ -91,7 +100,6 @@ __all__ = ["STREAMS", "CompanionCore"]
 
 
 class CompanionCore(
-    FrameJob,
     ProximityJob,
     StatusJob,
 ):
@@ -127,6 +135,7 @@ class CompanionCore(
         self.link = LinkJob(link, fs, instance_id, self.out, self.counters)  # a component
         # telemetry (poses, frame clock), streams and TIMESYNC
         self.telemetry = TelemetryJob(link, fs, self.out, self.counters)  # a component
+        self.frames = FrameJob(config, self.out, self.counters)  # a component
         self.streams = StreamsJob(link, self.out, self.counters)  # a component
         self.params = ParamJob(link, self.out)  # a component: WPNAV_SPEED
         # modes and takeover
@@ -155,6 +164,15 @@ class CompanionCore(
     def flying(self) -> bool:
         """The companion steers or holds the vehicle (frames are needed)."""
         return self.modes.phase in (ControlPhase.ACTIVE, ControlPhase.HOLD)
+
+    @property
+    def mission(self) -> Mission:
+        """Waypoints around the avoidance pipeline (the frame job's; new at a reset)."""
+        return self.frames.mission
+
+    def frame_time_plausible(self, capture_ns: int, now_ns: int) -> bool | None:
+        """Capture time within the window around the clock model's now (any thread)."""
+        return self.telemetry.frame_time_plausible(capture_ns, now_ns)
 
     @property
     def clock(self) -> ClockModel:
@@ -190,32 +208,11 @@ class CompanionCore(
     def _reset_vehicle_state(self, *, telemetry: bool = True) -> None:
         """Link lost or autopilot restarted: everything learnt about the vehicle goes
         (``telemetry=False``: the telemetry job saw the restart and started over itself)."""
-        cfg = self.config
-        # frame step
-        self.mission = Mission(
-            cfg.waypoints_ned_m,
-            cfg.goal_tolerance_m,
-            cfg.perception,
-            cfg.guidance,
-            cfg.known_space,
-            cfg.envelope,
-        )
-        self._boundaries: tuple = ()  # the last processed frame's boundaries
-        self._newest_frame_ns: int | None = None  # processed
-        self._last_capture_ns: int | None = None
-        env = cfg.envelope
-        self.data_age = DataAgeWindow(
-            env.latency_s, env.latency_window_s, env.latency_percentile, env.unmeasured_latency_s
-        )
-        # the frame whose command left in the last step: (capture_ns, host ns at the
-        # step's start, its data age then [s]); its age is taken at the next input
-        self._age_pending: tuple[int, int, float] | None = None
-        self._speed_limit_mps: float | None = None  # the envelope's, last processed frame
+        self.frames.reset()
         # telemetry, TIMESYNC, streams
         if telemetry:
             self.telemetry.reset()
         self.streams.reset()
-        self._uncovered_told = False  # the margins' widening notice
         # modes
         self.modes.reset()
         # setpoints and speed
@@ -232,7 +229,7 @@ class CompanionCore(
         self._now_ns = event.now_ns
         self._now_s = event.now_ns * 1e-9
         self.out.begin(self._now_s)
-        self._measure_data_age()
+        self.frames.measure_data_age(self._now_ns, self.telemetry.frame_clock_rate())
         if isinstance(event, Tick):
             self._timers(self._now_s)
             self._check_failsafe(self._now_s)
@@ -283,7 +280,7 @@ class CompanionCore(
         now_frame = self.telemetry.now_frame_ns(self._now_ns)
         response = self.failsafe.update(
             now_frame,
-            self._newest_frame_ns,
+            self.frames.newest_frame_ns,
             self.poses.newest_ns,
             autopilot_known=self.modes.flavour is not None,
             engaged=self.setpoints.engaged,
@@ -304,7 +301,7 @@ class CompanionCore(
             if response is Response.HOLD_MODE:
                 request = self.modes.set_hold(now_s, True)
             what = request.name if request is not None else "hold position"
-            self.failsafe.report_hold(what, now_frame, self._newest_frame_ns)
+            self.failsafe.report_hold(what, now_frame, self.frames.newest_frame_ns)
             if request is not None:
                 self.modes.request(request)
             else:
@@ -315,7 +312,7 @@ class CompanionCore(
         """The newest pose, the last frame's boundaries and the latency budget."""
         newest = self.poses.newest_ns
         pose = None if newest is None else self.poses.at(newest).pose
-        return HoldView(pose, self._boundaries, self.data_age.budget_s())
+        return HoldView(pose, self.frames.boundaries, self.frames.data_age.budget_s())
 
     def _recheck_hold_target(self, pos_ned_m) -> None:
         """A processed frame in a position hold: the target moved out of a boundary the
@@ -496,3 +493,69 @@ class CompanionCore(
         self.out.event("autopilot_restart", reason=why)
         self._reset_vehicle_state(telemetry=False)
         self.streams.request_streams_now(now_s)
+
+    # ---- frames ----------------------------------------------------------------------
+    def _on_frame(self, frame: StereoFrame, recv_ns: int) -> None:
+        """A frame: admitted with its pose, the mission stepped, its setpoint (when the
+        companion steers), speed limit, reports, OBSTACLE_DISTANCE and status."""
+        lookup = self._admit(frame)
+        if lookup is None:
+            return
+        assert lookup.pose is not None
+        pose = dataclasses.replace(lookup.pose, h_acc_m=self.telemetry.stated_h_acc_m(self._now_s))
+        # Whether the vehicle flies what this frame yields (not in our failsafe hold, a
+        # pilot's mode or beside another source): time it does not, guidance does not
+        # count as its own lack of progress.
+        now_frame = self.telemetry.now_frame_ns(self._now_ns)
+        age_s = None if now_frame is None else (now_frame - frame.capture_ns) * 1e-9
+        result = self.frames.step(frame, pose, self._steering(self._now_s), age_s)
+        if result is None:
+            return
+        out = result.output
+        self.frames.processed(frame.capture_ns, result, age_s, self._now_ns)
+        self._recheck_hold_target(pose.pos_ned_m)
+        self._check_failsafe(self._now_s)
+        sent = False
+        target = PositionTarget(tuple(float(x) for x in out.setpoint_ned_m), float(out.yaw_rad))
+        if self._steering(self._now_s):
+            policy = self.setpoints.policy
+            assert policy is not None
+            if policy.on_new_target(target, self._now_s):
+                self._send_target(target, self._now_s, frame.capture_ns)
+                sent = True
+            self._state_speed_limit(out.envelope, self._now_s)
+        self.setpoints.check_overspeed(out.envelope, self._now_s)
+        self.frames.report(result)
+        self._send_proximity_frame(frame.capture_ns, pose)
+        host_capture = frame.capture_ns if self.clock.frame_clock is FrameClock.HOST else None
+        document = self._frame_status(result, lookup.status, pose, sent)
+        self.out.append(Status(document, recv_ns, self._now_ns, host_capture))
+        if self.report_pipeline:  # a viewer is attached (companion.viz)
+            pipeline = self.mission.pipeline
+            self.out.append(
+                FrameProcessed(frame, pose, result, pipeline.goal_ned_m, pipeline.known_space, sent)
+            )
+
+    def _admit(self, frame: StereoFrame) -> PoseLookup | None:
+        """The pose lookup at the frame's capture time, or None: the frame is dropped
+        (implausible time, during a takeoff, not newer than the last, no usable pose)."""
+        if self.telemetry.frame_time_plausible(frame.capture_ns, self._now_ns) is False:
+            # frames never move the clock nor reset the mission: only telemetry may
+            self.counters.frames_implausible_time += 1
+            self.out.dropped(
+                "frames_implausible_time",
+                self.counters.frames_implausible_time,
+                "frame",
+                (frame.sequence, frame.capture_ns),
+            )
+            return None
+        if self.takeoff_job.busy:  # not steered on: it proves the camera works
+            self.telemetry.observe(frame.capture_ns)
+            self.frames.during_takeoff(frame.capture_ns)
+            self._engage(self.takeoff_job.on_frame(self._now_s), self._now_s)
+            return None
+        lookup = self.poses.at(frame.capture_ns)
+        if not self.frames.admit(frame, lookup):
+            return None
+        self.telemetry.observe(frame.capture_ns)
+        return lookup

@@ -40,7 +40,8 @@ class ProximityJob:
         pos, yaw = self._proximity_pose()
         sectors = self.proximity.on_timer(self.mission.pipeline.known_space, pos, yaw, now_s)
         newest = self.poses.newest_ns
-        stamp_ns = self._last_capture_ns if self._last_capture_ns is not None else newest
+        last_capture_ns = self.frames.last_capture_ns
+        stamp_ns = last_capture_ns if last_capture_ns is not None else newest
         self.out.send(obstacle_distance_message(max(stamp_ns or 0, 0) // 1000, sectors))
 
     def _proximity_pose(self):

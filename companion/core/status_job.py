@@ -61,7 +61,7 @@ class StatusJob:
                 hold=self.failsafe.hold,
                 steering=self.modes.steering,
                 health_ok=self.failsafe.status.health.ok,
-                frame_processed=self._newest_frame_ns is not None,
+                frame_processed=self.frames.newest_frame_ns is not None,
             )
         )
 
@@ -73,7 +73,7 @@ class StatusJob:
             "phase": self.modes.phase.value,
             "flavour": None if policy is None else policy.flavour.value,
             "clock_rate": round(self.clock.autopilot.rate, 3),
-            "waypoint": self.mission.waypoint,
+            "waypoint": self.frames.mission.waypoint,
             "takeoff": None if self.takeoff is None else self.takeoff.step.value,
             "obstacle_distance_sent": None if self.proximity is None else self.proximity.sent,
             "obstacle_distance_late": None if self.proximity is None else self.proximity.late,
@@ -149,7 +149,7 @@ class StatusJob:
 
     def _pipeline_figures(self, latency_s: float | None = None) -> dict[str, Any]:
         """Processing rate, data age p50/p99, latency budget and speed limit (status)."""
-        stats = self.data_age.stats()
+        stats = self.frames.data_age.stats()
 
         def ms(value: float | None) -> float | None:
             return None if value is None else round(value * 1e3, 1)
@@ -159,11 +159,11 @@ class StatusJob:
             "data_age_p50_ms": ms(stats.p50_s),
             "data_age_p99_ms": ms(stats.p99_s),
             "latency_budget_s": round(
-                self.data_age.budget_s() if latency_s is None else latency_s, 4
+                self.frames.data_age.budget_s() if latency_s is None else latency_s, 4
             ),
             "speed_limit_mps": None
-            if self._speed_limit_mps is None
-            else round(self._speed_limit_mps, 3),
-            "ages_rejected": self.data_age.rejected,
-            "ages_clamped": self.data_age.clamped,
+            if self.frames.speed_limit_mps is None
+            else round(self.frames.speed_limit_mps, 3),
+            "ages_rejected": self.frames.data_age.rejected,
+            "ages_clamped": self.frames.data_age.clamped,
         }
