@@ -20,8 +20,9 @@ from companion.core.modes_job import ModesJob, PhaseChange
 from companion.core.outbox import Outbox
 from companion.core.param_job import WPNAV_SPEED, ParamJob
 from companion.core.setpoint_job import SetpointJob
-from companion.core.status_job import StateView, companion_state
+from companion.core.status_job import StateView, StatusJob, companion_state
 from companion.core.streams_job import STREAMS, StreamsJob
+from companion.core.takeoff_job import TakeoffJob
 from companion.core.telemetry_job import H_ACC_MAX_AGE_S, Restarted, TelemetryJob
 from companion.failsafe import Response
 from companion.link.flavour import Flavour
@@ -495,3 +496,41 @@ def test_a_commands_data_age_is_its_age_at_the_step_plus_the_compute_time_on_the
     frames.measure_data_age(101 * _S, frame_clock_rate=4.0)  # taken once
     stats = frames.data_age.stats()
     assert stats.samples == 1 and stats.p50_s == pytest.approx(0.12 + 0.030 * 4.0)
+
+
+def _status(config: CompanionConfig):
+    out, counters = _outbox(), CoreCounters()
+    frames = FrameJob(config, out, counters)
+    status = StatusJob(
+        counters,
+        TelemetryJob(config.link, config.failsafe, out, counters),
+        ModesJob(config.link, 1, out, counters),
+        FailsafeJob(config, out, counters),
+        frames,
+        SetpointJob(config.link, out, counters),
+        TakeoffJob(config.link, out),
+        None,
+    )
+    return status, frames, counters
+
+
+def test_status_reads_the_components_state_and_figures_before_and_after_a_frame():
+    config = CompanionConfig()
+    status, frames, counters = _status(config)
+    assert status.state(link_up=False, may_steer=False) is CompanionState.BOOT
+    counters.link_losses = 1
+    assert status.state(link_up=False, may_steer=False) is CompanionState.LINK_LOST
+    assert status.state(link_up=True, may_steer=False) is CompanionState.STANDBY
+    figures = status.pipeline_figures()
+    assert figures["latency_budget_s"] == pytest.approx(config.envelope.latency_s)
+    assert figures["rate_hz"] is figures["speed_limit_mps"] is figures["data_age_p50_ms"] is None
+    for i in range(11):  # ten commands at 10 Hz, data age 0.2 s each
+        frames.data_age.add(i * _S // 10, 0.2)
+    frames.speed_limit_mps = 2.5
+    figures = status.pipeline_figures()
+    assert figures["rate_hz"] == pytest.approx(10.0)
+    assert figures["data_age_p50_ms"] == pytest.approx(200.0)
+    assert figures["speed_limit_mps"] == 2.5
+    stats = status.stats()
+    assert stats["link_losses"] == 1 and stats["flavour"] is None and stats["takeoff"] is None
+    assert "OBSTACLE_DISTANCE off" in status.progress_text(0.0)

@@ -34,10 +34,10 @@ composes (each owns its state, takes typed inputs, returns typed decisions):
 * :mod:`~companion.core.takeoff_job` (``--takeoff-alt``; an ``Engage`` out)
 * :mod:`~companion.core.link_job` (link and heartbeats)
 * :mod:`~companion.core.frame_job` (frame step and latency budget)
+* :mod:`~companion.core.status_job` (state, figures, progress line)
 
 Still mixins of :class:`CompanionCore` (they share its attributes):
 
-* :mod:`~companion.core.status_job` (state, figures, progress line)
 * :mod:`~companion.core.proximity_job` (OBSTACLE_DISTANCE)
 
 Counters are one typed record (:class:`~companion.core.counters.CoreCounters`);
@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -83,7 +84,7 @@ from companion.link.flavour import (
     is_autopilot_heartbeat,
     profile_for,
 )
-from companion.link.messages import mav_state
+from companion.link.messages import CompanionState, mav_state
 from companion.link.mode_watch import ControlPhase
 from companion.link.setpoints import PositionTarget
 from companion.link.takeoff import TakeoffSequence
@@ -101,7 +102,6 @@ __all__ = ["STREAMS", "CompanionCore"]
 
 class CompanionCore(
     ProximityJob,
-    StatusJob,
 ):
     """Every decision of the companion, stepped by :meth:`step` (no sockets, no clock).
 
@@ -147,9 +147,31 @@ class CompanionCore(
         self.setpoints = SetpointJob(link, self.out, self.counters)  # a component
         # OBSTACLE_DISTANCE from start-up, whatever the link, mode or phase
         self.proximity = ProximitySender(config.proximity) if config.proximity.enabled else None
+        self.status = StatusJob(
+            self.counters,
+            self.telemetry,
+            self.modes,
+            self.failsafe,
+            self.frames,
+            self.setpoints,
+            self.takeoff_job,
+            self.proximity,
+        )  # a component: reads the others
         self._reset_vehicle_state()
 
     # ---- what the adapters read ----------------------------------------------------
+    def stats(self) -> dict[str, Any]:
+        """Counters and state for the exit statistics."""
+        return self.status.stats()
+
+    def progress_text(self) -> str:
+        """One line for the periodic progress log (time, position, phase, mode, health)."""
+        return self.status.progress_text(self._now_s)
+
+    def _state(self) -> CompanionState:
+        """The state in our heartbeat and the status."""
+        return self.status.state(self.link.up, self._may_steer(self._now_s))
+
     @property
     def link_up(self) -> bool:
         """An autopilot message arrived within the link timeout."""
@@ -528,7 +550,9 @@ class CompanionCore(
         self.frames.report(result)
         self._send_proximity_frame(frame.capture_ns, pose)
         host_capture = frame.capture_ns if self.clock.frame_clock is FrameClock.HOST else None
-        document = self._frame_status(result, lookup.status, pose, sent)
+        document = self.status.frame_status(
+            result, lookup.status, pose, sent, self._state(), self._now_s
+        )
         self.out.append(Status(document, recv_ns, self._now_ns, host_capture))
         if self.report_pipeline:  # a viewer is attached (companion.viz)
             pipeline = self.mission.pipeline
