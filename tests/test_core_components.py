@@ -19,6 +19,7 @@ from companion.core.link_job import LISTEN_BEFORE_STEERING_S, LinkJob
 from companion.core.modes_job import ModesJob, PhaseChange
 from companion.core.outbox import Outbox
 from companion.core.param_job import WPNAV_SPEED, ParamJob
+from companion.core.proximity_job import ProximityJob
 from companion.core.setpoint_job import SetpointJob
 from companion.core.status_job import StateView, StatusJob, companion_state
 from companion.core.streams_job import STREAMS, StreamsJob
@@ -31,6 +32,7 @@ from companion.link.mode_watch import ControlPhase
 from companion.link.setpoints import PositionTarget
 from companion.pipeline import PoseAtCapture
 from companion.pose_history import PoseLookup, PoseStatus
+from companion.proximity.sender import POSE_STALE_S, ProximitySender
 
 
 def _sent(out: Outbox) -> list:
@@ -534,3 +536,23 @@ def test_status_reads_the_components_state_and_figures_before_and_after_a_frame(
     stats = status.stats()
     assert stats["link_losses"] == 1 and stats["flavour"] is None and stats["takeoff"] is None
     assert "OBSTACLE_DISTANCE off" in status.progress_text(0.0)
+
+
+def test_obstacle_distance_is_seen_from_the_position_carried_forward_or_not_at_all():
+    out = _outbox()
+    job = ProximityJob(ProximitySender(CompanionConfig().proximity), out)
+    pose = PoseAtCapture(np.array([1.0, 2.0, -7.0]), np.array([2.0, -1.0, 0.0]), np.eye(3))
+    pos, yaw = job.pose_at_send(pose, 0.25)
+    assert pos == pytest.approx([1.5, 1.75, -7.0]) and yaw == pytest.approx(0.0)  # p + v·t
+    assert job.pose_at_send(pose, POSE_STALE_S + 0.01) == (None, None)  # stale: counted
+    assert job.pose_at_send(None, None) == (None, None)  # no telemetry: not counted
+    assert job.sender.stale_pose == 1
+    assert job.due(0.0)
+    job.on_timer(None, (None, None), stamp_ns=5_000_123_456, now_s=0.0)
+    (msg,) = _sent(out)
+    assert msg.get_type() == "OBSTACLE_DISTANCE" and msg.time_usec == 5_000_123
+    assert not job.due(0.01)  # just sent
+    off = ProximityJob(None, out)
+    assert not off.due(100.0)
+    off.on_frame(1, None, (None, None), pose, 100.0)  # turned off: nothing
+    assert _sent(out) == []

@@ -22,26 +22,11 @@ setpoint keep-alive). Per input:
 Outputs are MAVLink messages to send, setpoints, events and status documents, returned in
 order by :meth:`CompanionCore.step`. Log lines go to the ``companion`` logger.
 
-The work is split by job, one module each. Components that :class:`CompanionCore`
-composes (each owns its state, takes typed inputs, returns typed decisions):
-
-* :mod:`~companion.core.telemetry_job` (poses, frame clock, boot time, accuracy; ``Restarted`` out)
-* :mod:`~companion.core.streams_job` (stream requests and TIMESYNC; a ``SyncSample`` out)
-* :mod:`~companion.core.param_job` (the autopilot's WPNAV_SPEED)
-* :mod:`~companion.core.modes_job` (modes and takeover; a ``PhaseChange`` out)
-* :mod:`~companion.core.failsafe_job` (holds and their targets; the hold to start or end out)
-* :mod:`~companion.core.setpoint_job` (setpoints and speed)
-* :mod:`~companion.core.takeoff_job` (``--takeoff-alt``; an ``Engage`` out)
-* :mod:`~companion.core.link_job` (link and heartbeats)
-* :mod:`~companion.core.frame_job` (frame step and latency budget)
-* :mod:`~companion.core.status_job` (state, figures, progress line)
-
-Still mixins of :class:`CompanionCore` (they share its attributes):
-
-* :mod:`~companion.core.proximity_job` (OBSTACLE_DISTANCE)
-
-Counters are one typed record (:class:`~companion.core.counters.CoreCounters`);
-outputs collect in an :class:`~companion.core.outbox.Outbox`.
+The work is split by job, one component each in ``companion/core/*_job.py``: each owns
+its state, takes typed inputs and returns typed decisions, and this class composes them
+and routes each input (see :class:`CompanionCore`). Counters are one typed record
+(:class:`~companion.core.counters.CoreCounters`); outputs collect in an
+:class:`~companion.core.outbox.Outbox`.
 """
 
 from __future__ import annotations
@@ -87,10 +72,9 @@ from companion.link.flavour import (
 from companion.link.messages import CompanionState, mav_state
 from companion.link.mode_watch import ControlPhase
 from companion.link.setpoints import PositionTarget
-from companion.link.takeoff import TakeoffSequence
 from companion.pose_history import PoseHistory, PoseLookup
 from companion.proximity.sender import ProximitySender
-from companion.takeover import SETPOINT_MESSAGES, TakeoverGuard
+from companion.takeover import SETPOINT_MESSAGES
 from protocols.stereo_frame import StereoFrame
 
 _log = logging.getLogger("companion")
@@ -100,14 +84,23 @@ _IN_CONTROL_STATES = frozenset({mavlink.MAV_STATE_ACTIVE, mavlink.MAV_STATE_CRIT
 __all__ = ["STREAMS", "CompanionCore"]
 
 
-class CompanionCore(
-    ProximityJob,
-):
+class CompanionCore:
     """Every decision of the companion, stepped by :meth:`step` (no sockets, no clock).
 
-    The jobs are mixins, one module each (``companion/core/*_job.py``); each class
-    docstring names the state it owns. This class builds that state, resets the
-    per-connection part, and routes each input.
+    Composes the jobs, one component each (each module docstring names what it owns,
+    takes and returns): :mod:`~companion.core.link_job` (link up/lost, our heartbeat),
+    :mod:`~companion.core.telemetry_job` (poses on the frame clock, boot time, stated
+    accuracy; a ``Restarted`` out), :mod:`~companion.core.streams_job` (streams,
+    TIMESYNC; a ``SyncSample`` out), :mod:`~companion.core.param_job` (WPNAV_SPEED),
+    :mod:`~companion.core.modes_job` (modes and takeover; a ``PhaseChange`` out),
+    :mod:`~companion.core.takeoff_job` (an ``Engage`` out),
+    :mod:`~companion.core.frame_job` (the mission, the latency budget; a ``MissionStep``
+    out), :mod:`~companion.core.setpoint_job` (setpoints, speed limit),
+    :mod:`~companion.core.failsafe_job` (holds; the ``Response`` to start or end out),
+    :mod:`~companion.core.proximity_job` (OBSTACLE_DISTANCE) and
+    :mod:`~companion.core.status_job` (state, figures). This class decides what crosses
+    between them (which target to send when, a hold's mode request, a restart's reset)
+    and routes each input.
 
     Parameters
     ----------
@@ -147,6 +140,7 @@ class CompanionCore(
         self.setpoints = SetpointJob(link, self.out, self.counters)  # a component
         # OBSTACLE_DISTANCE from start-up, whatever the link, mode or phase
         self.proximity = ProximitySender(config.proximity) if config.proximity.enabled else None
+        self.proximity_job = ProximityJob(self.proximity, self.out)  # a component
         self.status = StatusJob(
             self.counters,
             self.telemetry,
@@ -212,32 +206,19 @@ class CompanionCore(
         return self.telemetry.frame_clock_rate()
 
     @property
-    def takeover(self) -> TakeoverGuard:
-        """The twin and foreign-source rule (the modes job's)."""
-        return self.modes.takeover
-
-    @property
     def fatal(self) -> str | None:
         """A terminal error (a refused takeoff): the process stops."""
         return self.takeoff_job.fatal
-
-    @property
-    def takeoff(self) -> TakeoffSequence | None:
-        """The ``--takeoff-alt`` sequence since the autopilot was found (None: none)."""
-        return self.takeoff_job.sequence
 
     # ---- per-connection state ------------------------------------------------------
     def _reset_vehicle_state(self, *, telemetry: bool = True) -> None:
         """Link lost or autopilot restarted: everything learnt about the vehicle goes
         (``telemetry=False``: the telemetry job saw the restart and started over itself)."""
         self.frames.reset()
-        # telemetry, TIMESYNC, streams
         if telemetry:
             self.telemetry.reset()
         self.streams.reset()
-        # modes
         self.modes.reset()
-        # setpoints and speed
         self.setpoints.reset()
         self.params.reset()  # the autopilot's WPNAV_SPEED, asked for again
         # failsafe
@@ -270,8 +251,11 @@ class CompanionCore(
         if self.link.heartbeat_due(now_s):  # and the twin rule re-checked with it
             self.link.send_heartbeat(self._state(), now_s)
             self.modes.check_takeover(now_s)
-        if self.proximity is not None and self.proximity.due(now_s):
-            self._send_proximity_now(now_s)
+        if self.proximity_job.due(now_s):  # between frames
+            newest, last_capture_ns = self.poses.newest_ns, self.frames.last_capture_ns
+            stamp_ns = last_capture_ns if last_capture_ns is not None else newest
+            space = self.mission.pipeline.known_space
+            self.proximity_job.on_timer(space, self._proximity_pose(), stamp_ns, now_s)
         if self.link.check_lost(now_s):
             self._reset_vehicle_state()
         if not self.link.up:
@@ -548,7 +532,11 @@ class CompanionCore(
             self._state_speed_limit(out.envelope, self._now_s)
         self.setpoints.check_overspeed(out.envelope, self._now_s)
         self.frames.report(result)
-        self._send_proximity_frame(frame.capture_ns, pose)
+        if self.proximity is not None:
+            fallback = pose if self.telemetry.position_host_ns is None else None
+            space = self.mission.pipeline.known_space
+            pose_now = self._proximity_pose()
+            self.proximity_job.on_frame(frame.capture_ns, space, pose_now, fallback, self._now_s)
         host_capture = frame.capture_ns if self.clock.frame_clock is FrameClock.HOST else None
         document = self.status.frame_status(
             result, lookup.status, pose, sent, self._state(), self._now_s
@@ -583,3 +571,13 @@ class CompanionCore(
             return None
         self.telemetry.observe(frame.capture_ns)
         return lookup
+
+    def _proximity_pose(self):
+        """Where the vehicle is at an OBSTACLE_DISTANCE send: the newest pose carried
+        forward over the host time since its position came, on the frame clock."""
+        newest, host_ns = self.poses.newest_ns, self.telemetry.position_host_ns
+        if newest is None or host_ns is None:
+            return None, None
+        pose = self.poses.at(newest).pose
+        age_s = (self._now_ns - host_ns) * 1e-9 * self.telemetry.frame_clock_rate()
+        return self.proximity_job.pose_at_send(pose, None if pose is None else age_s)
