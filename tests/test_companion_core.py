@@ -324,7 +324,7 @@ def test_core_refuses_to_steer_while_another_source_sends_setpoints():
     rig.run(1.0)
     assert len(rig.setpoints()) == before
     assert rig.core.counters.takeover_refusals == 1
-    rig.run(rig.core.takeover.quiet_s + 1.0)  # quiet again: steering allowed
+    rig.run(rig.core.modes.takeover.quiet_s + 1.0)  # quiet again: steering allowed
     assert rig.events("takeover")[-1]["blocked"] is False
     assert len(rig.setpoints()) > before
 

@@ -176,10 +176,10 @@ def test_core_hold_target_moves_out_of_a_boundary_once():
     core = rig.core
     # what the map would give after a drift: the vehicle 0.4 m inside a boundary (blank
     # frames see nothing, so the boundary is put where a frame step would put it)
-    core._boundaries = (Ball(),)
+    core.frames.boundaries = (Ball(),)
     core.out.begin(core._now_s)
     core._recheck_hold_target(np.array(rig.pos_ned_m))
-    moved = core._hold_target.pos_ned_m
+    moved = core.failsafe.hold_target.pos_ned_m
     assert moved[0] < 0.6 - 1.0  # out of the ball, to the south
     sent = [o for o in core.out.items if type(o).__name__ == "SendSetpoint"]
     assert [o.target.pos_ned_m for o in sent] == [moved]

@@ -1,179 +1,117 @@
-"""Link and heartbeats: every autopilot message enters here, link up / lost / silent.
+"""Link and heartbeats: link up / lost / silent, our heartbeat, handler errors.
 
-A mixin of :class:`~companion.core.CompanionCore` (one job of the core; the state it owns
-is listed in its class docstring). Messages from our own system and component are a twin
-companion's (:mod:`companion.takeover`); setpoints to our autopilot from another source
-block steering; the autopilot's own messages are dispatched to the job that reads them.
-Pure: wall time comes with each input.
+A component of :class:`~companion.core.CompanionCore` that owns its state: whether the
+link is up and when the autopilot was last heard, until when we only listen (another
+companion's heartbeat must have had a chance to arrive, :mod:`companion.takeover`), our
+heartbeat's schedule, the silence report and the kinds of handler errors already logged.
+Typed in: the time of each autopilot message, the companion's state (for our heartbeat)
+and the timer. Out: the heartbeat, the link's events and log lines in the step's
+:class:`~companion.core.outbox.Outbox`, and booleans the core acts on: the link came up
+(streams at once), the link was lost (everything learnt about the vehicle goes). Which
+job reads which message is the core's routing. Pure: wall time comes with each input.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
-
-from companion.core.telemetry_job import MAX_POS_M, in_range
-from companion.link.flavour import control_mode, detect_flavour, is_autopilot_heartbeat
-from companion.link.messages import heartbeat_message, mav_state
-from companion.link.setpoints import SetpointPolicy
-from companion.takeover import SETPOINT_MESSAGES
+from companion.config import FailsafeConfig, LinkConfig
+from companion.core.counters import CoreCounters
+from companion.core.outbox import Outbox
+from companion.link.messages import CompanionState, heartbeat_message
 
 _log = logging.getLogger("companion")
 
-_LISTEN_BEFORE_STEERING_S = 2.5  # > 2 heartbeat periods of another companion [s wall]
-_IN_CONTROL_STATES = frozenset({mavlink.MAV_STATE_ACTIVE, mavlink.MAV_STATE_CRITICAL})
+LISTEN_BEFORE_STEERING_S = 2.5  # > 2 heartbeat periods of another companion [s wall]
+_SILENCE_FIRST_S = 3.0  # no autopilot this long: said [s wall]
+_SILENCE_REPEAT_S = 5.0  # and again every this long [s wall]
 
-__all__ = ["LinkJob", "statustext"]
+__all__ = ["LISTEN_BEFORE_STEERING_S", "LinkJob", "statustext"]
 
 
 class LinkJob:
-    """The link: autopilot messages in, link up and lost, the autopilot found.
+    """The link: up and lost, our heartbeat, the silence report.
 
-    Owns ``_link_up``, ``_last_rx_s``, ``_listen_until_s``, ``_next_heartbeat_s``,
-    ``_silent_since_s``, ``_silence_reported_s``, ``_handler_error_kinds``.
+    Parameters
+    ----------
+    link : LinkConfig
+        The URL, ids, heartbeat period, whether messages are signed.
+    failsafe : FailsafeConfig
+        ``link_timeout_s``: silence before the link is lost [s wall].
+    instance_id : int
+        This companion's 32-bit id, in our heartbeat's ``custom_mode``.
+    out : Outbox
+        Where the heartbeat and the link's events go (the core's, per step).
+    counters : CoreCounters
+        ``link_losses``, ``handler_errors``; ``mavlink_sent`` is read for the report.
     """
 
-    def _receive(self, msg, now_s: float) -> None:
-        target_sys = self.config.link.target_system
-        target_comp = self.config.link.target_component
-        try:
-            self._on_message(msg, now_s, target_sys, target_comp)
-        except Exception as exc:  # one handler's bug must not stop the companion
-            self._handler_error(msg, exc)
+    def __init__(
+        self,
+        link: LinkConfig,
+        failsafe: FailsafeConfig,
+        instance_id: int,
+        out: Outbox,
+        counters: CoreCounters,
+    ) -> None:
+        self._link = link
+        self._timeout_s = failsafe.link_timeout_s
+        self._instance_id = instance_id
+        self._out = out
+        self._counters = counters
+        self._signing = link.signing_key is not None
+        self.up = False
+        self._last_rx_s = -math.inf
+        self.listen_until_s = math.inf  # no steering before the link was heard a while
+        self._next_heartbeat_s = 0.0
+        self._silent_since_s: float | None = None
+        self._silence_reported_s = -math.inf
+        self._handler_error_kinds: set[str] = set()
 
-    def _handler_error(self, msg, exc: Exception) -> None:
-        self.counters.handler_errors += 1
-        kind = f"{msg.get_type()}:{type(exc).__name__}"
-        if kind not in self._handler_error_kinds:
-            self._handler_error_kinds.add(kind)
-            _log.error(
-                "handling %s failed (%s: %s); message dropped", kind, type(exc).__name__, exc
-            )
-
-    def _on_message(self, msg, now_s: float, target_sys: int, target_comp: int) -> None:
-        mtype = msg.get_type()
-        src = (msg.get_srcSystem(), msg.get_srcComponent())
-        cfg = self.config.link
-        if src == (cfg.system_id, cfg.component_id):
-            if mtype == "HEARTBEAT":
-                self.takeover.on_twin_heartbeat(
-                    now_s,
-                    msg.custom_mode,
-                    msg.system_status in _IN_CONTROL_STATES,
-                    # the same test as for the twin's heartbeat: a companion in its hold is
-                    # still in control (else both yield and nobody steers)
-                    mav_state(self._state()) in _IN_CONTROL_STATES,
-                )
-                self._check_takeover(now_s)
-            return
-        if mtype in SETPOINT_MESSAGES and getattr(msg, "target_system", 0) == target_sys:
-            self.takeover.on_foreign_setpoint(now_s, src)
-            self._check_takeover(now_s)
-            return
-        if msg.get_srcSystem() != target_sys:
-            return
-        from_autopilot = msg.get_srcComponent() == target_comp
-        if mtype == "HEARTBEAT":
-            if from_autopilot and is_autopilot_heartbeat(msg.autopilot, msg.type):
-                self._on_link_alive(now_s)
-                self._on_heartbeat(msg, now_s)
-            return
-        if not from_autopilot:
-            return
-        self._on_link_alive(now_s)
-        if self.takeoff_job.busy and not (
-            mtype == "LOCAL_POSITION_NED" and not in_range((msg.z,), MAX_POS_M)
-        ):
-            self._engage(self.takeoff_job.on_message(msg, mtype, now_s), now_s)
-        if mtype == "LOCAL_POSITION_NED":
-            self._on_local_position(msg, now_s)
-        elif mtype == "ATTITUDE":
-            self._on_attitude(msg, now_s)
-        elif mtype == "GPS_RAW_INT":
-            self._on_gps_raw(msg, now_s)
-        elif mtype == "TIMESYNC":
-            self._on_timesync(msg, now_s)
-        elif mtype == "COMMAND_ACK":
-            self._on_ack(msg, now_s)
-        elif mtype == "STATUSTEXT":
-            _log.info("autopilot: %s", statustext(msg))
-        elif mtype == "PARAM_VALUE":
-            self.params.on_param_value(msg)
-
-    def _on_link_alive(self, now_s: float) -> None:
+    def alive(self, now_s: float) -> bool:
+        """An autopilot message at ``now_s``; True: the link just came up."""
         self._last_rx_s = now_s
         self._silent_since_s = None
-        if not self._link_up:
-            self._link_up = True
-            # listen before steering: another companion's heartbeat (1 Hz, forwarded by the
-            # autopilot) must have had a chance to arrive (companion.takeover)
-            self._listen_until_s = now_s + _LISTEN_BEFORE_STEERING_S
-            self.out.event("link_up", url=self.config.link.url)
-            _log.info("autopilot link up on %s", self.config.link.url)
-            self.streams.link_up(now_s)
+        if self.up:
+            return False
+        self.up = True
+        # listen before steering: another companion's heartbeat (1 Hz, forwarded by the
+        # autopilot) must have had a chance to arrive (companion.takeover)
+        self.listen_until_s = now_s + LISTEN_BEFORE_STEERING_S
+        self._out.event("link_up", url=self._link.url)
+        _log.info("autopilot link up on %s", self._link.url)
+        return True
 
-    def _autopilot_restarted(self, now_s: float, why: str) -> None:
-        self.counters.autopilot_restarts += 1
-        _log.warning("autopilot restarted (%s): starting over", why)
-        self.out.event("autopilot_restart", reason=why)
-        self._reset_vehicle_state()
-        self.streams.request_streams_now(now_s)
+    def heartbeat_due(self, now_s: float) -> bool:
+        """Our heartbeat is due (:meth:`send_heartbeat`)."""
+        return now_s >= self._next_heartbeat_s
 
-    def _on_heartbeat(self, msg, now_s: float) -> None:
-        flavour = detect_flavour(msg.autopilot)
-        if self.policy is None:  # first heartbeat since the (re)start
-            cfg = self.config.link
-            self.policy = SetpointPolicy(
-                flavour,
-                ardupilot_period_s=cfg.ardupilot_setpoint_period_s,
-                px4_rate_hz=cfg.px4_setpoint_rate_hz,
-            )
-            self.out.event("autopilot", flavour=flavour.value, mode=msg.custom_mode)
-            _log.info(
-                "autopilot found: %s (system %d), control mode %s",
-                flavour.value,
-                msg.get_srcSystem(),
-                control_mode(flavour).name,
-            )
-            if cfg.takeoff_alt_m > 0:
-                self.takeoff_job.start(flavour, now_s)
-        if self.takeoff_job.busy:
-            armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-            engage = self.takeoff_job.on_heartbeat(flavour, msg.custom_mode, armed, now_s)
-            self._engage(engage, now_s)
-            return
-        self._mode_heartbeat(flavour, msg.custom_mode, now_s)
+    def send_heartbeat(self, state: CompanionState, now_s: float) -> None:
+        """Our heartbeat with the companion's ``state``; the next one a period later."""
+        self._out.send(heartbeat_message(state, self._instance_id))
+        self._next_heartbeat_s = now_s + self._link.heartbeat_period_s
 
-    def _heartbeat_timer(self, now_s: float) -> None:
-        """Our heartbeat when due (and the twin rule re-checked with it)."""
-        if now_s >= self._next_heartbeat_s:
-            self.out.send(heartbeat_message(self._state(), self.instance_id))
-            self._check_takeover(now_s)
-            self._next_heartbeat_s = now_s + self.config.link.heartbeat_period_s
-
-    def _link_loss_timer(self, now_s: float) -> None:
-        """The link is lost after ``link_timeout_s`` of silence [s wall]."""
-        if self._link_up and now_s - self._last_rx_s > self.config.failsafe.link_timeout_s:
-            self._link_lost(now_s)
-
-    def _link_lost(self, now_s: float) -> None:
-        self._link_up = False
-        self.counters.link_losses += 1
+    def check_lost(self, now_s: float) -> bool:
+        """True: the link was up and silent for ``link_timeout_s``, now lost (said)."""
+        if not self.up or now_s - self._last_rx_s <= self._timeout_s:
+            return False
+        self.up = False
+        self._counters.link_losses += 1
         _log.warning(
             "autopilot link lost: nothing for %.1f s (wall); stopped commanding, waiting",
             now_s - self._last_rx_s,
         )
-        self.out.event("link_lost", silent_s=round(now_s - self._last_rx_s, 3))
-        self._reset_vehicle_state()
+        self._out.event("link_lost", silent_s=round(now_s - self._last_rx_s, 3))
+        return True
 
-    def _report_silence(self, now_s: float) -> None:
+    def report_silence(self, now_s: float) -> None:
         """No autopilot: say so every few seconds, with the likely causes."""
         if self._silent_since_s is None:
             self._silent_since_s = now_s
             return
         silent = now_s - self._silent_since_s
-        if silent < 3.0 or now_s - self._silence_reported_s < 5.0:
+        if silent < _SILENCE_FIRST_S or now_s - self._silence_reported_s < _SILENCE_REPEAT_S:
             return
         self._silence_reported_s = now_s
         hint = (
@@ -182,16 +120,27 @@ class LinkJob:
             if self._signing
             else "check the URL and that the autopilot sends to us"
         )
+        cfg = self._link
         _log.error(
             "no message from autopilot %d/%d on %s for %.0f s (%d sent): %s",
-            self.config.link.target_system,
-            self.config.link.target_component,
-            self.config.link.url,
+            cfg.target_system,
+            cfg.target_component,
+            cfg.url,
             silent,
-            self.counters.mavlink_sent,
+            self._counters.mavlink_sent,
             hint,
         )
-        self.out.event("no_autopilot", silent_s=round(silent, 1), signing=self._signing)
+        self._out.event("no_autopilot", silent_s=round(silent, 1), signing=self._signing)
+
+    def handler_error(self, msg, exc: Exception) -> None:
+        """A handler failed on ``msg``: counted, logged once per message type and error."""
+        self._counters.handler_errors += 1
+        kind = f"{msg.get_type()}:{type(exc).__name__}"
+        if kind not in self._handler_error_kinds:
+            self._handler_error_kinds.add(kind)
+            _log.error(
+                "handling %s failed (%s: %s); message dropped", kind, type(exc).__name__, exc
+            )
 
 
 def statustext(msg) -> str:

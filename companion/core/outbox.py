@@ -86,3 +86,7 @@ class Outbox:
         if self._now_s - self._drop_log_s.get(key, -math.inf) >= _DROP_LOG_PERIOD_S:
             self._drop_log_s[key] = self._now_s
             _log.warning(fmt, *args)
+
+    def dropped(self, kind: str, count: int, what: str, values: Any) -> None:
+        """An input of ``kind`` dropped (``count`` so far): one warning every 2 s."""
+        self.drop_log(kind, "%s: dropped %s %s (%d so far)", kind, what, values, count)
