@@ -84,7 +84,7 @@ def watch_progress(
       (arrived: hovering at the goal is not a stall; circling past it is). The rule stays
       with the vehicle when it turns away: ground-truth vertical-19 came within 1.05 m
       below its goal, then flew a 30 s loop round the wall beside it (a detour reaching
-      farther) and met the 90 s limit as a timeout; it now stops at ~86 s. A staged
+      farther) and met the 90 s limit as a timeout; it now stops at 88.6 s. A staged
       climb's swing out and back (vertical-7, 12 s) fits within ``near_goal_stall_s``.
 
     A gap between steps (no frames) and a step the vehicle does not fly (``steering``
