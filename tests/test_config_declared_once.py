@@ -203,8 +203,8 @@ def test_a_companion_file_error_names_the_file_the_guidance_key_and_the_bound(tm
     for text, message in (
         ("[guidance]\nn_candidates = 0\n", r"guidance\.n_candidates: must be an integer >= 1"),
         (
-            "[guidance]\ndetour_cell_m = 0\n",
-            r"guidance\.detour_cell_m: must be a finite number > 0 m",
+            "[guidance]\ndetour_reach_step_m = 0\n",
+            r"guidance\.detour_reach_step_m: must be a finite number > 0 m",
         ),
         ("[guidance]\nconfirm_n = 4\n", r"guidance\.confirm_n: must be <= confirm_m \(3\), got 4"),
     ):

@@ -962,6 +962,70 @@ def test_a_detour_that_paces_to_and_fro_while_changing_altitude_stalls():
     assert 10.0 <= k_stall * DT_S <= 10.0 + 2.0 * math.pi / 0.5  # within a lap of the timeout
 
 
+def _along_wall(ends_e_m, speed_mps=0.85, wobble_m=0.4):
+    """Positions 30 m north of the goal, moving east-west at ``speed_mps`` through the
+    east coordinates ``ends_e_m`` in turn, wobbling ``wobble_m`` toward and away from the
+    wall and climbing 2 m per minute (stereo gap-0's pacing), one per step."""
+    out, e, t = [], ends_e_m[0], 0.0
+    for end in ends_e_m[1:]:
+        while abs(end - e) > 1e-9:
+            e += math.copysign(min(speed_mps * DT_S, abs(end - e)), end - e)
+            t += DT_S
+            out.append(np.array([30.0 + wobble_m * math.sin(1.3 * t), e, -7.0 - t / 30.0]))
+    return out
+
+
+def test_a_detour_goes_on_while_it_reaches_farther_on_either_side():
+    """Along the wall 3 m east, then back past the start 25 m west: the count restarts at
+    every metre the detour gets farther from where it last got nearer, on the west side
+    too (the east trip's reach is passed at 4 m west); once it paces back east over
+    covered ground the count runs and stall_timeout_s later guidance holds."""
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=10.0, max_detour_s=100.0)
+    goal = np.array([0.0, 0.0, -7.0])
+    path = _along_wall([0.0, 3.0, -25.0, 10.0])
+    outs = _detour_along(cfg, path, [-0.5, 0.0, 0.0], goal)
+    k_stall = next(k for k, o in enumerate(outs) if o.mode is Mode.HOLD)
+    assert outs[k_stall].reason is Reason.NO_PROGRESS
+    assert all(o.mode is Mode.AVOID for o in outs[:k_stall])
+    t_far_s = (3.0 + 3.0 + 24.0) / 0.85  # the last metre of reach, 24-25 m west
+    assert t_far_s + 10.0 - 1.5 <= k_stall * DT_S <= t_far_s + 10.0 + 1.5
+
+
+def test_pacing_along_a_wall_with_a_wobble_stalls_after_its_reach_stops_growing():
+    """Stereo gap-0's flight: east 7.5 m, west 7.5 m past the start, east again, wobbling
+    ±0.4 m toward the wall and climbing. New 1 m columns every few steps restarted the
+    old count until the 90 s limit; by its reach the west trip earns nothing (no farther
+    than the east one), so guidance holds stall_timeout_s after the east end."""
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=10.0, max_detour_s=100.0)
+    goal = np.array([0.0, 0.0, -7.0])
+    path = _along_wall([0.0, 7.5, -7.5, 7.5, -7.5])
+    outs = _detour_along(cfg, path, [-0.5, 0.0, 0.0], goal)
+    k_stall = next(k for k, o in enumerate(outs) if o.mode is Mode.HOLD)
+    assert outs[k_stall].reason is Reason.NO_PROGRESS
+    t_east_s = 7.5 / 0.85
+    assert t_east_s + 10.0 - 1.5 <= k_stall * DT_S <= t_east_s + 10.0 + 1.0
+
+
+def test_the_near_goal_rule_stays_with_a_vehicle_that_turns_away():
+    """Ground-truth vertical-19: climbing to 1.05 m below the goal, then a loop 4 m
+    round (away and back, never nearer). Within near_goal_m the near-goal rule counts,
+    and keeps counting outside it: near_goal_stall_s after the nearest point guidance
+    holds, not stall_timeout_s later (nor never, while a detour reaches farther)."""
+    cfg = GuidanceConfig(**ONE_SHOT, stall_timeout_s=30.0, near_goal_stall_s=10.0)
+    goal = np.array([0.0, 0.0, -7.0])
+    climb = [goal + np.array([0.0, 0.0, 5.0 - 0.5 * k * DT_S]) for k in range(round(7.9 / DT_S))]
+    below = goal + np.array([0.0, 0.0, 1.05])
+    loop = [
+        below + 2.0 * np.array([1.0 - math.cos(a), math.sin(a), 0.0])
+        for a in np.linspace(0.0, 2.0 * math.pi, round(30.0 / DT_S))
+    ]
+    positions = [*climb, *loop]
+    outs = _fly_positions(positions, [goal] * len(positions), cfg)
+    k_stall = next(k for k, o in enumerate(outs) if o.mode is Mode.HOLD)
+    assert outs[k_stall].reason is Reason.NO_PROGRESS
+    assert k_stall * DT_S == pytest.approx(len(climb) * DT_S + 10.0, abs=0.5)
+
+
 def test_an_unreachable_goal_stays_held_when_its_obstacle_is_forgotten():
     """The GOAL_UNREACHABLE hold is latched for the goal: the obstacle left the map (unseen
     and forgotten) does not release it into a go-around; only a new goal does."""

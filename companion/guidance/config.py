@@ -107,24 +107,36 @@ class GuidanceConfig:
         30 s: a long detour (round a 10 m wall at 0.85 m/s) gets nearer within ~15 s.
     stall_progress_m : float
         Progress is the distance to the goal falling this far below its best so far [m];
-        within twice this distance of the goal the count stands still (hovering at the
-        goal is not a stall; circling past it without arriving still is).
+        within this distance of the goal (arrived) the count stands still (hovering at
+        the goal is not a stall; circling past it without arriving still is).
     near_goal_stall_s : float
-        Within ``2 · stall_progress_m`` of the goal but not within ``stall_progress_m`` of
-        it (arrived, the mission's default tolerance), this long without getting
-        ``0.2 · stall_progress_m`` nearer → the same latched ``NO_PROGRESS`` HOLD [s].
+        Once within ``near_goal_m`` of the goal but not within ``stall_progress_m`` of it
+        (arrived, the mission's default tolerance), this long without getting
+        ``0.2 · stall_progress_m`` nearer than the nearest so far → the same latched
+        ``NO_PROGRESS`` HOLD [s], whether the vehicle stays or turns away on a detour.
         Hovering 0.9 m short of a goal the envelope cannot certify (straight above) is a
-        stall the pilot is told of, not a silent hover until the battery runs out.
-    detour_cell_m : float
-        While avoiding (``AVOID``), each step into a column of this square section (north,
-        east; any altitude) the vehicle has not visited since it last got nearer the goal
-        counts as progress along the detour [m]: a detour along a long wall toward its end
-        (going away from the goal) does not stall, a detour that circles or paces to and
-        fro (revisits its columns, climbing or not) does.
+        stall the pilot is told of, not a silent hover until the battery runs out. 20 s:
+        a staged climb swings a few metres sideways and back to look at its last stage
+        (ground-truth vertical-7: 12 s from its nearest point, 0.84 m, to the goal; 10 s
+        stopped it 1.9 m short).
+    near_goal_m : float
+        Where the near-goal rule takes over [m]: 1.5 m, three times ``stall_progress_m``,
+        two vehicle lengths; a goal this close is reached straight or round a small
+        obstacle within seconds, not by a long detour (ground-truth vertical-19 came
+        within 1.05 m below its goal, then looped 30 s round the wall beside it). A goal
+        0.7 m behind a thin wall is ≥ 1.65 m away at the wall's boundary, outside it.
+    detour_reach_step_m : float
+        While avoiding (``AVOID``), a step whose horizontal distance from where the best
+        distance last improved exceeds the farthest so far by this much restarts the
+        ``stall_timeout_s`` count [m]: a detour along a wall toward its end (or back past
+        its start toward the other end) does not stall, one that paces to and fro over
+        ground it has covered does, whatever its altitude or its wobble does.
     max_detour_s : float
         The longest a detour may go on without getting ``stall_progress_m`` nearer the goal,
-        new cells or not [s]; then the ``NO_PROGRESS`` HOLD. Every flight thus ends at the
-        goal or in a reported stop within a bound.
+        reaching farther or not [s]; then the ``NO_PROGRESS`` HOLD. Every flight thus ends
+        at the goal or in a reported stop within a bound. 60 s: round the end of a 30 m
+        wall from its middle (15 m out, ~15 m back behind it at 0.85 m/s) gets nearer
+        within ~35 s.
     known_path_progress_m : float
         A path through known-free space (:mod:`companion.guidance.known_path`) replaces the
         cone rule's aiming point only when its end lies at least this much nearer the goal
@@ -156,9 +168,10 @@ class GuidanceConfig:
     vertical_weight: float = bounded(3.0, gt=0)
     stall_timeout_s: float = bounded(30.0, "s", ge=0)
     stall_progress_m: float = bounded(0.5, "m", ge=0)
-    near_goal_stall_s: float = bounded(10.0, "s", ge=0)
-    detour_cell_m: float = bounded(1.0, "m", gt=0)
-    max_detour_s: float = bounded(120.0, "s", ge=0)
+    near_goal_stall_s: float = bounded(20.0, "s", ge=0)
+    near_goal_m: float = bounded(1.5, "m", ge=0)
+    detour_reach_step_m: float = bounded(1.0, "m", gt=0)
+    max_detour_s: float = bounded(60.0, "s", ge=0)
     known_path_progress_m: float = bounded(1.0, "m", ge=0)
 
     def __post_init__(self) -> None:

@@ -355,18 +355,27 @@ def _search(
     path[0, 0], path[0, 1], path[0, 2] = pos[0], pos[1], pos[2]
     # first leg: farthest path voxel within leg_max_m along the path seen in a straight line
     leg = 0
-    along = 0.0
-    for k in range(1, n):
-        along += math.sqrt(
+    for k in range(1, _last_within(path, 0, 0.0, leg_max_m) + 1):
+        if _line_of_sight(grid, origin, voxel, pos, path[k], lo, ny, nz, nx, trav, sx, sy, sz):
+            leg = k
+    return path, leg, reached, expanded
+
+
+@numba.njit(cache=True, inline="always")
+def _last_within(path, k0, along_m, leg_max_m):
+    """The last row of ``path`` from ``k0`` whose length along the path (``along_m`` at row
+    ``k0``, then summed row to row) is within ``leg_max_m``."""
+    last = k0
+    for k in range(k0 + 1, path.shape[0]):
+        along_m += math.sqrt(
             (path[k, 0] - path[k - 1, 0]) ** 2
             + (path[k, 1] - path[k - 1, 1]) ** 2
             + (path[k, 2] - path[k - 1, 2]) ** 2
         )
-        if along > leg_max_m + 1e-9:
+        if along_m > leg_max_m + 1e-9:
             break
-        if _line_of_sight(grid, origin, voxel, pos, path[k], lo, ny, nz, nx, trav, sx, sy, sz):
-            leg = k
-    return path, leg, reached, expanded
+        last = k
+    return last
 
 
 @numba.njit(cache=True)
@@ -470,17 +479,7 @@ def _follow(grid, origin, voxel, pos, path, spheres, occ_off, sec_off, near_m, l
         ix, iy, iz = gx - origin[0], gy - origin[1], gz - origin[2]
         if not _voxel_clear(grid, ix, iy, iz, path[k], spheres, occ_off, sec_off, far > near_m):
             return -1, -1
-    last = k0
-    along = best
-    for k in range(k0 + 1, n):
-        along += math.sqrt(
-            (path[k, 0] - path[k - 1, 0]) ** 2
-            + (path[k, 1] - path[k - 1, 1]) ** 2
-            + (path[k, 2] - path[k - 1, 2]) ** 2
-        )
-        if along > leg_max_m + 1e-9:
-            break
-        last = k
+    last = _last_within(path, k0, best, leg_max_m)
     for k in range(last, k0 - 1, -1):  # the farthest row seen in a straight line
         if _clear_line(grid, origin, voxel, pos, path[k], spheres, occ_off, sec_off, near_m):
             return k0, k
