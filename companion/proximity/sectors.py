@@ -90,6 +90,11 @@ class ProximityConfig:
         A watchdog thread sends when the main loop has sent nothing for 1.5 periods (a
         long frame, a starved processor; :mod:`companion.proximity.stream`; on by
         default). Off: the main loop alone (what a replay reproduces).
+    own_process : bool
+        With ``thread``: the stream runs in a process of its own with its own MAVLink
+        socket (:mod:`companion.proximity.process`; on by default), so it keeps the rate
+        while the companion's interpreter is busy; only on ``udpout`` links (the thread
+        elsewhere, and when the process does not come up).
     rate_hz : float
         Least send rate [Hz wall]: every processed frame sends one, and a timer fills the
         gaps (before the first frame, during a takeoff, when frames stop) from the map at
@@ -116,6 +121,7 @@ class ProximityConfig:
 
     enabled: bool = True
     thread: bool = True
+    own_process: bool = True
     rate_hz: float = bounded(20.0, "Hz", gt=0)
     n_sectors: int = bounded(72, integer=True, ge=1, le=MAX_SECTORS)
     increment_deg: float = bounded(5.0, "deg", gt=0)
@@ -127,7 +133,7 @@ class ProximityConfig:
     unseen_extension_m: float = bounded(1.0, "m", ge=0)
 
     def __post_init__(self) -> None:
-        for key in ("enabled", "thread"):
+        for key in ("enabled", "thread", "own_process"):
             if not isinstance(getattr(self, key), bool):
                 raise ConfigError(f"must be true or false, got {getattr(self, key)!r}", key=key)
         check_fields(self)
