@@ -261,6 +261,7 @@ class ProximityProcess:
         self._proc: subprocess.Popen | None = None
         self._rfd, self._wfd = os.pipe()  # never readable: the service selects on it too
         self._exit_reported = False
+        self._final: dict | None = None  # the figures as of close()
         self.errors = 0  # the process ended by itself
 
     def start(self) -> None:
@@ -290,6 +291,7 @@ class ProximityProcess:
             )
 
     def close(self) -> None:
+        self._final = self.figures()  # the companion's exit statistics are taken after
         proc = self._proc
         if proc is not None:
             if proc.poll() is None:
@@ -342,6 +344,10 @@ class ProximityProcess:
         return f"the OBSTACLE_DISTANCE process ended (exit code {code}); the main loop sends alone"
 
     def figures(self) -> dict:
+        """Sends, errors, late sends, stale poses and the longest gap [s host] of the
+        process; ``main_longest_gap_s``: the main loop's own."""
+        if self._final is not None:
+            return self._final
         c = self._shared.counters
         alive = self._proc is not None and self._proc.poll() is None
         return {
