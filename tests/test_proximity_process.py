@@ -219,6 +219,7 @@ def test_the_process_keeps_the_rate_while_the_companion_is_busy_and_places_the_v
         assert msg.distances[0] / 100.0 == pytest.approx(expected_m, abs=VOXEL_DIAG_M + 0.1)
         figures = stream.figures()
         assert figures["alive"] and figures["errors"] == 0 and figures["telemetry"] > 0
+        assert figures["realtime"] == _may_be_realtime()
     finally:
         stream.close()
         ap.close()
@@ -282,6 +283,12 @@ def test_the_process_dies_with_the_companion_and_its_end_is_reported():
     finally:
         stream.close()
         ap.close()
+
+
+def _may_be_realtime() -> bool:
+    """Whether a process of this user may take SCHED_FIFO (probed in a child of its own)."""
+    probe = "import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))"
+    return subprocess.run([sys.executable, "-c", probe], capture_output=True).returncode == 0
 
 
 def _alive(pid: int) -> bool:

@@ -84,7 +84,7 @@ _HEADER_WORDS = _LAYER0 + 2 * _LAYER_WORDS
 _RANGE0, _RATE = 0, 2
 _FLOAT_WORDS = 3
 # counters (int64) the process writes
-_SENT, _ERRORS, _LONGEST_US, _LATE_SENDS, _STALE, _TELEMETRY, _NO_MAP = range(7)
+_SENT, _ERRORS, _LONGEST_US, _LATE_SENDS, _STALE, _TELEMETRY, _NO_MAP, _REALTIME = range(8)
 _COUNTER_WORDS = 8
 _NO_CAPTURE = -1
 
@@ -359,6 +359,7 @@ class ProximityProcess:
             "stale_pose": int(c[_STALE]),
             "no_map": int(c[_NO_MAP]),
             "telemetry": int(c[_TELEMETRY]),
+            "realtime": bool(c[_REALTIME]),
             "longest_gap_s": round(int(c[_LONGEST_US]) * 1e-6, 3),
             "main_longest_gap_s": round(self.sender.longest_gap_s, 3),
             "map_overflows": self._shared.overflows,
@@ -370,6 +371,22 @@ def _die_with_parent() -> None:
     with contextlib.suppress(OSError, AttributeError):
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+
+
+def _realtime(priority: int) -> bool:
+    """``SCHED_FIFO`` at ``priority`` (0: none); False (said once) when not permitted."""
+    if priority <= 0:
+        return False
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError) as exc:
+        _log.info(
+            "OBSTACLE_DISTANCE process: no real-time priority (%s): it runs as a normal task "
+            "and may wait for a processor on a loaded machine",
+            exc,
+        )
+        return False
+    return True
 
 
 def _run(spec: ProcessSpec) -> int:
@@ -389,6 +406,7 @@ def _run(spec: ProcessSpec) -> int:
     )
     link.open()
     warm_up()
+    shared.counters[_REALTIME] = _realtime(spec.proximity.realtime_priority)
     sender = ProximitySender(spec.proximity)
     pose = TelemetryPose(spec.autopilot)
     c = shared.counters
