@@ -134,13 +134,13 @@ class CompanionService:
             self.observers.on_start(self.config, self.core.instance_id)
 
     def _start_proximity(self, sender: ProximitySender) -> ProximityStream | ProximityProcess:
-        """The stream's own process where the link allows one, else (or when it does not
-        come up) the watchdog thread."""
+        """The stream's own process where the link allows one, else (or when it cannot be
+        started) the watchdog thread."""
         link = self.config.link
         if self.config.proximity.own_process and own_process_possible(link.url):
             process = ProximityProcess(sender, new_spec(self.config, sender))
             try:
-                process.start()
+                process.start()  # it comes up by itself; the main loop sends meanwhile
                 return process
             except RuntimeError as exc:
                 _log.error("%s: the watchdog thread sends instead", exc)

@@ -192,10 +192,12 @@ def _spin_holding_the_gil(seconds: float) -> None:
 
 
 def test_the_process_keeps_the_rate_while_the_companion_is_busy_and_places_the_vehicle():
-    ap = _Autopilot(vel_n_mps=1.0)
+    ap = _Autopilot(vel_n_mps=0.3)  # at most 3 m in the 10 s waits below: short of the wall
     stream = ProximityProcess(ProximitySender(CFG), _spec(ap.port))
     try:
         stream.start()
+        assert stream.wait_ready(), stream.figures()
+        ap.t0 = time.monotonic()  # the vehicle sets off from POS now
         stream.set_map(snapshot_map(_walled_map(), POS[2], HALF_M, capture_ns=5_000_000))
         assert _wait(lambda: ap.received and ap.received[-1][1].time_usec == 5_000, 10.0)
         start = time.monotonic()
@@ -231,6 +233,7 @@ def test_the_process_signs_as_its_own_link():
     stream = ProximityProcess(ProximitySender(CFG), _spec(ap.port, KEY))
     try:
         stream.start()
+        assert stream.wait_ready(), stream.figures()
         assert _wait(lambda: len(ap.received) >= 3, 10.0)
         for _, msg, frame in ap.received[:3]:
             assert frame[2] & 0x01, "unsigned"  # MAVLINK_IFLAG_SIGNED
@@ -251,6 +254,7 @@ def test_the_process_dies_with_the_companion_and_its_end_is_reported():
         from companion.proximity.sender import ProximitySender
         p = ProximityProcess(ProximitySender(CFG), _spec({ap.port}))
         p.start()
+        assert p.wait_ready()
         print(p._proc.pid, flush=True)
         time.sleep(60)
         """
@@ -273,6 +277,7 @@ def test_the_process_dies_with_the_companion_and_its_end_is_reported():
     stream = ProximityProcess(ProximitySender(CFG), _spec(ap.port))
     try:
         stream.start()
+        assert stream.wait_ready(), stream.figures()
         assert stream.check() is None
         os.kill(stream._proc.pid, signal.SIGKILL)
         assert _wait(lambda: not stream.figures()["alive"], 5.0)

@@ -68,7 +68,7 @@ __all__ = [
 
 #: MAVLink 2 signing link id of the process's stream (the main loop signs as link 0).
 SIGNING_LINK_ID = 1
-_READY_TIMEOUT_S = 60.0  # compile / cache load of the sector kernel on a loaded machine
+_READY_TIMEOUT_S = 60.0  # imports and the sector kernel's cache on a loaded machine
 _LATE_S = 0.25  # a send this long after the previous one is logged [s host]
 _PR_SET_PDEATHSIG = 1
 # not ``-m``: the spec's class must unpickle as this module's, not ``__main__``'s
@@ -262,16 +262,19 @@ class ProximityProcess:
         self._rfd, self._wfd = os.pipe()  # never readable: the service selects on it too
         self._exit_reported = False
         self._final: dict | None = None  # the figures as of close()
+        self._ready = False
         self.errors = 0  # the process ended by itself
 
     def start(self) -> None:
-        """Start the process and wait (bounded) until it sends; raises RuntimeError when it
-        does not come up (the caller falls back to the thread)."""
-        proc = subprocess.Popen(
-            [sys.executable, "-c", _CHILD],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-        )
+        """Start the process; it comes up by itself (imports and the kernel's cache take
+        seconds on a loaded machine, during which the main loop sends alone: the companion
+        is not held back). Raises RuntimeError when it cannot be started at all."""
+        try:
+            proc = subprocess.Popen(
+                [sys.executable, "-c", _CHILD], stdin=subprocess.PIPE, stdout=subprocess.PIPE
+            )
+        except OSError as exc:
+            raise RuntimeError(f"OBSTACLE_DISTANCE process did not start: {exc}") from None
         self._proc = proc
         assert proc.stdin is not None and proc.stdout is not None
         try:
@@ -280,15 +283,30 @@ class ProximityProcess:
         except OSError as exc:
             self.close()
             raise RuntimeError(f"OBSTACLE_DISTANCE process did not start: {exc}") from None
-        ready, _, _ = select.select([proc.stdout], [], [], _READY_TIMEOUT_S)
-        line = proc.stdout.readline() if ready else b""
-        if line.strip() != b"ready":
-            code = proc.poll()
-            self.close()
-            raise RuntimeError(
-                f"OBSTACLE_DISTANCE process not ready within {_READY_TIMEOUT_S:g} s "
-                f"(exit code {code})"
-            )
+
+    def wait_ready(self, timeout_s: float = _READY_TIMEOUT_S) -> bool:
+        """Wait (at most ``timeout_s``) until the process sends; False if it did not."""
+        deadline = time.monotonic() + timeout_s
+        while not self._poll_ready() and self._proc is not None and self._proc.poll() is None:
+            left = deadline - time.monotonic()
+            if left <= 0.0:
+                return False
+            select.select([self._proc.stdout], [], [], min(left, 0.1))
+        return self._ready
+
+    def _poll_ready(self) -> bool:
+        proc = self._proc
+        if self._ready or proc is None or proc.stdout is None:
+            return self._ready
+        if select.select([proc.stdout], [], [], 0.0)[0]:
+            self._ready = proc.stdout.readline().strip() == b"ready"
+            if self._ready:
+                _log.info(
+                    "OBSTACLE_DISTANCE process sending (pid %d, real-time: %s)",
+                    proc.pid,
+                    "yes" if self._shared.counters[_REALTIME] else "no",
+                )
+        return self._ready
 
     def close(self) -> None:
         self._final = self.figures()  # the companion's exit statistics are taken after
@@ -332,10 +350,12 @@ class ProximityProcess:
             self._shared.floats[_RATE] = rate
 
     def check(self) -> str | None:
-        """Once, when the process has ended by itself: why (for the log and the status)."""
+        """Once, when the process has ended by itself: why (for the log and the status);
+        logs once when it starts sending."""
         proc = self._proc
         if proc is None or self._exit_reported:
             return None
+        self._poll_ready()
         code = proc.poll()
         if code is None:
             return None
@@ -353,6 +373,7 @@ class ProximityProcess:
         return {
             "process": True,
             "alive": alive,
+            "ready": self._ready,
             "sent": int(c[_SENT]),
             "errors": int(c[_ERRORS]) + self.errors,
             "late": int(c[_LATE_SENDS]),
