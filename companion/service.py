@@ -134,16 +134,23 @@ class CompanionService:
             self.observers.on_start(self.config, self.core.instance_id)
 
     def _start_proximity(self, sender: ProximitySender) -> ProximityStream | ProximityProcess:
-        """The stream's own process where the link allows one, else (or when it cannot be
-        started) the watchdog thread."""
+        """The stream's own process where the link allows one (forked here, before Zenoh
+        starts its threads), else (or when it does not come up) the watchdog thread."""
         link = self.config.link
         if self.config.proximity.own_process and own_process_possible(link.url):
             process = ProximityProcess(sender, new_spec(self.config, sender))
             try:
-                process.start()  # it comes up by itself; the main loop sends meanwhile
-                return process
+                process.start()
             except RuntimeError as exc:
                 _log.error("%s: the watchdog thread sends instead", exc)
+            else:
+                if process.wait_ready():
+                    return process
+                process.close()
+                _log.error(
+                    "the OBSTACLE_DISTANCE process did not send within its start-up time: "
+                    "the watchdog thread sends instead"
+                )
         stream = ProximityStream(
             sender, self._poll_link, self._send, (link.target_system, link.target_component)
         )

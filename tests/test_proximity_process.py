@@ -160,7 +160,6 @@ def _arrival_monotonic(ancillary) -> float:
 
 def _spec(port: int, key: SigningKey | None = None) -> ProcessSpec:
     return ProcessSpec(
-        shm_name="",
         proximity=CFG,
         space=KnownSpaceConfig(),
         url=f"udpout:127.0.0.1:{port}",

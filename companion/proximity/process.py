@@ -39,14 +39,11 @@ import ctypes
 import logging
 import math
 import os
-import pickle
 import select
 import signal
-import subprocess
-import sys
 import time
 from dataclasses import dataclass, replace
-from multiprocessing import resource_tracker, shared_memory
+from multiprocessing import shared_memory
 
 import numpy as np
 
@@ -68,11 +65,9 @@ __all__ = [
 
 #: MAVLink 2 signing link id of the process's stream (the main loop signs as link 0).
 SIGNING_LINK_ID = 1
-_READY_TIMEOUT_S = 60.0  # imports and the sector kernel's cache on a loaded machine
+_READY_TIMEOUT_S = 30.0  # a forked process opens a socket: seconds only on a starved machine
 _LATE_S = 0.25  # a send this long after the previous one is logged [s host]
 _PR_SET_PDEATHSIG = 1
-# not ``-m``: the spec's class must unpickle as this module's, not ``__main__``'s
-_CHILD = "import sys; from companion.proximity.process import main; sys.exit(main())"
 _log = logging.getLogger("companion")
 
 # header words (int64) of the shared map
@@ -97,9 +92,8 @@ def own_process_possible(url: str) -> bool:
 
 @dataclass(frozen=True)
 class ProcessSpec:
-    """What the process needs (pickled to it on its stdin)."""
+    """What the process needs."""
 
-    shm_name: str
     proximity: ProximityConfig
     space: KnownSpaceConfig
     url: str
@@ -256,9 +250,9 @@ class ProximityProcess:
     def __init__(self, sender: ProximitySender, spec: ProcessSpec) -> None:
         self.sender = sender
         self._shared = SharedMap(spec.space)
-        self._spec = replace(spec, shm_name=self._shared.name, parent_pid=os.getpid())
+        self._spec = replace(spec, parent_pid=os.getpid())
         self._pose = TelemetryPose(spec.autopilot)
-        self._proc: subprocess.Popen | None = None
+        self._proc: _Forked | None = None
         self._rfd, self._wfd = os.pipe()  # never readable: the service selects on it too
         self._exit_reported = False
         self._final: dict | None = None  # the figures as of close()
@@ -266,23 +260,30 @@ class ProximityProcess:
         self.errors = 0  # the process ended by itself
 
     def start(self) -> None:
-        """Start the process; it comes up by itself (imports and the kernel's cache take
-        seconds on a loaded machine, during which the main loop sends alone: the companion
-        is not held back). Raises RuntimeError when it cannot be started at all."""
+        """Fork the process (it has every module and kernel the companion loaded, so it
+        sends within a second even on a loaded machine, where a fresh interpreter took
+        17.7 s to import them at load 21). Call before any thread is started (Zenoh).
+        Raises RuntimeError when it cannot be started."""
+        warm_up()  # here: the main loop's sends need the kernel too, and the child has it
+        ready_r, ready_w = os.pipe()
         try:
-            proc = subprocess.Popen(
-                [sys.executable, "-c", _CHILD], stdin=subprocess.PIPE, stdout=subprocess.PIPE
-            )
+            pid = os.fork()
         except OSError as exc:
+            os.close(ready_r)
+            os.close(ready_w)
             raise RuntimeError(f"OBSTACLE_DISTANCE process did not start: {exc}") from None
-        self._proc = proc
-        assert proc.stdin is not None and proc.stdout is not None
-        try:
-            proc.stdin.write(pickle.dumps(self._spec))
-            proc.stdin.close()
-        except OSError as exc:
-            self.close()
-            raise RuntimeError(f"OBSTACLE_DISTANCE process did not start: {exc}") from None
+        if pid == 0:  # the child: never returns into the companion's code
+            code = 1
+            try:
+                os.close(ready_r)
+                code = _child(self._spec, self._shared, ready_w)
+            except BaseException:
+                with contextlib.suppress(BaseException):
+                    _log.exception("OBSTACLE_DISTANCE process failed")
+            finally:
+                os._exit(code)
+        os.close(ready_w)
+        self._proc = _Forked(pid, ready_r)
 
     def wait_ready(self, timeout_s: float = _READY_TIMEOUT_S) -> bool:
         """Wait (at most ``timeout_s``) until the process sends; False if it did not."""
@@ -314,11 +315,9 @@ class ProximityProcess:
         if proc is not None:
             if proc.poll() is None:
                 proc.terminate()
-                try:
-                    proc.wait(timeout=2.0)
-                except subprocess.TimeoutExpired:
+                if not proc.wait(timeout_s=2.0):
                     proc.kill()
-                    proc.wait(timeout=2.0)
+                    proc.wait(timeout_s=2.0)
             if proc.stdout is not None:
                 proc.stdout.close()
             self._proc = None
@@ -410,12 +409,52 @@ def _realtime(priority: int) -> bool:
     return True
 
 
-def _run(spec: ProcessSpec) -> int:
-    shared = SharedMap(spec.space, spec.shm_name)
-    # Python < 3.13 registers an attached block with this process's resource tracker,
-    # which would unlink it when this process ends: the companion owns it
-    with contextlib.suppress(Exception):
-        resource_tracker.unregister(shared.shm._name, "shared_memory")
+class _Forked:
+    """The forked process: its pid, exit status and the read end of its readiness pipe."""
+
+    def __init__(self, pid: int, ready_fd: int) -> None:
+        self.pid = pid
+        self.stdout = os.fdopen(ready_fd, "rb", buffering=0)
+        self.returncode: int | None = None
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            with contextlib.suppress(ChildProcessError):
+                pid, status = os.waitpid(self.pid, os.WNOHANG)
+                if pid:
+                    self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def terminate(self) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(self.pid, signal.SIGTERM)
+
+    def kill(self) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(self.pid, signal.SIGKILL)
+
+    def wait(self, timeout_s: float) -> bool:
+        """True once it has ended (bounded by ``timeout_s``)."""
+        deadline = time.monotonic() + timeout_s
+        while self.poll() is None:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
+
+def _child(spec: ProcessSpec, shared: SharedMap, ready_fd: int) -> int:
+    """The forked process: ends with the companion, leaves the companion's signal
+    handlers (SIGTERM ends it; SIGINT is the companion's to handle), then sends."""
+    _die_with_parent()
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if os.getppid() != spec.parent_pid:
+        return 0
+    return _run(spec, shared, ready_fd)
+
+
+def _run(spec: ProcessSpec, shared: SharedMap, ready_fd: int) -> int:
     key = None if spec.signing_secret is None else SigningKey(spec.signing_secret)
     link = MavlinkConnection(
         spec.url,
@@ -426,7 +465,6 @@ def _run(spec: ProcessSpec) -> int:
         signing_link_id=SIGNING_LINK_ID,
     )
     link.open()
-    warm_up()
     shared.counters[_REALTIME] = _realtime(spec.proximity.realtime_priority)
     sender = ProximitySender(spec.proximity)
     pose = TelemetryPose(spec.autopilot)
@@ -438,9 +476,8 @@ def _run(spec: ProcessSpec) -> int:
     next_s = time.monotonic()
     last_s = float("-inf")
     _send(link, sender, shared, pose, snapshot, next_s)  # a peer of the autopilot at once
-    sys.stdout.write("ready\n")
-    sys.stdout.flush()
-    sys.stdout.close()
+    os.write(ready_fd, b"ready\n")
+    os.close(ready_fd)
     while os.getppid() == spec.parent_pid:
         now_s = time.monotonic()
         if now_s < next_s:
@@ -477,8 +514,7 @@ def _run(spec: ProcessSpec) -> int:
         last_s = now_s
         c[_SENT] += 1
         next_s = max(next_s + period_s, now_s + 0.5 * period_s)
-    link.close()
-    shared.close()
+    link.close()  # the shared block is the companion's: it unlinks it
     return 0
 
 
@@ -501,29 +537,10 @@ def _send(link, sender, shared: SharedMap, pose: TelemetryPose, snapshot, now_s:
     link.send(obstacle_distance_message(max(stamp_ns, 0) // 1000, sectors))
 
 
-def main() -> int:
-    """The process: read the spec from stdin, then send until the companion goes."""
-    _die_with_parent()
-    logging.basicConfig(
-        stream=sys.stderr,
-        level=logging.INFO,
-        format="%(asctime)s companion[obstacle-distance] %(levelname)s %(message)s",
-    )
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
-    spec = pickle.loads(sys.stdin.buffer.read())
-    if not isinstance(spec, ProcessSpec):
-        _log.error("OBSTACLE_DISTANCE process: no spec on stdin")
-        return 2
-    if os.getppid() != spec.parent_pid:
-        return 0
-    return _run(spec)
-
-
 def new_spec(config, sender: ProximitySender) -> ProcessSpec:
     """The spec of a companion configuration (:class:`~companion.config.CompanionConfig`)."""
     link = config.link
     return ProcessSpec(
-        shm_name="",
         proximity=sender.config,
         space=config.known_space,
         url=link.url,
