@@ -6,9 +6,13 @@ main loop, whose numba kernels (planner, map update, perception) and Python run 
 of milliseconds of CPU at a time without releasing it. On a loaded 2-core machine each of
 those milliseconds becomes ten of wall time (the process gets a tenth of a core), and the
 thread, which needs the lock to send, waited up to 1.04 s: longer than the autopilots'
-0.5 s proximity timeout. A process has its own interpreter: when its 25 ms timer expires
-the kernel wakes it (a sleeper is scheduled ahead of the spinning tasks) and it sends, what
-ever the companion's main loop is doing.
+0.5 s proximity timeout (py-spy on an 8 m/s approach: pymavlink's pure-Python parser,
+``KnownSpace.integrate``, the map's recentring and guidance's track memory hold it). A
+process has its own interpreter, so nothing the main loop runs delays it; as a normal task
+it still waited up to 1.7 s for a processor at load 20, so it asks for ``SCHED_FIFO``
+(:attr:`ProximityConfig.realtime_priority`; ~1 ms of CPU per send) and then runs when its
+timer expires. It is forked from the companion when the link opens (a fresh interpreter
+took 17.7 s to import at load 21), after the sector kernel is loaded.
 
 What the process has of its own, and what it shares:
 
@@ -29,7 +33,8 @@ the vehicle's position carried forward to the send
 (:func:`~companion.proximity.sender.position_at_send`); the main loop still sends each
 frame's sectors (its own stream, what a replay reproduces). It dies with the companion:
 ``PR_SET_PDEATHSIG`` and a parent check every period; its log lines go to the companion's
-stderr and its figures (sends, errors, longest gap) to the companion's status.
+stderr (the inherited logger) and its figures (sends, errors, longest gap, real-time) to
+the companion's status and exit statistics.
 """
 
 from __future__ import annotations
