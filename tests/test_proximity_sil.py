@@ -184,7 +184,9 @@ def _pilot_approach(
     plant_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     companion_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     with contextlib.ExitStack() as stack:
-        companion = stack.enter_context(_companion_at(mav_port, companion_zenoh))
+        config = tmp_path / "companion.toml"  # plant-sim answers every UDP peer
+        config.write_text("[proximity]\nown_process = true\n", encoding="utf-8")
+        companion = stack.enter_context(_companion_at(mav_port, companion_zenoh, config))
         plant = PlantProcess(
             ["--scenario", str(scenario), "--mavlink", f"udpin:127.0.0.1:{mav_port}",
              "--zenoh-listen", plant_zenoh, "--zenoh-connect", companion_zenoh,
@@ -259,12 +261,12 @@ def _pilot_approach(
 
 
 @contextlib.contextmanager
-def _companion_at(mav_port: int, zenoh: str) -> Iterator[ChildProcess]:
+def _companion_at(mav_port: int, zenoh: str, config) -> Iterator[ChildProcess]:
     child = ChildProcess(
         "companion",
         "companion",
-        ["--mavlink", f"udpout:127.0.0.1:{mav_port}", "--zenoh-listen", zenoh,
-         "--no-request-mode"],
+        ["--config", str(config), "--mavlink", f"udpout:127.0.0.1:{mav_port}",
+         "--zenoh-listen", zenoh, "--no-request-mode"],
     )  # fmt: skip
     try:
         child.wait_line(r"^COMPANION READY ", 60)
