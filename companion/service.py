@@ -8,12 +8,12 @@ MAVLink messages and setpoints onto the link, ``COMPANION EVENT <name> {json}`` 
 stdout, status documents on Zenoh. When the main loop has sent no OBSTACLE_DISTANCE for
 1.5 periods (a long frame), a watchdog thread sends it (:mod:`companion.proximity.stream`),
 reading the link itself for a fresh position (one lock for the link; the main loop takes
-what it read first), on a copy of the map taken after each frame. On ``udpout`` links the
-stream runs instead in a process of its own, with its own socket, every period, on the
-map copy in shared memory (:mod:`companion.proximity.process`): it does not wait for this
-interpreter. Neither with a recorder or viewer attached: a recording replays the core's
-sends bit for bit. Around that,
-reporting only: the health file, the progress log, signing refusals and "no frames on
+what it read first), on a copy of the map taken after each frame. With ``[proximity]
+own_process`` on a ``udpout`` link the stream runs instead in a process of its own, with
+its own socket, every period, on the map copy in shared memory
+(:mod:`companion.proximity.process`): it does not wait for this interpreter. Neither
+with a recorder or viewer attached: a recording replays the core's sends bit for bit.
+Around that, reporting only: the health file, the progress log, signing refusals and "no frames on
 our key" hints. The log goes to stderr.
 Recorders and viewers (``--record``, ``--rerun``) see every step's input and outputs
 through :mod:`companion.observe`.
