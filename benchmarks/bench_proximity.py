@@ -4,14 +4,17 @@ plant-sim (ArduCopter flavour, the paper's sphere 10 m ahead, 30 Hz stereo camer
 the companion (reporting only) run at real time beside ``--busy`` spinning processes
 (``python -c "while True: pass"`` at nice 0) for ``--seconds``; a pymavlink client on
 plant-sim's port times each OBSTACLE_DISTANCE that plant-sim forwards from the companion
-(as a MAVLink router forwards to a ground station). Once with the proximity stream on its
-own thread (``[proximity] thread = true``, the default) and once sent from the main loop
-between frames (``thread = false``). Prints, per mode, the receipt intervals' p50, p99 and
-maximum [ms], the count over 0.5 s (the autopilots' proximity timeout) and the frames the
-companion processed, with the machine's load (``os.getloadavg``).
+(as a MAVLink router forwards to a ground station). Once per mode: the stream in its own
+process (``[proximity] own_process = true``), the watchdog thread (``own_process =
+false``, the default) and the main loop alone (``thread = false``). Prints, per
+mode, the receipt intervals' p50, p99 and maximum [ms], the count over 0.5 s (the
+autopilots' proximity timeout) and the frames the companion processed, with the
+machine's load (``os.getloadavg``).
 
 Run with ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_proximity.py``
-(``--seconds 30 --busy 3 --modes thread main``; about 80 s per mode).
+(``--seconds 30 --busy 3 --modes process thread main``; about 80 s per mode). The
+companion's own figures (``sender``: its longest gap between sends, before plant-sim's
+forwarding) are printed beside the ground station's.
 """
 
 from __future__ import annotations
@@ -49,6 +52,11 @@ center_ned_m = [10.0, 0.0, -7.0]
 radius_m = 1.5
 """
 _COMPANION = 196  # MAV_COMP_ID_OBSTACLE_AVOIDANCE
+_MODES = {  # the [proximity] settings of each mode
+    "process": "thread = true\nown_process = true\n",
+    "thread": "thread = true\nown_process = false\n",
+    "main": "thread = false\n",
+}
 
 
 def _intervals(m, seconds: float) -> np.ndarray:
@@ -62,11 +70,11 @@ def _intervals(m, seconds: float) -> np.ndarray:
     return np.diff(np.array(times))
 
 
-def _run(thread: bool, seconds: float, busy: int, out: Path) -> dict:
+def _run(mode: str, seconds: float, busy: int, out: Path) -> dict:
     scenario = out / "scene.toml"
     scenario.write_text(_SCENARIO, encoding="utf-8")
-    config = out / f"companion-{thread}.toml"
-    config.write_text(f"[proximity]\nthread = {'true' if thread else 'false'}\n", "utf-8")
+    config = out / f"companion-{mode}.toml"
+    config.write_text(f"[proximity]\n{_MODES[mode]}", "utf-8")
     mav_port = free_port()
     plant_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     companion_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
@@ -117,7 +125,7 @@ def _run(thread: bool, seconds: float, busy: int, out: Path) -> dict:
         raise RuntimeError("no OBSTACLE_DISTANCE arrived")
     p50, p99 = np.percentile(gaps, [50.0, 99.0]) * 1e3
     return {
-        "mode": "thread" if thread else "main loop",
+        "mode": mode,
         "load": f"{load_before:.1f}-{load_after:.1f}",
         "messages": int(gaps.size) + 1,
         "p50_ms": round(float(p50), 1),
@@ -125,7 +133,7 @@ def _run(thread: bool, seconds: float, busy: int, out: Path) -> dict:
         "max_ms": round(float(gaps.max()) * 1e3, 1),
         "over_500ms": int(np.count_nonzero(gaps > 0.5)),
         "frames_processed": stats.get("frames_processed"),
-        "thread": stats.get("obstacle_distance_thread"),
+        "sender": stats.get("obstacle_distance_thread"),
     }
 
 
@@ -133,13 +141,13 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=30.0, help="measured time per mode [s]")
     ap.add_argument("--busy", type=int, default=3, help="spinning processes beside the run")
-    ap.add_argument("--modes", nargs="+", choices=("thread", "main"), default=["thread", "main"])
+    ap.add_argument("--modes", nargs="+", choices=tuple(_MODES), default=list(_MODES))
     args = ap.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for mode in args.modes:
             print(f"OBSTACLE_DISTANCE from the {mode}, {args.busy} busy processes ...", flush=True)
-            rows.append(_run(mode == "thread", args.seconds, args.busy, Path(tmp)))
+            rows.append(_run(mode, args.seconds, args.busy, Path(tmp)))
             print(json.dumps(rows[-1]), flush=True)
     print(f"\n{os.cpu_count()} cores; intervals between OBSTACLE_DISTANCE at the ground station")
     print("| sender | load | messages | p50 [ms] | p99 [ms] | max [ms] | > 0.5 s | frames |")

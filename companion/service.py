@@ -8,9 +8,12 @@ MAVLink messages and setpoints onto the link, ``COMPANION EVENT <name> {json}`` 
 stdout, status documents on Zenoh. When the main loop has sent no OBSTACLE_DISTANCE for
 1.5 periods (a long frame), a watchdog thread sends it (:mod:`companion.proximity.stream`),
 reading the link itself for a fresh position (one lock for the link; the main loop takes
-what it read first), on a copy of the map taken after each frame. Not with a recorder or
-viewer attached: a recording replays the core's sends bit for bit. Around that,
-reporting only: the health file, the progress log, signing refusals and "no frames on
+what it read first), on a copy of the map taken after each frame. With ``[proximity]
+own_process`` on a ``udpout`` link the stream runs instead in a process of its own, with
+its own socket, every period, on the map copy in shared memory
+(:mod:`companion.proximity.process`): it does not wait for this interpreter. Neither
+with a recorder or viewer attached: a recording replays the core's sends bit for bit.
+Around that, reporting only: the health file, the progress log, signing refusals and "no frames on
 our key" hints. The log goes to stderr.
 Recorders and viewers (``--record``, ``--rerun``) see every step's input and outputs
 through :mod:`companion.observe`.
@@ -48,6 +51,8 @@ from companion.health import HealthFile, HealthInputs
 from companion.intake import FrameIntake
 from companion.link.connection import MavlinkConnection
 from companion.observe import CompanionObserver, Observers
+from companion.proximity.process import ProximityProcess, new_spec, own_process_possible
+from companion.proximity.sender import ProximitySender
 from companion.proximity.stream import SLAB_MARGIN_M, ProximityStream, snapshot_map
 from companion.status import StatusPublisher
 from protocols.keys import companion_status_key, stereo_key
@@ -100,7 +105,8 @@ class CompanionService:
         )
         self._session: zenoh.Session | None = None
         self._link_lock = threading.Lock()  # the link is read and written by two threads
-        self.proximity: ProximityStream | None = None  # OBSTACLE_DISTANCE's own thread
+        # OBSTACLE_DISTANCE's own thread or process
+        self.proximity: ProximityStream | ProximityProcess | None = None
         self._mission = self.core.mission  # whose map the thread has a copy of
         self._status: StatusPublisher | None = None
         self.health: HealthFile | None = None  # --health-file: rewritten once a second
@@ -119,20 +125,37 @@ class CompanionService:
         self.link.open()
         sender = self.core.proximity
         if sender is not None and self.config.proximity.thread and not self.observers:
-            link = self.config.link
-            self.proximity = ProximityStream(
-                sender,
-                self._poll_link,
-                self._send,
-                (link.target_system, link.target_component),
-            )
-            self.proximity.start()
+            self.proximity = self._start_proximity(sender)
         self._session = zenoh.open(zenoh_config(self.config.zenoh))
         self.intake.open(self._session, time.monotonic())
         self._status = StatusPublisher(self._session, self.status_key)
         self._status.open()
         if self.observers:
             self.observers.on_start(self.config, self.core.instance_id)
+
+    def _start_proximity(self, sender: ProximitySender) -> ProximityStream | ProximityProcess:
+        """The stream's own process where the link allows one (forked here, before Zenoh
+        starts its threads), else (or when it does not come up) the watchdog thread."""
+        link = self.config.link
+        if self.config.proximity.own_process and own_process_possible(link.url):
+            process = ProximityProcess(sender, new_spec(self.config, sender))
+            try:
+                process.start()
+            except RuntimeError as exc:
+                _log.error("%s: the watchdog thread sends instead", exc)
+            else:
+                if process.wait_ready():
+                    return process
+                process.close()
+                _log.error(
+                    "the OBSTACLE_DISTANCE process did not send within its start-up time: "
+                    "the watchdog thread sends instead"
+                )
+        stream = ProximityStream(
+            sender, self._poll_link, self._send, (link.target_system, link.target_component)
+        )
+        stream.start()
+        return stream
 
     def readiness_line(self) -> str:
         return (
@@ -263,6 +286,8 @@ class CompanionService:
                 if isinstance(doc.get("pipeline"), dict):
                     superseded = self.slot.counters.superseded
                     doc["pipeline"] = {**doc["pipeline"], "frames_superseded": superseded}
+                if self.proximity is not None:
+                    doc["obstacle_distance_stream"] = self.proximity.figures()
                 self._status.publish(doc)
 
     def _event(self, event: Event) -> None:
@@ -271,6 +296,11 @@ class CompanionService:
 
     # ---- reporting -----------------------------------------------------------------
     def _report(self, now_s: float) -> None:
+        if isinstance(self.proximity, ProximityProcess):
+            ended = self.proximity.check()
+            if ended is not None:
+                _log.error("%s", ended)
+                self._event(Event("obstacle_distance_process_ended", {"reason": ended}))
         no_frames = self.intake.watch(now_s)
         if no_frames is not None:
             self._event(no_frames)

@@ -184,7 +184,9 @@ def _pilot_approach(
     plant_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     companion_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     with contextlib.ExitStack() as stack:
-        companion = stack.enter_context(_companion_at(mav_port, companion_zenoh))
+        config = tmp_path / "companion.toml"  # plant-sim answers every UDP peer
+        config.write_text("[proximity]\nown_process = true\n", encoding="utf-8")
+        companion = stack.enter_context(_companion_at(mav_port, companion_zenoh, config))
         plant = PlantProcess(
             ["--scenario", str(scenario), "--mavlink", f"udpin:127.0.0.1:{mav_port}",
              "--zenoh-listen", plant_zenoh, "--zenoh-connect", companion_zenoh,
@@ -259,12 +261,12 @@ def _pilot_approach(
 
 
 @contextlib.contextmanager
-def _companion_at(mav_port: int, zenoh: str) -> Iterator[ChildProcess]:
+def _companion_at(mav_port: int, zenoh: str, config) -> Iterator[ChildProcess]:
     child = ChildProcess(
         "companion",
         "companion",
-        ["--mavlink", f"udpout:127.0.0.1:{mav_port}", "--zenoh-listen", zenoh,
-         "--no-request-mode"],
+        ["--config", str(config), "--mavlink", f"udpout:127.0.0.1:{mav_port}",
+         "--zenoh-listen", zenoh, "--no-request-mode"],
     )  # fmt: skip
     try:
         child.wait_line(r"^COMPANION READY ", 60)
@@ -275,16 +277,18 @@ def _companion_at(mav_port: int, zenoh: str) -> Iterator[ChildProcess]:
         child.close()
 
 
-# At 8 m/s (issue 34, third pass: the fast airframe tilts with ArduCopter's 0.15 s lag;
-# OBSTACLE_DISTANCE has a watchdog thread): 18 of 20 runs at load 11-24 held, 2.02-2.34 m
-# (ArduCopter and PX4). The two that did not were stalls of seconds on a machine loaded 10x
-# over its cores: -1.49 m with the ground station 4.35 s without the message (plant-sim
-# fell behind too), 1.68 m with the watchdog off (2.18 s). docs/autopilots.md. Not strict:
-# they run and report; the stalls are not the avoidance's to mend.
+# At 8 m/s (issue 34): with the watchdog thread 18 of 20 runs at load 11-24 held, the two
+# that did not were stalls of the stream and of plant-sim. With the stream in its own
+# real-time process (fourth pass) its longest gap was <= 0.079 s and plant-sim's
+# autopilot never ran without fresh proximity data, yet 4 of 19 flights at load 14-22 did
+# not hold: in three the companion's main loop (perception) and plant-sim's camera were
+# starved for seconds, so the obstacle entered the map too late; one is not analysed
+# (docs/autopilots.md). Not strict: they run and report; a starved perception is not the
+# stream's to mend.
 _LOAD_AT_8 = pytest.mark.xfail(
     strict=False,
-    reason="8 m/s real-time approach: holds 2.02-2.34 m unless the machine stalls the "
-    "companion or plant-sim for seconds (18 of 20 runs at load 11-24)",
+    reason="8 m/s real-time approach: holds 1.89-2.38 m unless the machine starves the "
+    "companion's perception or plant-sim's camera for seconds (15 of 19 runs at load 14-22)",
 )
 
 

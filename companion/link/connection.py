@@ -75,6 +75,10 @@ class MavlinkConnection:
         Our identity (component 196 = MAV_COMP_ID_OBSTACLE_AVOIDANCE by default).
     signing_key : SigningKey or None
         With a key: outgoing frames are signed, unsigned or badly signed input is refused.
+    signing_link_id : int
+        The link id our signatures carry (0–255). Two connections with the same system and
+        component ids (the OBSTACLE_DISTANCE process beside the main loop) need two: the
+        receiver keeps the newest timestamp per (system, component, link).
     """
 
     def __init__(
@@ -85,8 +89,10 @@ class MavlinkConnection:
         component_id: int = 196,
         baud: int = 921600,
         signing_key: SigningKey | None = None,
+        signing_link_id: int = 0,
     ) -> None:
         self.url = url
+        self.signing_link_id = signing_link_id
         self.system_id = system_id
         self.component_id = component_id
         self.baud = baud
@@ -117,7 +123,10 @@ class MavlinkConnection:
         conn.mav.robust_parsing = True
         if self._signing_key is not None:
             conn.setup_signing(
-                self._signing_key.secret, sign_outgoing=True, allow_unsigned_callback=None
+                self._signing_key.secret,
+                sign_outgoing=True,
+                allow_unsigned_callback=None,
+                link_id=self.signing_link_id,
             )
             verifier = SignatureVerifier(self._signing_key)
             conn.mav.check_signature = types.MethodType(_verified_by(verifier), conn.mav)

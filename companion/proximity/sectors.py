@@ -90,6 +90,23 @@ class ProximityConfig:
         A watchdog thread sends when the main loop has sent nothing for 1.5 periods (a
         long frame, a starved processor; :mod:`companion.proximity.stream`; on by
         default). Off: the main loop alone (what a replay reproduces).
+    own_process : bool
+        With ``thread``: the stream runs in a process of its own with its own MAVLink
+        socket (:mod:`companion.proximity.process`), so it keeps the rate while the
+        companion's interpreter is busy; only on ``udpout`` links (the thread elsewhere,
+        and when the process does not come up). Off by default: its socket is a second
+        UDP peer, and an endpoint that answers only the newest peer (pymavlink's and
+        MAVProxy's ``udpin``) would send the telemetry to it instead of the companion;
+        turn it on where the autopilot or router answers every peer (plant-sim).
+    realtime_priority : int
+        The process asks the kernel for ``SCHED_FIFO`` at this priority (1–99; 0: it
+        stays a normal task). A normal task that sleeps 25 ms at a time still waited up
+        to 1.7 s for a processor at load 20 on 2 cores (issue 34, ``bench_proximity``);
+        a real-time one runs when it wakes. It needs ``CAP_SYS_NICE`` (root, or
+        ``AmbientCapabilities=CAP_SYS_NICE`` / ``LimitRTPRIO`` in a systemd unit);
+        without it the process says so once and runs as a normal task. The process
+        sleeps between sends (~1 ms of CPU each), and the kernel's real-time throttling
+        (``sched_rt_runtime_us``) bounds what a fault could take.
     rate_hz : float
         Least send rate [Hz wall]: every processed frame sends one, and a timer fills the
         gaps (before the first frame, during a takeoff, when frames stop) from the map at
@@ -116,6 +133,8 @@ class ProximityConfig:
 
     enabled: bool = True
     thread: bool = True
+    own_process: bool = False
+    realtime_priority: int = bounded(10, integer=True, ge=0, le=99)
     rate_hz: float = bounded(20.0, "Hz", gt=0)
     n_sectors: int = bounded(72, integer=True, ge=1, le=MAX_SECTORS)
     increment_deg: float = bounded(5.0, "deg", gt=0)
@@ -127,7 +146,7 @@ class ProximityConfig:
     unseen_extension_m: float = bounded(1.0, "m", ge=0)
 
     def __post_init__(self) -> None:
-        for key in ("enabled", "thread"):
+        for key in ("enabled", "thread", "own_process"):
             if not isinstance(getattr(self, key), bool):
                 raise ConfigError(f"must be true or false, got {getattr(self, key)!r}", key=key)
         check_fields(self)

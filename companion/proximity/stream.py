@@ -56,6 +56,7 @@ __all__ = [
     "SLAB_MARGIN_M",
     "MapSnapshot",
     "ProximityStream",
+    "TelemetryPose",
     "VehiclePose",
     "snapshot_map",
     "warm_up",
@@ -95,6 +96,47 @@ class VehiclePose:
     vel_ned_mps: tuple[float, float, float]
     received_ns: int  # host monotonic clock
     yaw_rad: float | None
+
+
+class TelemetryPose:
+    """The autopilot's newest LOCAL_POSITION_NED (range-checked, with its host receipt time)
+    and ATTITUDE yaw, as read by whichever thread or process reads the link.
+
+    Parameters
+    ----------
+    autopilot : (int, int)
+        System and component id of the autopilot whose telemetry places the vehicle.
+    """
+
+    def __init__(self, autopilot: tuple[int, int]) -> None:
+        self._autopilot = autopilot
+        self._lock = threading.Lock()
+        self._pos: tuple | None = None  # (pos, vel, received_ns)
+        self._yaw: float | None = None
+
+    def observe(self, msg, now_ns: int) -> bool:
+        """Keep ``msg`` if it places the vehicle; True for a position taken."""
+        if (msg.get_srcSystem(), msg.get_srcComponent()) != self._autopilot:
+            return False
+        mtype = msg.get_type()
+        if mtype == "LOCAL_POSITION_NED":
+            pos, vel = (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz)
+            if _in_range(pos, _MAX_POS_M) and _in_range(vel, _MAX_SPEED_MPS):
+                with self._lock:
+                    self._pos = (pos, vel, now_ns)
+                return True
+        elif mtype == "ATTITUDE" and _in_range((msg.yaw,), 2.0 * math.pi):
+            with self._lock:
+                self._yaw = float(msg.yaw)
+        return False
+
+    def pose(self) -> VehiclePose | None:
+        """The newest pose (None before a position)."""
+        with self._lock:
+            if self._pos is None:
+                return None
+            pos, vel, received_ns = self._pos
+            return VehiclePose(pos, vel, received_ns, self._yaw)
 
 
 def warm_up() -> None:
@@ -162,12 +204,10 @@ class ProximityStream:
         self.sender = sender
         self._poll = poll
         self._send = send
-        self._autopilot = autopilot
+        self._telemetry = TelemetryPose(autopilot)
         self._lock = threading.Lock()
         self._inbox: deque = deque()
         self._map: MapSnapshot | None = None
-        self._pos: tuple | None = None  # (pos, vel, received_ns)
-        self._yaw: float | None = None
         self._clock_rate = 1.0  # frame-clock seconds per host second (core's estimate)
         self._stamp_ns = 0  # newest frame-clock stamp, before any frame
         self._stop = threading.Event()
@@ -269,25 +309,11 @@ class ProximityStream:
             os.write(self._wfd, b"m")
 
     def _observe(self, msg, now_ns: int) -> None:
-        if (msg.get_srcSystem(), msg.get_srcComponent()) != self._autopilot:
-            return
-        mtype = msg.get_type()
-        if mtype == "LOCAL_POSITION_NED":
-            pos, vel = (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz)
-            if _in_range(pos, _MAX_POS_M) and _in_range(vel, _MAX_SPEED_MPS):
-                with self._lock:
-                    self._pos = (pos, vel, now_ns)
-        elif mtype == "ATTITUDE" and _in_range((msg.yaw,), 2.0 * math.pi):
-            with self._lock:
-                self._yaw = float(msg.yaw)
+        self._telemetry.observe(msg, now_ns)
 
     def pose(self) -> VehiclePose | None:
         """The newest pose the stream knows (None before a position)."""
-        with self._lock:
-            if self._pos is None:
-                return None
-            pos, vel, received_ns = self._pos
-            return VehiclePose(pos, vel, received_ns, self._yaw)
+        return self._telemetry.pose()
 
     def _send_now(self, now_s: float) -> None:
         with self._lock:
