@@ -70,10 +70,11 @@ def straight_stop_m(
     """Distance a jerk-limited stop carries the vehicle along its velocity [m].
 
     Closed form of the 1-D stop: the acceleration ``a₀`` along the velocity is held for
-    ``τ``, then ramps down at the jerk limit ``j`` towards ``−A``, holds ``−A``, and ramps
-    back to 0 as the speed runs out (the decelerating ramp is begun at once once ``−A`` is
-    reached, which is the longest way to stop with these bounds). ``j → ∞`` and ``a₀ = 0``
-    give ``τ·v + v²/(2A)``.
+    ``τ``, then ramps down at the jerk limit ``j`` towards ``−A`` (the speed may run out
+    on the way), holds ``−A``, and ramps back to 0 once the speed left is what that ramp
+    removes, ``A²/(2j)`` (begun at once when less is left). A reference that reverses
+    instead of coming to rest (a target behind it) reaches less far, so this bounds the
+    reach along the velocity. ``j → ∞`` and ``a₀ = 0`` give ``τ·v + v²/(2A)``.
     """
     A, j = limits.accel_mps2, limits.jerk_mps3
     a0 = min(max(float(accel_along_mps2), -A), A)

@@ -84,7 +84,7 @@ _BRAKE_MIN_SPEED_MPS = 0.1  # below this the vehicle has no direction of motion 
 # speed) or off the acceleration (at or above this acceleration) is certified along the
 # path the autopilot flies to it, not only along the straight line.
 _MOMENTUM_MIN_SPEED_MPS = 0.1
-_MOMENTUM_MIN_ACCEL_MPS2 = 0.3
+_MOMENTUM_MIN_ACCEL_MPS2 = 1.0
 _MOMENTUM_COS = math.cos(math.radians(15.0))
 
 
@@ -301,7 +301,8 @@ def _momentum_clear(
 ) -> bool:
     """Step 8: whether the path the autopilot flies from ``(pos, vel, acc)`` to
     ``carrot`` stays inside known-free space seen from ``pos`` (each predicted point
-    ``q`` within the known-free distance along ``(q − p)/|q − p|`` less ``margin_m``).
+    ``q`` within the known-free distance along ``(q − p)/|q − p|``; the margin is kept by
+    where it stops, the carrot).
     Only a carrot off the velocity or the acceleration is predicted: one ahead along both
     (or the brake target at the vehicle) is covered by steps 4–5."""
     to_carrot = carrot - pos
@@ -320,7 +321,7 @@ def _momentum_clear(
         s = math.sqrt(float(d @ d))
         if s < cfg.min_advance_m:
             continue
-        if s + cfg.margin_m > _free_m(free_distance, pos, d / s, vehicle_radius_m, cfg):
+        if s > _free_m(free_distance, pos, d / s, vehicle_radius_m, cfg):
             return False
     return True
 
