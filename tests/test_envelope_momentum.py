@@ -198,3 +198,28 @@ def test_predicted_path_to_a_target_ahead_ends_on_it(distance_m):
     assert path[-1, 0] == pytest.approx(distance_m, abs=0.05)
     assert path[:, 0].max() <= distance_m + 0.05
     np.testing.assert_allclose(path[:, 1:], 0.0, atol=1e-12)
+
+
+def test_a_momentum_brake_is_said_once_per_episode_and_counted():
+    """The operator hears of it once per episode (again after 5 s without one), with the
+    speed, the bound along the velocity and guidance's target."""
+    from types import SimpleNamespace
+
+    from companion.core.mission import Mission
+
+    mission = Mission([(0.0, 0.0, -7.0)], goal_tolerance_m=0.5)
+    said = []
+    for k, braked in enumerate([True] * 30 + [False] * 200 + [True]):
+        envelope = SimpleNamespace(
+            momentum_brake=braked, speed_mps=1.72, speed_limit_mps=0.9, free_distance_m=1.1
+        )
+        guidance = SimpleNamespace(setpoint_ned_m=np.array([0.0, 10.0, -5.0]))
+        out = SimpleNamespace(envelope=envelope, guidance=guidance)
+        notices, events = [], []
+        mission._report_momentum(out, int(k / 30 * 1e9), notices, events)  # 30 Hz
+        said += [
+            (k, n.text, e.name, e.fields["speed_mps"]) for n, e in zip(notices, events, strict=True)
+        ]
+    text = "Braking: way to target not seen free at 1.7 m/s"
+    assert said == [(0, text, "momentum_brake", 1.72), (230, text, "momentum_brake", 1.72)]
+    assert len(text) <= 50  # one STATUSTEXT

@@ -69,6 +69,7 @@ class FrameJob:
         self._check_overspeed(out)
         self._tell_uncovered(out.widening)
         self.counters.targets_kept_out += out.target_kept_out is not None
+        self.counters.momentum_brakes += out.envelope.momentum_brake
         for notice in result.notices:
             self.out.notice(notice.text, SEV_WARNING if notice.warning else SEV_INFO)
         self.out.extend(result.events)
