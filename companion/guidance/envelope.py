@@ -51,6 +51,20 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
 6. **Look before moving**: the yaw guidance commands faces ``u`` (not the carrot, which
    may be at the vehicle), so a vehicle that must travel where it has not looked turns
    first; the carrot grows only as the view fills the map with free space.
+8. **Momentum** (issue 36): steps 4–5 certify the straight line to the carrot, but an
+   autopilot whose reference is jerk-limited (ArduCopter's ``shape_pos_vel_accel``) keeps
+   its present acceleration after a target switch and ramps it round, carrying the
+   vehicle on the way it was going. When the carrot lies more than 15° off the velocity
+   (≥ 0.1 m/s) or the acceleration (≥ 1 m/s²), the path the autopilot flies to it from
+   ``(p, v, a)`` is predicted (:mod:`companion.guidance.autopilot_path`, ``accel_mps2``
+   and ``jerk_mps3``, the acceleration held over ``τ``) and each point ``q`` of it must
+   lie within the known-free distance along ``(q − p)/|q − p|``. If not, the vehicle
+   brakes: the carrot is its own position (the reference decelerates at once at its
+   limits), the bound stated is the one along ``v`` (as in step 5's braking) and
+   ``momentum_brake`` reports it (the core counts it and tells the operator). Found on
+   the fast ``corridor-3m`` (stop 40): a switch from into the corridor to round the
+   wall's end at 0.9 m/s; the reference accelerated on for 0.6 s, 1.7 m/s toward the
+   wall's end with 4.9 m/s stated along the new path, 0.31 m from the surface.
 """
 
 from __future__ import annotations
