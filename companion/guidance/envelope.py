@@ -100,6 +100,10 @@ _BRAKE_MIN_SPEED_MPS = 0.1  # below this the vehicle has no direction of motion 
 _MOMENTUM_MIN_SPEED_MPS = 0.1
 _MOMENTUM_MIN_ACCEL_MPS2 = 1.0
 _MOMENTUM_COS = math.cos(math.radians(15.0))
+# A predicted path leaving known-free space by less than this is not braked for [m]: the
+# prediction's own accuracy (its overshoot of a target ≤ 5 cm, twice that), within the
+# stop margin the carrot keeps.
+_MOMENTUM_TOLERANCE_M = 0.1
 
 
 @dataclass(frozen=True)
@@ -313,12 +317,11 @@ def _along(x: np.ndarray, to_carrot: np.ndarray, reach_m: float, floor: float) -
 def _momentum_clear(
     pos, vel, acc, carrot, free_distance, tau_s, limit_mps, cfg, vehicle_radius_m
 ) -> bool:
-    """Step 8: whether the path the autopilot flies from ``(pos, vel, acc)`` to
-    ``carrot`` stays inside known-free space seen from ``pos`` (each predicted point
-    ``q`` within the known-free distance along ``(q − p)/|q − p|``; the margin is kept by
-    where it stops, the carrot).
-    Only a carrot off the velocity or the acceleration is predicted: one ahead along both
-    (or the brake target at the vehicle) is covered by steps 4–5."""
+    """Step 8: whether to send ``carrot`` rather than brake. True when the path the
+    autopilot flies from ``(pos, vel, acc)`` to it stays inside known-free space seen from
+    ``pos``, or when braking (target at the vehicle) would leave it by more. Only a carrot
+    off the velocity or the acceleration is predicted: one ahead along both (or the brake
+    target at the vehicle) is covered by steps 4–5."""
     to_carrot = carrot - pos
     reach = math.sqrt(float(to_carrot @ to_carrot))
     if reach < 1e-6:
@@ -330,14 +333,27 @@ def _momentum_clear(
         return True
     speed = math.sqrt(float(vel @ vel))
     limits = ReferenceLimits(cfg.accel_mps2, cfg.jerk_mps3, max(limit_mps, speed, 0.1))
-    for q in predict_path(pos, vel, acc, carrot, tau_s, limits):
+
+    def excess(target) -> float:
+        path = predict_path(pos, vel, acc, target, tau_s, limits)
+        return _excess_m(path, pos, free_distance, vehicle_radius_m, cfg)
+
+    to_carrot_excess = excess(carrot)
+    return to_carrot_excess <= _MOMENTUM_TOLERANCE_M or excess(pos) >= to_carrot_excess
+
+
+def _excess_m(path, pos, free_distance, vehicle_radius_m, cfg) -> float:
+    """How far the path's points lie beyond the known-free distance along their rays from
+    ``pos`` (each ``q`` against the free distance along ``(q − p)/|q − p|``; the margin
+    is kept by where it stops, the carrot): ≤ 0 when all lie inside [m]."""
+    worst = -math.inf
+    for q in path:
         d = q - pos
         s = math.sqrt(float(d @ d))
         if s < cfg.min_advance_m:
             continue
-        if s > _free_m(free_distance, pos, d / s, vehicle_radius_m, cfg):
-            return False
-    return True
+        worst = max(worst, s - _free_m(free_distance, pos, d / s, vehicle_radius_m, cfg))
+    return worst
 
 
 def envelope_step(
