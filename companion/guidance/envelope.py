@@ -58,10 +58,13 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    (≥ 0.1 m/s) or the acceleration (≥ 1 m/s²), the path the autopilot flies to it from
    ``(p, v, a)`` is predicted (:mod:`companion.guidance.autopilot_path`, ``accel_mps2``
    and ``jerk_mps3``, the acceleration held over ``τ``) and each point ``q`` of it must
-   lie within the known-free distance along ``(q − p)/|q − p|``. If not, the vehicle
-   brakes: the carrot is its own position (the reference decelerates at once at its
-   limits), the bound stated is the one along ``v`` (as in step 5's braking) and
-   ``momentum_brake`` reports it (the core counts it and tells the operator). Found on
+   lie within the known-free distance along ``(q − p)/|q − p|`` (0.1 m of tolerance, the
+   prediction's accuracy). If not, and the brake's own predicted path leaves that space
+   by less, the vehicle brakes: the carrot is its own position (the reference
+   decelerates at once at its limits), the bound stated is the one along ``v`` (as in
+   step 5's braking) and ``momentum_brake`` reports it (the core counts it and tells the
+   operator). When braking would carry it farther out (a velocity toward less free space
+   than the turn), the carrot stands. Found on
    the fast ``corridor-3m`` (stop 40): a switch from into the corridor to round the
    wall's end at 0.9 m/s; the reference accelerated on for 0.6 s, 1.7 m/s toward the
    wall's end with 4.9 m/s stated along the new path, 0.31 m from the surface.
