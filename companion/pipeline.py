@@ -41,6 +41,7 @@ from protocols.stereo_frame import StereoFrame
 __all__ = ["AvoidancePipeline", "PipelineOutput", "PoseAtCapture"]
 
 _RETRY_FRAMES = 2  # a search that found no path is not repeated on the next frame
+_ACCEL_WINDOW_NS = 250_000_000  # velocities further apart give no acceleration (a frame was lost)
 
 
 @dataclass(frozen=True, eq=False)
@@ -134,6 +135,7 @@ class AvoidancePipeline:
         self.known_space = KnownSpace(known_space)
         self.envelope_config = EnvelopeConfig() if envelope is None else envelope
         self._last_path = None  # (map frame, goal, KnownPath or None) of the last search
+        self._last_vel = None  # (capture_ns, vel_ned_mps) of the last frame: acceleration
         self._widen(self.perception.config.position_uncertainty_m)
         warm_up()
 
@@ -208,6 +210,7 @@ class AvoidancePipeline:
             config=self.envelope_config,
             latency_s=latency_s,
             heading_rad=pose.yaw_rad,
+            accel_ned_mps2=self._accel(frame.capture_ns, pose.vel_ned_mps),
         )
         escape, kept_out = None, None
         if decision.mode is Mode.HOLD:
@@ -233,6 +236,15 @@ class AvoidancePipeline:
             target_kept_out=None if kept_out is None else kept_out.placement,
             widening=widened,
         )
+
+    def _accel(self, capture_ns: int, vel_ned_mps) -> np.ndarray | None:
+        """The vehicle's acceleration [m/s², NED]: the change of velocity since the last
+        frame, when it came at most ``_ACCEL_WINDOW_NS`` before (None otherwise)."""
+        vel = np.array(vel_ned_mps, dtype=float)
+        last, self._last_vel = self._last_vel, (capture_ns, vel)
+        if last is None or not 0 < capture_ns - last[0] <= _ACCEL_WINDOW_NS:
+            return None
+        return (vel - last[1]) / ((capture_ns - last[0]) * 1e-9)
 
     def _see(self, frame: StereoFrame, pose: PoseAtCapture):
         """Perception of ``frame`` and its depth into the known-space map (no depth: the

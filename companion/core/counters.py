@@ -35,6 +35,7 @@ class CoreCounters:
     mode_holds: int = 0  # holds that asked for the autopilot's hold mode
     hold_targets_moved: int = 0  # hold targets kept out of a boundary
     targets_kept_out: int = 0  # frames whose carrot was kept out of a boundary (invariant 3)
+    momentum_brakes: int = 0  # frames braked: the way to the carrot not seen free (envelope step 8)
     pipeline_errors: int = 0
     speed_limits_sent: int = 0
     speed_limits_accepted: int = 0

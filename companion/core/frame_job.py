@@ -125,6 +125,7 @@ class FrameJob:
         out = result.output
         self._tell_uncovered(out.widening)
         self._counters.targets_kept_out += out.target_kept_out is not None
+        self._counters.momentum_brakes += out.envelope.momentum_brake
         for notice in result.notices:
             self._out.notice(notice.text, SEV_WARNING if notice.warning else SEV_INFO)
         self._out.extend(result.events)

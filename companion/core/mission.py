@@ -75,6 +75,7 @@ class Mission:
         self._avoiding = False
         self._hold_escaped = False  # this hold already said its target was moved out
         self._kept_out_until_s = -math.inf  # a carrot kept out of a boundary was said until
+        self._momentum_until_s = -math.inf  # a momentum brake was said until
         self.tracking = TrackingMonitor(self.pipeline.envelope_config.margin_m)
         self._flown_target: np.ndarray | None = None  # the previous frame's command
 
@@ -113,6 +114,7 @@ class Mission:
         self._report_changes(out, frame.capture_ns, notices, events)
         self._check_tracking(pose, frame.capture_ns, notices, events)
         self._report_kept_out(out, frame.capture_ns, notices, events)
+        self._report_momentum(out, frame.capture_ns, notices, events)
         self._flown_target = np.array(out.setpoint_ned_m) if steering else None
         return MissionStep(out, self.waypoint, tuple(notices), tuple(events))
 
@@ -161,6 +163,32 @@ class Mission:
                 {
                     "placement": placement,
                     "setpoint_ned_m": [float(x) for x in out.setpoint_ned_m],
+                    "capture_s": now_s,
+                },
+            )
+        )
+
+    def _report_momentum(self, out: PipelineOutput, capture_ns: int, notices, events) -> None:
+        """Say once per episode (quiet for ``_KEPT_OUT_QUIET_S`` between) that the envelope
+        braked because the way the autopilot would fly to the carrot was not seen free
+        (step 8 of :mod:`companion.guidance.envelope`; the core counts every such frame)."""
+        env = out.envelope
+        if not env.momentum_brake:
+            return
+        now_s = capture_ns * 1e-9
+        quiet = now_s >= self._momentum_until_s
+        self._momentum_until_s = now_s + _KEPT_OUT_QUIET_S
+        if not quiet:
+            return
+        notices.append(Notice(f"Braking: way to target not seen free at {env.speed_mps:.1f} m/s"))
+        events.append(
+            Event(
+                "momentum_brake",
+                {
+                    "speed_mps": round(env.speed_mps, 3),
+                    "speed_limit_mps": round(env.speed_limit_mps, 3),
+                    "free_distance_m": round(env.free_distance_m, 3),
+                    "guidance_setpoint_ned_m": [float(x) for x in out.guidance.setpoint_ned_m],
                     "capture_s": now_s,
                 },
             )

@@ -51,6 +51,23 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
 6. **Look before moving**: the yaw guidance commands faces ``u`` (not the carrot, which
    may be at the vehicle), so a vehicle that must travel where it has not looked turns
    first; the carrot grows only as the view fills the map with free space.
+8. **Momentum** (issue 36): steps 4–5 certify the straight line to the carrot, but an
+   autopilot whose reference is jerk-limited (ArduCopter's ``shape_pos_vel_accel``) keeps
+   its present acceleration after a target switch and ramps it round, carrying the
+   vehicle on the way it was going. When the carrot lies more than 15° off the velocity
+   (≥ 0.1 m/s) or the acceleration (≥ 1 m/s²), the path the autopilot flies to it from
+   ``(p, v, a)`` is predicted (:mod:`companion.guidance.autopilot_path`, ``accel_mps2``
+   and ``jerk_mps3``, the acceleration held over ``τ``) and each point ``q`` of it must
+   lie within the known-free distance along ``(q − p)/|q − p|`` (0.1 m of tolerance, the
+   prediction's accuracy). If not, and the brake's own predicted path leaves that space
+   by less, the vehicle brakes: the carrot is its own position (the reference
+   decelerates at once at its limits), the bound stated is the one along ``v`` (as in
+   step 5's braking) and ``momentum_brake`` reports it (the core counts it and tells the
+   operator). When braking would carry it farther out (a velocity toward less free space
+   than the turn), the carrot stands. Found on
+   the fast ``corridor-3m`` (stop 40): a switch from into the corridor to round the
+   wall's end at 0.9 m/s; the reference accelerated on for 0.6 s, 1.7 m/s toward the
+   wall's end with 4.9 m/s stated along the new path, 0.31 m from the surface.
 """
 
 from __future__ import annotations
@@ -62,6 +79,7 @@ from typing import Any
 
 import numpy as np
 
+from companion.guidance.autopilot_path import ReferenceLimits, predict_path
 from protocols.config import Checked, bounded, dataclass_from_mapping
 
 __all__ = [
@@ -79,6 +97,16 @@ pipeline's obstacle extents bound: :func:`companion.guidance.map_boundaries.soli
 
 
 _BRAKE_MIN_SPEED_MPS = 0.1  # below this the vehicle has no direction of motion to state a bound for
+# Step 8 (momentum): a carrot more than this angle off the velocity (at or above this
+# speed) or off the acceleration (at or above this acceleration) is certified along the
+# path the autopilot flies to it, not only along the straight line.
+_MOMENTUM_MIN_SPEED_MPS = 0.1
+_MOMENTUM_MIN_ACCEL_MPS2 = 1.0
+_MOMENTUM_COS = math.cos(math.radians(15.0))
+# A predicted path leaving known-free space by less than this is not braked for [m]: the
+# prediction's own accuracy (its overshoot of a target ≤ 5 cm, twice that), within the
+# stop margin the carrot keeps.
+_MOMENTUM_TOLERANCE_M = 0.1
 
 
 @dataclass(frozen=True)
@@ -128,6 +156,11 @@ class EnvelopeConfig(Checked):
     stage_horizontal_m : float
         A setpoint steeper than the path limit and nearer than this horizontally is
         climbed to (or descended to) along the vehicle's heading (step 7) [m].
+    jerk_mps3 : float
+        Jerk limit of the autopilot's shaped reference [m/s³] (step 8). 2.0: below
+        ArduCopter's PSC_JERK_XY (5 m/s³) and PX4's MPC_JERK_AUTO (4 m/s³) defaults and
+        the jerk plant-sim's airframes follow (``airframe_jerk_mps3``); a lower jerk
+        predicts longer stops, so the default errs on the safe side.
     """
 
     latency_s: float = bounded(0.15, "s", ge=0)
@@ -143,6 +176,7 @@ class EnvelopeConfig(Checked):
     lookahead_m: float = bounded(12.0, "m", ge=0)
     overspeed_tolerance_mps: float = bounded(0.3, "m/s", ge=0)
     stage_horizontal_m: float = bounded(1.0, "m", ge=0)
+    jerk_mps3: float = bounded(2.0, "m/s³", gt=0)
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> EnvelopeConfig:
@@ -175,6 +209,9 @@ class EnvelopeOutput:
     latency_s : float
         The latency ``τ`` budgeted in the stopping rule [s] (the measured budget, at
         least ``EnvelopeConfig.latency_s``).
+    momentum_brake : bool
+        Step 8 braked: the path the autopilot would fly from the present state to the
+        carrot was not seen free, so the target is the vehicle's own position.
     """
 
     setpoint_ned_m: np.ndarray
@@ -186,6 +223,7 @@ class EnvelopeOutput:
     limited: bool
     overspeed: bool
     latency_s: float = 0.15
+    momentum_brake: bool = False
 
 
 def stopping_distance_m(speed_mps: float, latency_s: float, accel_mps2: float) -> float:
@@ -260,6 +298,67 @@ def _limit_mps(free_m: float, tau_s: float, cfg: EnvelopeConfig) -> float:
     return min(speed_limit_mps(free_m, tau_s, cfg.accel_mps2, cfg.margin_m), cfg.max_speed_mps)
 
 
+def _path_and_carrot(pos, target, d_stop, free_distance, radius_m, max_elev_rad, heading, cfg):
+    """Steps 1, 2, 4 and 7: the path direction, its known-free distance, the carrot and
+    whether it falls short of ``target``."""
+    to_setpoint = target - pos
+    if float(to_setpoint @ to_setpoint) < 1e-12:
+        return np.zeros(3), 0.0, target.copy(), False
+    direction = _path_direction(to_setpoint, max_elev_rad, heading, cfg.stage_horizontal_m)
+    free = _free_m(free_distance, pos, direction, radius_m, cfg)
+    carrot, limited = _carrot(pos, target, direction, free - d_stop - cfg.margin_m, cfg)
+    return direction, free, carrot, limited
+
+
+def _along(x: np.ndarray, to_carrot: np.ndarray, reach_m: float, floor: float) -> bool:
+    """``x`` (a velocity or an acceleration) is below ``floor`` or within
+    ``_MOMENTUM_COS`` of the direction to the carrot."""
+    size = math.sqrt(float(x @ x))
+    return size < floor or float(x @ to_carrot) >= _MOMENTUM_COS * size * reach_m
+
+
+def _momentum_clear(
+    pos, vel, acc, carrot, free_distance, tau_s, limit_mps, cfg, vehicle_radius_m
+) -> bool:
+    """Step 8: whether to send ``carrot`` rather than brake. True when the path the
+    autopilot flies from ``(pos, vel, acc)`` to it stays inside known-free space seen from
+    ``pos``, or when braking (target at the vehicle) would leave it by more. Only a carrot
+    off the velocity or the acceleration is predicted: one ahead along both (or the brake
+    target at the vehicle) is covered by steps 4–5."""
+    to_carrot = carrot - pos
+    reach = math.sqrt(float(to_carrot @ to_carrot))
+    if reach < 1e-6:
+        return True
+    if all(
+        _along(x, to_carrot, reach, floor)
+        for x, floor in ((vel, _MOMENTUM_MIN_SPEED_MPS), (acc, _MOMENTUM_MIN_ACCEL_MPS2))
+    ):
+        return True
+    speed = math.sqrt(float(vel @ vel))
+    limits = ReferenceLimits(cfg.accel_mps2, cfg.jerk_mps3, max(limit_mps, speed, 0.1))
+
+    def excess(target) -> float:
+        path = predict_path(pos, vel, acc, target, tau_s, limits)
+        return _excess_m(path, pos, free_distance, vehicle_radius_m, cfg)
+
+    to_carrot_excess = excess(carrot)
+    return to_carrot_excess <= _MOMENTUM_TOLERANCE_M or excess(pos) >= to_carrot_excess
+
+
+def _excess_m(path, pos, free_distance, vehicle_radius_m, cfg) -> float:
+    """How far the path's points lie beyond the known-free distance along their rays from
+    ``pos`` (each ``q`` against the free distance along ``(q − p)/|q − p|``; the margin
+    is kept by where it stops, the carrot): ≤ 0 when all lie inside [m]."""
+    worst = -math.inf
+    for q in path:
+        d = q - pos
+        s = math.sqrt(float(d @ d))
+        if s < cfg.min_advance_m:
+            continue
+        worst = max(worst, s - _free_m(free_distance, pos, d / s, vehicle_radius_m, cfg))
+    return worst
+
+
 def envelope_step(
     *,
     pos_ned_m,
@@ -271,6 +370,7 @@ def envelope_step(
     config: EnvelopeConfig | None = None,
     latency_s: float | None = None,
     heading_rad: float | None = None,
+    accel_ned_mps2=None,
 ) -> EnvelopeOutput:
     """Bound guidance's setpoint by known-free space and the stopping distance.
 
@@ -294,33 +394,31 @@ def envelope_step(
         The latency budget ``τ`` to use [s] (:meth:`~companion.guidance.latency.
         DataAgeWindow.budget_s`); never below ``config.latency_s``, which is used when it
         is None or not a finite number.
-
-    Returns
-    -------
-    EnvelopeOutput
+    heading_rad : float, optional
+        The vehicle's heading [rad] (step 7's stages climb along it).
+    accel_ned_mps2 : array_like, shape (3,), optional
+        The vehicle's acceleration [m/s², NED] for step 8's prediction; zero when None.
     """
     cfg = EnvelopeConfig() if config is None else config
-    pos = np.asarray(pos_ned_m, dtype=float)
-    vel = np.asarray(vel_ned_mps, dtype=float)
+    pos, vel = np.asarray(pos_ned_m, dtype=float), np.asarray(vel_ned_mps, dtype=float)
     target = np.asarray(setpoint_ned_m, dtype=float)
     speed = math.sqrt(float(vel @ vel))
     tau = _budget_s(cfg, latency_s)
     d_stop = stopping_distance_m(speed, tau, cfg.accel_mps2)
-    to_setpoint = target - pos
-    dist = math.sqrt(float(to_setpoint @ to_setpoint))
-
-    if dist < 1e-6:
-        direction, free, carrot, limited = np.zeros(3), 0.0, target.copy(), False
-    else:
-        direction = _path_direction(
-            to_setpoint, max_path_elevation_rad, heading_rad, cfg.stage_horizontal_m
-        )
-        free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
-        carrot, limited = _carrot(pos, target, direction, free - d_stop - cfg.margin_m, cfg)
+    direction, free, carrot, limited = _path_and_carrot(
+        pos, target, d_stop, free_distance, vehicle_radius_m, max_path_elevation_rad,
+        heading_rad, cfg)  # fmt: skip
     limit = _limit_mps(free, tau, cfg)
-    if speed > limit and speed >= _BRAKE_MIN_SPEED_MPS:
-        # Too fast to turn onto the path (or the path's free space shrank): the carrot is
-        # at the vehicle (reach 0), and the stated bound is the one for the way it moves.
+    acc = np.zeros(3) if accel_ned_mps2 is None else np.asarray(accel_ned_mps2, dtype=float)
+    momentum = speed <= limit and not _momentum_clear(
+        pos, vel, acc, carrot, free_distance, tau, limit, cfg, vehicle_radius_m
+    )
+    if momentum:
+        carrot, limited = pos.copy(), True
+    if (speed > limit or momentum) and speed >= _BRAKE_MIN_SPEED_MPS:
+        # Too fast to turn onto the path (or the path's free space shrank, or the
+        # autopilot's way to the carrot is not seen free): the carrot is at the vehicle
+        # (reach 0), and the stated bound is the one for the way it moves.
         direction = vel / speed
         free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
         limit = _limit_mps(free, tau, cfg)
@@ -336,4 +434,5 @@ def envelope_step(
         limited=limited,
         overspeed=speed > limit + cfg.overspeed_tolerance_mps,
         latency_s=tau,
+        momentum_brake=momentum,
     )

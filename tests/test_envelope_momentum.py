@@ -1,0 +1,225 @@
+"""Momentum after a target switch at speed (issue 36; envelope step 8).
+
+The reproducer: a vehicle moving (and still accelerating) toward a seen-free direction,
+guidance switches its target sideways past a post. The straight line to the new target is
+free, so steps 1–5 alone send a far carrot; the autopilot's jerk-limited reference
+(plant-sim's own :class:`~plant_sim.autopilot.shaping.TargetShaper`, ArduCopter's GUIDED
+limits: WPNAV_ACCEL 2.5 m/s², jerk 2 m/s³) carries the vehicle on, curving into the post.
+Without step 8 it comes within the collision distance (0.35 m: the vehicle's radius) in
+20 of the grid's 144 cases (−0.20 m the worst); with it the closest is 0.40 m.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from companion.guidance import envelope as envelope_module
+from companion.guidance.autopilot_path import ReferenceLimits, predict_path, straight_stop_m
+from companion.guidance.envelope import EnvelopeConfig, envelope_step
+from companion.perception import PerceptionConfig
+from plant_sim.autopilot.shaping import ShapingLimits, TargetShaper
+
+RADIUS_M = PerceptionConfig().vehicle_radius_m  # 0.35 m: also the collision distance
+ELEV_RAD = math.radians(12.0)
+FRAME_S = 1.0 / 30.0
+LATENCY_FRAMES = 3  # capture → the autopilot acting: 0.1 s, inside the 0.15 s budget
+# ArduCopter GUIDED as plant-sim flies it: WPNAV_ACCEL 2.5 m/s², jerk min(PSC_JERK_XY, the
+# airframe's 2 m/s³)
+GUIDED = ShapingLimits(10.0, 2.5, 1.5, 2.5, 2.5, 2.0, 2.0)
+ALT_D_M = -5.0
+
+
+def _free_among(balls, lookahead_m: float = 12.0):
+    """Known-free distance with everything outside ``balls`` seen free: the ray's first
+    contact of the vehicle's section (radius ``radius_m``) with a ball [m]."""
+
+    def free(pos, unit, radius_m, limit_m, half_height_m, body_m, near_field_m):
+        best = min(limit_m, lookahead_m)
+        for centre, r in balls:
+            f = np.asarray(pos, dtype=float) - centre
+            b = float(f @ unit)
+            disc = b * b - (float(f @ f) - (r + radius_m) ** 2)
+            if disc <= 0.0:
+                continue
+            root = math.sqrt(disc)
+            if -b + root > 0.0:
+                best = min(best, max(0.0, -b - root))
+        return best
+
+    return free
+
+
+def _fly_switch(balls, speed_mps, accel_mps2, new_target, seconds=6.0):
+    """Closed loop from north at ``speed_mps`` accelerating at ``accel_mps2`` toward a far
+    target (the old one), the target switched to ``new_target`` at t = 0; returns the
+    closest approach to a ball's surface [m] and the frames step 8 braked."""
+    shaper = TargetShaper(GUIDED)
+    shaper.reset((0.0, 0.0, ALT_D_M), (speed_mps, 0.0, 0.0))
+    shaper.acc_ned_mps2 = [accel_mps2, 0.0, 0.0]
+    shaper.go_to((8.0, 0.0, ALT_D_M))
+    free = _free_among(balls)
+    in_flight: list[np.ndarray] = []
+    closest, brakes = math.inf, 0
+    for _ in range(int(seconds / FRAME_S)):
+        out = envelope_step(
+            pos_ned_m=shaper.pos_ned_m,
+            vel_ned_mps=shaper.vel_ned_mps,
+            accel_ned_mps2=shaper.acc_ned_mps2,
+            setpoint_ned_m=new_target,
+            free_distance=free,
+            vehicle_radius_m=RADIUS_M,
+            max_path_elevation_rad=ELEV_RAD,
+        )
+        brakes += out.momentum_brake
+        in_flight.append(out.setpoint_ned_m)
+        if len(in_flight) > LATENCY_FRAMES:
+            shaper.go_to(in_flight.pop(0))
+        shaper.step(FRAME_S)
+        pos = np.array(shaper.pos_ned_m)
+        closest = min(closest, min(float(np.linalg.norm(pos - c)) - r for c, r in balls))
+    return closest, brakes
+
+
+# Posts 0.4 m in radius, 0.9 m east of the line flown, 3 or 4 m ahead (the straight lines
+# north and east both clear them); switched at 0.6–1.5 m/s and 1–2.5 m/s² toward east or
+# north-east. (A wider grid, v 0.6–2.0 m/s, a 0–2.5 m/s², posts 2–4 m ahead and 0.9–1.2 m
+# aside, 144 cases: 20 collide without step 8, down to −0.20 m; with it the least is 0.40 m.)
+SWITCHES = [
+    (v, a, (n, e), new)
+    for v, a, n, e, new in itertools.product(
+        (0.6, 0.9, 1.5), (1.0, 2.5), (3.0, 4.0), (0.9,), ((0.0, 10.0), (4.0, 8.0))
+    )
+]
+
+
+def _case(v, a, post, new):
+    balls = [(np.array([post[0], post[1], ALT_D_M]), 0.4)]
+    return balls, v, a, np.array([new[0], new[1], ALT_D_M])
+
+
+def test_a_switch_at_speed_keeps_out_of_the_collision_distance(monkeypatch):
+    """The reproducer reproduces: with the straight-line rules alone (step 8 switched
+    off) the switches collide; with step 8 every one stays outside the vehicle's radius of
+    every surface, and the rule fired in each that collided without it."""
+    with_rule = [_fly_switch(*_case(*c)) for c in SWITCHES]
+    monkeypatch.setattr(envelope_module, "_momentum_clear", lambda *args: True)
+    without = np.array([_fly_switch(*_case(*c))[0] for c in SWITCHES])
+    collided = without < RADIUS_M
+    assert collided.sum() >= len(SWITCHES) // 3 and without.min() < 0.0, without.round(3)
+    closest = np.array([r[0] for r in with_rule])
+    assert closest.min() >= RADIUS_M, [
+        (c, round(d, 3)) for c, d in zip(SWITCHES, closest, strict=True) if d < RADIUS_M
+    ]
+    assert all(r[1] > 0 for r, hit in zip(with_rule, collided, strict=True) if hit)
+
+
+def test_the_momentum_brake_states_the_bound_along_the_velocity():
+    """At the switch: the target is the vehicle's own position, the direction and the
+    bound stated are those along the velocity, and ``momentum_brake`` says why."""
+    balls, v, a, new = _case(0.9, 2.5, (3.0, 0.9), (0.0, 10.0))
+    free = _free_among(balls)
+    pos = np.array([0.0, 0.0, ALT_D_M])
+    common = dict(
+        pos_ned_m=pos,
+        vel_ned_mps=(v, 0.0, 0.0),
+        setpoint_ned_m=new,
+        free_distance=free,
+        vehicle_radius_m=RADIUS_M,
+        max_path_elevation_rad=ELEV_RAD,
+    )
+    out = envelope_step(**common, accel_ned_mps2=(a, 0.0, 0.0))
+    assert out.momentum_brake and out.limited
+    np.testing.assert_allclose(out.setpoint_ned_m, pos, atol=1e-12)
+    np.testing.assert_allclose(out.path_dir_ned, (1.0, 0.0, 0.0), atol=1e-12)
+    cfg = EnvelopeConfig()
+    free_v = free(pos, np.array([1.0, 0.0, 0.0]), RADIUS_M, cfg.lookahead_m, 0, 0, 0)
+    assert out.free_distance_m == pytest.approx(free_v, abs=1e-9)
+    # the same command straight ahead (within 15° of v and a) is steps 4–5's, not braked
+    ahead = envelope_step(
+        **{**common, "setpoint_ned_m": (8.0, 0.0, ALT_D_M)}, accel_ned_mps2=(a, 0, 0)
+    )
+    assert not ahead.momentum_brake
+
+
+@pytest.mark.parametrize(
+    ("speed", "accel", "latency"),
+    [(0.0, 0.0, 0.15), (1.0, 0.0, 0.15), (2.0, 0.0, 0.3), (0.9, 2.5, 0.15), (1.5, -1.0, 0.1),
+     (0.5, -2.5, 0.15), (3.0, 1.0, 0.0)],
+)  # fmt: skip
+def test_straight_stop_matches_the_integrated_jerk_limited_stop(speed, accel, latency):
+    """The closed form against a fine integration of the same stop: ``a₀`` held for
+    ``τ``, ramped to ``−A`` at ``j``, held, ramped back to 0 once the speed left is what
+    that ramp removes (``A²/(2j)``)."""
+    lim = ReferenceLimits(accel_mps2=2.5, jerk_mps3=2.0, speed_mps=10.0)
+    A, j, dt = lim.accel_mps2, lim.jerk_mps3, 1e-5
+    v, a, d, t, ramp_out = speed, accel, 0.0, 0.0, False
+    while v > 0.0 or t < latency:
+        if t >= latency:
+            ramp_out = ramp_out or (a <= -A and v <= A * A / (2.0 * j))
+            a = min(a + j * dt, 0.0) if ramp_out else max(a - j * dt, -A)
+        d += v * dt + 0.5 * a * dt * dt
+        v += a * dt
+        t += dt
+        if t > latency and v <= 0.0:
+            break
+    assert straight_stop_m(speed, accel, latency, lim) == pytest.approx(d, abs=2e-3)
+
+
+def test_straight_stop_without_jerk_limit_is_the_envelope_stop():
+    """``j → ∞`` and ``a₀ = 0``: ``τ·v + v²/(2A)`` (the envelope's step 3)."""
+    lim = ReferenceLimits(accel_mps2=2.0, jerk_mps3=1e9, speed_mps=10.0)
+    for v in (0.5, 1.0, 3.0):
+        expected = 0.15 * v + v * v / 4.0
+        assert straight_stop_m(v, 0.0, 0.15, lim) == pytest.approx(expected, rel=1e-6)
+
+
+def test_predicted_brake_lies_between_the_instant_and_the_jerk_limited_stop():
+    """A target at the vehicle: the path's reach along ``v`` is at least the stop at once
+    (``τ·v + v²/(2A)``) and at most the jerk-limited closed form."""
+    lim = ReferenceLimits(accel_mps2=2.0, jerk_mps3=2.0, speed_mps=10.0)
+    for v, a in ((0.5, 0.0), (1.0, 0.0), (2.0, 0.0), (0.9, 2.0), (1.5, 1.0)):
+        path = predict_path((0, 0, 0), (v, 0, 0), (a, 0, 0), (0, 0, 0), 0.15, lim)
+        reach = float(path[:, 0].max())
+        assert 0.15 * v + v * v / 4.0 - 0.02 <= reach <= straight_stop_m(v, a, 0.15, lim)
+
+
+@pytest.mark.parametrize("distance_m", [0.3, 1.0, 2.0, 5.0])
+def test_predicted_path_to_a_target_ahead_ends_on_it(distance_m):
+    """From rest the path ends on the target (within 5 cm) and does not pass it by more
+    than 5 cm: the square-root speed with its lag taken off stops there."""
+    lim = ReferenceLimits(accel_mps2=2.0, jerk_mps3=2.0, speed_mps=10.0)
+    path = predict_path(
+        (0, 0, 0), (0, 0, 0), (0, 0, 0), (distance_m, 0, 0), 0.15, lim, horizon_s=10.0
+    )
+    assert path[-1, 0] == pytest.approx(distance_m, abs=0.05)
+    assert path[:, 0].max() <= distance_m + 0.05
+    np.testing.assert_allclose(path[:, 1:], 0.0, atol=1e-12)
+
+
+def test_a_momentum_brake_is_said_once_per_episode_and_counted():
+    """The operator hears of it once per episode (again after 5 s without one), with the
+    speed, the bound along the velocity and guidance's target."""
+    from types import SimpleNamespace
+
+    from companion.core.mission import Mission
+
+    mission = Mission([(0.0, 0.0, -7.0)], goal_tolerance_m=0.5)
+    said = []
+    for k, braked in enumerate([True] * 30 + [False] * 200 + [True]):
+        envelope = SimpleNamespace(
+            momentum_brake=braked, speed_mps=1.72, speed_limit_mps=0.9, free_distance_m=1.1
+        )
+        guidance = SimpleNamespace(setpoint_ned_m=np.array([0.0, 10.0, -5.0]))
+        out = SimpleNamespace(envelope=envelope, guidance=guidance)
+        notices, events = [], []
+        mission._report_momentum(out, int(k / 30 * 1e9), notices, events)  # 30 Hz
+        said += [
+            (k, n.text, e.name, e.fields["speed_mps"]) for n, e in zip(notices, events, strict=True)
+        ]
+    text = "Braking: way to target not seen free at 1.7 m/s"
+    assert said == [(0, text, "momentum_brake", 1.72), (230, text, "momentum_brake", 1.72)]
+    assert len(text) <= 50  # one STATUSTEXT
