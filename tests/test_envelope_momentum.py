@@ -146,6 +146,32 @@ def test_the_momentum_brake_states_the_bound_along_the_velocity():
 
 
 @pytest.mark.parametrize(
+    "garbage", [(math.nan, 0.0, 0.0), (0.0, math.inf, 0.0), (1.0, 2.0), (1e12, 0.0, 0.0)]
+)
+def test_a_hostile_acceleration_is_not_believed(garbage):
+    """A non-finite or malformed acceleration counts as none; a huge one (velocities of
+    frames close together) is believed only up to 2 g, so it neither crashes step 8 nor
+    flings its prediction kilometres away."""
+    balls, v, _, new = _case(0.9, 2.5, (3.0, 0.9), (0.0, 10.0))
+    common = dict(
+        pos_ned_m=np.array([0.0, 0.0, ALT_D_M]),
+        vel_ned_mps=(v, 0.0, 0.0),
+        setpoint_ned_m=new,
+        free_distance=_free_among(balls),
+        vehicle_radius_m=RADIUS_M,
+        max_path_elevation_rad=ELEV_RAD,
+    )
+    out = envelope_step(**common, accel_ned_mps2=garbage)
+    assert np.all(np.isfinite(out.setpoint_ned_m)) and math.isfinite(out.speed_limit_mps)
+    if all(math.isfinite(x) for x in garbage) and len(garbage) == 3 and garbage[0] < 1e6:
+        return
+    capped = (2.0 * 9.81, 0.0, 0.0) if garbage[0] == 1e12 else None
+    same = envelope_step(**common, accel_ned_mps2=capped)
+    np.testing.assert_array_equal(out.setpoint_ned_m, same.setpoint_ned_m)
+    assert out.momentum_brake == same.momentum_brake
+
+
+@pytest.mark.parametrize(
     ("speed", "accel", "latency"),
     [(0.0, 0.0, 0.15), (1.0, 0.0, 0.15), (2.0, 0.0, 0.3), (0.9, 2.5, 0.15), (1.5, -1.0, 0.1),
      (0.5, -2.5, 0.15), (3.0, 1.0, 0.0)],

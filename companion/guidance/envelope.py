@@ -107,6 +107,8 @@ _MOMENTUM_COS = math.cos(math.radians(15.0))
 # prediction's own accuracy (its overshoot of a target ≤ 5 cm, twice that), within the
 # stop margin the carrot keeps.
 _MOMENTUM_TOLERANCE_M = 0.1
+# the largest acceleration step 8 believes [m/s²]: 2 g, beyond any multirotor's reference
+_MOMENTUM_MAX_ACCEL_MPS2 = 19.62
 
 
 @dataclass(frozen=True)
@@ -345,6 +347,19 @@ def _momentum_clear(
     return to_carrot_excess <= _MOMENTUM_TOLERANCE_M or excess(pos) >= to_carrot_excess
 
 
+def _measured_accel(accel_ned_mps2) -> np.ndarray:
+    """Step 8's acceleration [m/s², NED]: zero when none is known or it is not three
+    finite numbers; its size at most ``_MOMENTUM_MAX_ACCEL_MPS2`` (a velocity difference
+    over frames close together is noisy, and the prediction holds it over the latency)."""
+    if accel_ned_mps2 is None:
+        return np.zeros(3)
+    acc = np.asarray(accel_ned_mps2, dtype=float).reshape(-1)
+    if acc.shape != (3,) or not np.all(np.isfinite(acc)):
+        return np.zeros(3)
+    size = math.sqrt(float(acc @ acc))
+    return acc * (_MOMENTUM_MAX_ACCEL_MPS2 / size) if size > _MOMENTUM_MAX_ACCEL_MPS2 else acc
+
+
 def _excess_m(path, pos, free_distance, vehicle_radius_m, cfg) -> float:
     """How far the path's points lie beyond the known-free distance along their rays from
     ``pos`` (each ``q`` against the free distance along ``(q − p)/|q − p|``; the margin
@@ -409,7 +424,7 @@ def envelope_step(
         pos, target, d_stop, free_distance, vehicle_radius_m, max_path_elevation_rad,
         heading_rad, cfg)  # fmt: skip
     limit = _limit_mps(free, tau, cfg)
-    acc = np.zeros(3) if accel_ned_mps2 is None else np.asarray(accel_ned_mps2, dtype=float)
+    acc = _measured_accel(accel_ned_mps2)
     momentum = speed <= limit and not _momentum_clear(
         pos, vel, acc, carrot, free_distance, tau, limit, cfg, vehicle_radius_m
     )
