@@ -39,7 +39,7 @@ optional, and an unknown key anywhere is an error that names it (``link.rate`` �
     [proximity]                          # OBSTACLE_DISTANCE from the known-space map
     enabled = true                       # on by default (ArduPilot PRX1_TYPE=2, PX4 CP_DIST)
     thread = true                        # a watchdog sends when the main loop is late
-    own_process = false                  # ... from a process of its own (udpout links)
+    own_process = true                   # ... a process of its own sends (UDP links)
     realtime_priority = 10               # its SCHED_FIFO priority (0: a normal task)
     rate_hz = 20.0                       # least send rate, from start-up, in every mode
     n_sectors = 72                       # ≤ 72; n_sectors × increment_deg ≤ 360

@@ -5,14 +5,17 @@ waits on the MAVLink socket and the frame slot (``select``), then hands the core
 (:mod:`companion.core.events`) stamped with the host's monotonic clock, every MAVLink
 message received, a clock tick and the newest frame, and carries out what it returns:
 MAVLink messages and setpoints onto the link, ``COMPANION EVENT <name> {json}`` lines on
-stdout, status documents on Zenoh. When the main loop has sent no OBSTACLE_DISTANCE for
-1.5 periods (a long frame), a watchdog thread sends it (:mod:`companion.proximity.stream`),
+stdout, status documents on Zenoh. OBSTACLE_DISTANCE keeps its rate while this loop is
+busy: on a UDP link (by default, ``[proximity] own_process``) a process of its own sends
+it every period through this loop's socket, inherited through the fork, so the autopilot
+sees one peer (:mod:`companion.proximity.process`); this loop shares with it, in shared
+memory, the map copy taken after each frame, the core's newest pose, the socket's peers
+and the signing timestamp, and alone reads the socket. Elsewhere (serial, TCP, no fork,
+``own_process = false``, or a process that does not come up) a watchdog thread sends
+when this loop has sent none for 1.5 periods (:mod:`companion.proximity.stream`),
 reading the link itself for a fresh position (one lock for the link; the main loop takes
-what it read first), on a copy of the map taken after each frame. With ``[proximity]
-own_process`` on a ``udpout`` link the stream runs instead in a process of its own, with
-its own socket, every period, on the map copy in shared memory
-(:mod:`companion.proximity.process`): it does not wait for this interpreter. Neither
-with a recorder or viewer attached: a recording replays the core's sends bit for bit.
+what it read first). Neither with a recorder or viewer attached: a recording replays the
+core's sends bit for bit.
 Around that, reporting only: the health file, the progress log, signing refusals and "no frames on
 our key" hints. The log goes to stderr.
 Recorders and viewers (``--record``, ``--rerun``) see every step's input and outputs
@@ -33,6 +36,7 @@ from typing import Any, TextIO
 
 import zenoh
 
+from companion.clock_model import FrameClock
 from companion.config import CompanionConfig
 from companion.core import (
     CompanionCore,
@@ -51,8 +55,9 @@ from companion.health import HealthFile, HealthInputs
 from companion.intake import FrameIntake
 from companion.link.connection import MavlinkConnection
 from companion.observe import CompanionObserver, Observers
-from companion.proximity.process import ProximityProcess, new_spec, own_process_possible
+from companion.proximity.process import ProximityProcess, new_spec, own_process_refusal
 from companion.proximity.sender import ProximitySender
+from companion.proximity.shared import SharedLink, SharedPose
 from companion.proximity.stream import SLAB_MARGIN_M, ProximityStream, snapshot_map
 from companion.status import StatusPublisher
 from protocols.keys import companion_status_key, stereo_key
@@ -108,6 +113,8 @@ class CompanionService:
         # OBSTACLE_DISTANCE's own thread or process
         self.proximity: ProximityStream | ProximityProcess | None = None
         self._mission = self.core.mission  # whose map the thread has a copy of
+        self._shared_pose: SharedPose | None = None  # what the process was last given
+        self._shared_pose_key: tuple | None = None
         self._status: StatusPublisher | None = None
         self.health: HealthFile | None = None  # --health-file: rewritten once a second
         self._next_report_s = 0.0
@@ -137,19 +144,30 @@ class CompanionService:
         """The stream's own process where the link allows one (forked here, before Zenoh
         starts its threads), else (or when it does not come up) the watchdog thread."""
         link = self.config.link
-        if self.config.proximity.own_process and own_process_possible(link.url):
-            process = ProximityProcess(sender, new_spec(self.config, sender))
-            try:
-                process.start()
-            except RuntimeError as exc:
-                _log.error("%s: the watchdog thread sends instead", exc)
+        if self.config.proximity.own_process:
+            refusal = own_process_refusal(link.url)
+            fd = self.link.fileno()
+            if refusal is None and fd is None:
+                refusal = "the link has no socket to share"
+            if refusal is None:
+                process = ProximityProcess(sender, new_spec(self.config, sender, fd))
+                try:
+                    process.start(self._shared_link())
+                except RuntimeError as exc:
+                    _log.error("%s: the watchdog thread sends instead", exc)
+                else:
+                    if process.wait_ready():
+                        return process
+                    process.close()
+                    _log.error(
+                        "the OBSTACLE_DISTANCE process did not start within its start-up "
+                        "time: the watchdog thread sends instead"
+                    )
             else:
-                if process.wait_ready():
-                    return process
-                process.close()
-                _log.error(
-                    "the OBSTACLE_DISTANCE process did not send within its start-up time: "
-                    "the watchdog thread sends instead"
+                _log.info(
+                    "OBSTACLE_DISTANCE from a watchdog thread, not a process of its own: %s "
+                    "(it keeps the rate less well on a loaded processor)",
+                    refusal,
                 )
         stream = ProximityStream(
             sender, self._poll_link, self._send, (link.target_system, link.target_component)
@@ -214,6 +232,7 @@ class CompanionService:
                 continue
             for msg in self._received():
                 self._step(MavlinkReceived(msg, time.monotonic_ns()))
+            self._share_with_process()
             self._step(Tick(time.monotonic_ns()))
             frame = self.slot.take()
             if frame is not None:
@@ -254,6 +273,34 @@ class CompanionService:
         now = self._poll_link()
         self.proximity.observe(now, time.monotonic_ns())
         return earlier + now
+
+    def _share_with_process(self) -> None:
+        """Hand the OBSTACLE_DISTANCE process the core's newest pose (when it changed), the
+        socket's peers and the signing timestamp."""
+        if not isinstance(self.proximity, ProximityProcess):
+            return
+        telemetry = self.core.telemetry
+        key = (telemetry.poses.newest_ns, telemetry.position_host_ns)
+        pose = self._shared_pose if key == self._shared_pose_key else self._pose_to_share()
+        self._shared_pose_key, self._shared_pose = key, pose
+        self.proximity.share(pose, self._shared_link())
+
+    def _pose_to_share(self) -> SharedPose | None:
+        newest = self.core.telemetry.newest_pose()
+        if newest is None:
+            return None
+        frame_ns, received_ns, pose = newest
+        return SharedPose(
+            pos_ned_m=tuple(float(x) for x in pose.pos_ned_m),
+            vel_ned_mps=tuple(float(x) for x in pose.vel_ned_mps),
+            yaw_rad=float(pose.yaw_rad),
+            frame_ns=int(frame_ns),
+            received_ns=int(received_ns),
+            host_frame_clock=self.core.clock.frame_clock is FrameClock.HOST,
+        )
+
+    def _shared_link(self) -> SharedLink:
+        return SharedLink(tuple(self.link.udp_peers() or ()), self.link.signing_timestamp)
 
     def _snapshot_map(self, capture_ns: int) -> None:
         """Hand the OBSTACLE_DISTANCE thread a copy of the map the frame just updated."""

@@ -326,3 +326,19 @@ def test_position_at_send_is_carried_by_its_velocity_until_stale():
     assert position_at_send(p, v, -0.01) is None  # a clock gone backward: not trusted
     assert position_at_send(p, v, math.inf) is None
     assert position_at_send(p, np.array([math.nan, 0.0, 0.0]), 0.1) is None
+
+
+def test_the_age_of_a_pose_counts_the_wait_for_the_reader_only_on_the_host_clock():
+    """Host time since the position was read × the frame clock's rate; with frames on the
+    host clock at least the time since the autopilot stamped it (a busy main loop read it
+    late); on the autopilot's clock (the SIL) the stamp is not compared with the host's."""
+    from companion.proximity.sender import pose_age_s
+
+    s = 1_000_000_000
+    # read 0.1 s ago, stamped 0.4 s ago: it waited 0.3 s in the socket
+    assert pose_age_s(10 * s, 9.9 * s, 9.6 * s, 1.0, True) == pytest.approx(0.4)
+    assert pose_age_s(10 * s, 9.9 * s, 9.6 * s, 1.0, False) == pytest.approx(0.1)
+    # a simulator at 4x: 0.1 s of host time is 0.4 s of its clock
+    assert pose_age_s(10 * s, 9.9 * s, 123, 4.0, False) == pytest.approx(0.4)
+    # a stamp the mapping puts ahead of now never shortens the receipt age
+    assert pose_age_s(10 * s, 9.9 * s, 10.2 * s, 1.0, True) == pytest.approx(0.1)

@@ -97,7 +97,11 @@ def test_prx1_arming_needs_the_companion_and_its_message_flows_before_takeoff(
     assert text is not None and text.text.startswith("Arm: PRX1: No Data"), text
     ack = recv(m, "COMMAND_ACK", 3.0, cond=lambda a: a.command == ARM)
     assert ack is not None and ack.result == M.MAV_RESULT_FAILED
-    with _companion(plant.mavlink_port):
+    with _companion(plant.mavlink_port) as companion:
+        # by default from a process of its own, through the companion's socket
+        assert "OBSTACLE_DISTANCE process sending through the companion's socket" in (
+            companion.stderr_text()
+        )
         times, msgs = _obstacle_distance_times(m, 3.0)
         assert len(times) >= 20, f"{len(times)} OBSTACLE_DISTANCE in 3 s"
         rate_hz = (len(times) - 1) / (times[-1] - times[0])
@@ -184,9 +188,8 @@ def _pilot_approach(
     plant_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     companion_zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     with contextlib.ExitStack() as stack:
-        config = tmp_path / "companion.toml"  # plant-sim answers every UDP peer
-        config.write_text("[proximity]\nown_process = true\n", encoding="utf-8")
-        companion = stack.enter_context(_companion_at(mav_port, companion_zenoh, config))
+        # OBSTACLE_DISTANCE from its own process (the default on a UDP link)
+        companion = stack.enter_context(_companion_at(mav_port, companion_zenoh))
         plant = PlantProcess(
             ["--scenario", str(scenario), "--mavlink", f"udpin:127.0.0.1:{mav_port}",
              "--zenoh-listen", plant_zenoh, "--zenoh-connect", companion_zenoh,
@@ -261,12 +264,12 @@ def _pilot_approach(
 
 
 @contextlib.contextmanager
-def _companion_at(mav_port: int, zenoh: str, config) -> Iterator[ChildProcess]:
+def _companion_at(mav_port: int, zenoh: str) -> Iterator[ChildProcess]:
     child = ChildProcess(
         "companion",
         "companion",
-        ["--config", str(config), "--mavlink", f"udpout:127.0.0.1:{mav_port}",
-         "--zenoh-listen", zenoh, "--no-request-mode"],
+        ["--mavlink", f"udpout:127.0.0.1:{mav_port}", "--zenoh-listen", zenoh,
+         "--no-request-mode"],
     )  # fmt: skip
     try:
         child.wait_line(r"^COMPANION READY ", 60)

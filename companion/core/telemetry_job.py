@@ -167,6 +167,16 @@ class TelemetryJob:
                 self._seen(t)
         return restarted
 
+    def newest_pose(self):
+        """(frame-clock time, host time its position was read, pose) of the newest complete
+        pose; None before one (the OBSTACLE_DISTANCE process places the vehicle with it,
+        :mod:`companion.proximity.process`)."""
+        newest, host_ns = self.poses.newest_ns, self.position_host_ns
+        if newest is None or host_ns is None:
+            return None
+        pose = self.poses.at(newest).pose
+        return None if pose is None else (newest, host_ns, pose)
+
     def on_gps_raw(self, msg, now_s: float) -> None:
         """GPS_RAW_INT ``h_acc`` [mm]: the accuracy the autopilot states for its position
         (0 or UINT32_MAX: none stated)."""

@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
+import socket
 import struct
 import types
 from dataclasses import dataclass
@@ -98,6 +99,7 @@ class MavlinkConnection:
         self.baud = baud
         self._signing_key = signing_key
         self._conn = None
+        self._resolved: tuple[str, str] | None = None  # udpout: (host, its IPv4 address)
         self.counters = LinkCounters()
 
     @property
@@ -154,6 +156,33 @@ class MavlinkConnection:
             except (OSError, ValueError):
                 return None
         return None
+
+    def udp_peers(self) -> list[tuple[str, int]] | None:
+        """The addresses this link's UDP socket sends to: ``udpout``'s destination, or the
+        peers a ``udpin`` / ``udp`` socket has heard from (pymavlink writes to each); None
+        for other transports (serial, TCP, broadcast). A second writer on the same socket
+        (:mod:`companion.proximity.process`) sends to the same peers from the same port."""
+        conn = self._conn
+        if not isinstance(conn, mavutil.mavudp) or conn.broadcast:
+            return None
+        if conn.udp_server:
+            return sorted(conn.clients)
+        host, port = conn.destination_addr
+        if self._resolved is None or self._resolved[0] != host:
+            try:
+                self._resolved = (host, socket.gethostbyname(host))
+            except OSError as exc:
+                _log.debug("cannot resolve %s: %s", host, exc)
+                return []
+        return [(self._resolved[1], int(port))]
+
+    @property
+    def signing_timestamp(self) -> int:
+        """The timestamp our next signed frame carries [10 µs since 2015-01-01]; 0 without
+        a key. It stays ahead of every authentic frame received (:func:`_verified_by`)."""
+        if self._conn is None or self._signing_key is None:
+            return 0
+        return int(self._conn.mav.signing.timestamp)
 
     def poll(self, max_messages: int = 5000) -> list:
         """Every message waiting (up to ``max_messages``); bad frames are counted."""

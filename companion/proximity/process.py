@@ -14,27 +14,52 @@ it still waited up to 1.7 s for a processor at load 20, so it asks for ``SCHED_F
 timer expires. It is forked from the companion when the link opens (a fresh interpreter
 took 17.7 s to import at load 21), after the sector kernel is loaded.
 
-What the process has of its own, and what it shares:
+**One socket, one peer.** The process sends through the companion's own UDP socket,
+inherited through the fork, to the peers the main loop sends to (``udpout``'s destination,
+or every peer a ``udpin`` socket has heard from: :meth:`MavlinkConnection.udp_peers
+<companion.link.connection.MavlinkConnection.udp_peers>`), so the autopilot, a router or a
+serial-to-UDP bridge that answers only one peer sees one: the companion's port. It never
+reads that socket: the main loop does, and two readers would take each other's
+datagrams. Serial ports and TCP streams are not shared (a frame written by one process
+could interleave with the other's): the watchdog thread sends there.
 
-* **its own MAVLink socket** to the autopilot, with the companion's system and component
-  ids (``udpout`` links: the autopilot or a MAVLink router answers every peer that writes to
-  it, as ArduPilot's UDP ports, mavlink-router and plant-sim do); with a signing key it
-  signs as link id :data:`SIGNING_LINK_ID` so that its timestamps and the main loop's are
-  two streams (MAVLink 2 signing keys the replay check by system, component and link id).
-  It reads the autopilot's LOCAL_POSITION_NED and ATTITUDE there itself, so the vehicle's
-  position keeps arriving while the companion is busy;
-* **the map**, as a :class:`~companion.proximity.stream.MapSnapshot` that the main loop
-  writes after each frame into shared memory (:class:`SharedMap`, a sequence lock: the
-  writer never waits; a reader that saw a write in progress keeps its previous copy);
-* the frame clock's rate and newest stamp (for the message's ``time_usec`` before a map).
+What the process has from the main loop (:class:`~companion.proximity.shared.SharedMap`,
+one shared-memory block, a sequence lock per part: the main loop never waits; a copy read
+during a write is discarded and the previous one kept):
 
-It sends every period (:attr:`ProximityConfig.rate_hz`) the sectors of the newest map at
-the vehicle's position carried forward to the send
-(:func:`~companion.proximity.sender.position_at_send`); the main loop still sends each
-frame's sectors (its own stream, what a replay reproduces). It dies with the companion:
-``PR_SET_PDEATHSIG`` and a parent check every period; its log lines go to the companion's
-stderr (the inherited logger) and its figures (sends, errors, longest gap, real-time) to
-the companion's status and exit statistics.
+* **the map**, a :class:`~companion.proximity.stream.MapSnapshot` slab written after each
+  frame;
+* **the pose** the core accepted from LOCAL_POSITION_NED and ATTITUDE (after its range,
+  boot-time and ordering checks), with the host time its position was read, written
+  whenever it changed. At each send the position is carried forward by its velocity over
+  its age (:func:`~companion.proximity.sender.pose_age_s`): the host time since the main
+  loop read it × the frame clock's rate, and with frames on the host clock at least the
+  time since the autopilot stamped it (TIMESYNC-mapped: it counts the time the message
+  waited for a busy main loop). A pose older than
+  :data:`~companion.proximity.sender.POSE_STALE_S` (0.5 s) places nothing: every sector
+  goes out unknown (``UINT16_MAX``), never clear, until the main loop reads telemetry
+  again; counted (``stale_pose``);
+* **the link**: the peers and the main loop's signing timestamp;
+* the frame clock's rate and newest stamp (the message's ``time_usec`` before a map).
+
+**Signing.** MAVLink 2 keys the replay check by (system, component, link id): each stream's
+timestamp must grow strictly, and a new stream's may lag the receiver's own timestamp
+by at most one minute (``mavlink_signature_check`` in the C library ArduPilot and PX4
+build, ``MAVLink.check_signature`` in pymavlink, :class:`protocols.signing.SignatureVerifier`
+here). Two senders cannot share one counter without a lock across processes, so the
+process signs as link id :data:`SIGNING_LINK_ID` (the main loop is link 0): two streams,
+each strictly increasing. Its timestamp never falls below the main loop's (shared each
+pass), which follows the newest authentic timestamp the autopilot sent: after an
+autopilot reboot (its streams forgotten) the process's stream is within the minute as the
+main loop's is. The companion's sequence numbers are two interleaved counters (one per
+sender): a ground station's loss figure for component 196 counts the interleaving as
+loss (named limitation).
+
+It sends every period (:attr:`ProximityConfig.rate_hz`) the sectors of the newest map;
+the main loop still sends each frame's sectors (its own stream, what a replay
+reproduces). It dies with the companion: ``PR_SET_PDEATHSIG`` and a parent check every
+period; its log lines go to the companion's stderr (the inherited logger) and its figures
+(sends, errors, longest gap, real-time) to the companion's status and exit statistics.
 """
 
 from __future__ import annotations
@@ -46,53 +71,45 @@ import math
 import os
 import select
 import signal
+import socket
 import time
 from dataclasses import dataclass, replace
-from multiprocessing import shared_memory
 
-import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.known_space import KnownSpaceConfig
-from companion.link.connection import MavlinkConnection
 from companion.link.messages import obstacle_distance_message
 from companion.proximity.sectors import ProximityConfig
-from companion.proximity.sender import ProximitySender, position_at_send
-from companion.proximity.stream import MapSnapshot, TelemetryPose, warm_up
-from protocols.signing import SigningKey
+from companion.proximity.sender import ProximitySender, pose_age_s, position_at_send
+from companion.proximity.shared import SharedLink, SharedMap, SharedPose
+from companion.proximity.stream import MapSnapshot, VehiclePose, warm_up
+from protocols.signing import signing_timestamp_now
 
 __all__ = [
     "SIGNING_LINK_ID",
     "ProcessSpec",
     "ProximityProcess",
-    "SharedMap",
-    "own_process_possible",
+    "own_process_refusal",
 ]
 
 #: MAVLink 2 signing link id of the process's stream (the main loop signs as link 0).
 SIGNING_LINK_ID = 1
-_READY_TIMEOUT_S = 30.0  # a forked process opens a socket: seconds only on a starved machine
+_READY_TIMEOUT_S = 30.0  # a forked process: seconds only on a starved machine
 _LATE_S = 0.25  # a send this long after the previous one is logged [s host]
 _PR_SET_PDEATHSIG = 1
 _log = logging.getLogger("companion")
 
-# header words (int64) of the shared map
-_SEQ, _PRESENT, _CAPTURE, _STAMP = 0, 1, 2, 3
-_LAYER0 = 4  # per layer: present, nx, ny, nz, ox, oy, oz, frames
-_LAYER_WORDS = 8
-_HEADER_WORDS = _LAYER0 + 2 * _LAYER_WORDS
-# float64 words: range_m of each layer, frame-clock rate
-_RANGE0, _RATE = 0, 2
-_FLOAT_WORDS = 3
-# counters (int64) the process writes
-_SENT, _ERRORS, _LONGEST_US, _LATE_SENDS, _STALE, _TELEMETRY, _NO_MAP, _REALTIME = range(8)
-_COUNTER_WORDS = 8
-_NO_CAPTURE = -1
 
-
-def own_process_possible(url: str) -> bool:
-    """A second socket reaches the autopilot only on ``udpout`` links (it answers every
-    peer); a serial port, a bound ``udpin`` port or ArduPilot's one-client TCP do not."""
-    return url.startswith("udpout:")
+def own_process_refusal(url: str) -> str | None:
+    """Why the stream cannot have a process of its own on link ``url`` (None: it can).
+    The process shares the companion's UDP socket (``udpout``, ``udpin``, ``udp``); a
+    serial port or TCP stream would interleave two writers' bytes, and a broadcast link
+    learns its peer only by reading."""
+    if not hasattr(os, "fork"):
+        return "this platform cannot fork"
+    if not url.startswith(("udpout:", "udpin:", "udp:")):
+        return f"the link {url.split(':', 1)[0]!r} is not a UDP socket two processes can share"
+    return None
 
 
 @dataclass(frozen=True)
@@ -101,162 +118,32 @@ class ProcessSpec:
 
     proximity: ProximityConfig
     space: KnownSpaceConfig
-    url: str
+    link_fd: int  # the companion's UDP socket, inherited through the fork
     system_id: int
     component_id: int
-    baud: int
     signing_secret: bytes | None
-    autopilot: tuple[int, int]
     parent_pid: int
-
-
-class SharedMap:
-    """The map slab, the frame clock and the process's counters in one shared memory block.
-
-    Parameters
-    ----------
-    space : KnownSpaceConfig
-        The companion's map (it sizes the block: every layer's whole grid fits).
-    name : str or None
-        Attach to this block (the process); None creates one (the companion).
-    """
-
-    def __init__(self, space: KnownSpaceConfig, name: str | None = None) -> None:
-        layers = [space] + ([] if space.far_config() is None else [space.far_config()])
-        self._capacity = [c.size_xy_vox * c.size_xy_vox * c.size_z_vox for c in layers]
-        self._configs = layers
-        size = 8 * (_HEADER_WORDS + _FLOAT_WORDS + _COUNTER_WORDS) + 2 * max(self._capacity)
-        if name is None:
-            self.shm = shared_memory.SharedMemory(create=True, size=size)
-        else:
-            self.shm = shared_memory.SharedMemory(name=name)
-        self._owner = name is None
-        buf = self.shm.buf
-        off = 0
-        self.header = np.ndarray((_HEADER_WORDS,), np.int64, buf, off)
-        off += 8 * _HEADER_WORDS
-        self.floats = np.ndarray((_FLOAT_WORDS,), np.float64, buf, off)
-        off += 8 * _FLOAT_WORDS
-        self.counters = np.ndarray((_COUNTER_WORDS,), np.int64, buf, off)
-        off += 8 * _COUNTER_WORDS
-        self._grids = []
-        for cap in self._capacity:
-            self._grids.append(np.ndarray((cap,), np.int8, buf, off))
-            off += max(self._capacity)
-        if self._owner:
-            self.header[:] = 0
-            self.header[_CAPTURE] = _NO_CAPTURE
-            self.floats[:] = 0.0
-            self.floats[_RATE] = 1.0
-            self.counters[:] = 0
-        self.overflows = 0  # snapshots larger than the block (not expected: counted)
-
-    @property
-    def name(self) -> str:
-        return self.shm.name
-
-    def close(self) -> None:
-        # the views must go before the buffer can be released
-        self.header = self.floats = self.counters = None
-        self._grids = []
-        with contextlib.suppress(BufferError, OSError):
-            self.shm.close()
-        if self._owner:
-            with contextlib.suppress(FileNotFoundError):
-                self.shm.unlink()
-
-    # ---- writer (the companion's main loop) --------------------------------------------
-    def write(self, snapshot: MapSnapshot | None) -> None:
-        """Publish ``snapshot`` (None: no map); never waits for the reader."""
-        h = self.header
-        layers = [] if snapshot is None else [snapshot] + ([snapshot.far] if snapshot.far else [])
-        if any(s.grid.size > cap for s, cap in zip(layers, self._capacity, strict=False)):
-            self.overflows += 1
-            layers = []
-        h[_SEQ] += 1  # odd: a write in progress
-        h[_PRESENT] = 1 if layers else 0
-        h[_CAPTURE] = _NO_CAPTURE
-        if layers and layers[0].capture_ns is not None:
-            h[_CAPTURE] = layers[0].capture_ns
-        for i in range(len(self._capacity)):
-            base = _LAYER0 + i * _LAYER_WORDS
-            if i >= len(layers):
-                h[base] = 0
-                continue
-            s = layers[i]
-            n = s.grid.size
-            self._grids[i][:n] = s.grid.reshape(-1)
-            h[base : base + 8] = (1, *s.grid.shape, *(int(v) for v in s.origin_vox), s.frames)
-            self.floats[_RANGE0 + i] = s.range_m
-        h[_SEQ] += 1  # even: complete
-
-    def write_clock(self, rate: float, stamp_ns: int) -> None:
-        """The frame clock's rate and newest stamp (single words: no lock needed)."""
-        self.floats[_RATE] = rate
-        self.header[_STAMP] = stamp_ns
-
-    # ---- reader (the process) ----------------------------------------------------------
-    def sequence(self) -> int:
-        return int(self.header[_SEQ])
-
-    def read(self) -> tuple[bool, MapSnapshot | None]:
-        """(consistent, snapshot): a copy of the newest map, or (False, None) when a write
-        was in progress or happened during the copy (keep the previous one)."""
-        h = self.header
-        seq = int(h[_SEQ])
-        if seq % 2:
-            return False, None
-        snap: MapSnapshot | None = None
-        if h[_PRESENT]:
-            capture = int(h[_CAPTURE])
-            built = []
-            for i, config in enumerate(self._configs):
-                base = _LAYER0 + i * _LAYER_WORDS
-                present, nx, ny, nz, ox, oy, oz, frames = (int(v) for v in h[base : base + 8])
-                if not present:
-                    break
-                n = nx * ny * nz
-                if n > self._capacity[i] or min(nx, ny, nz) < 0:
-                    return False, None
-                built.append(
-                    MapSnapshot(
-                        grid=self._grids[i][:n].copy().reshape(nx, ny, nz),
-                        origin_vox=np.array((ox, oy, oz), dtype=np.int64),
-                        config=config,
-                        range_m=float(self.floats[_RANGE0 + i]),
-                        frames=frames,
-                        far=None,
-                        capture_ns=None if capture == _NO_CAPTURE else capture,
-                    )
-                )
-            if built:
-                snap = built[0] if len(built) == 1 else replace(built[0], far=built[1])
-        if int(h[_SEQ]) != seq:
-            return False, None
-        return True, snap
-
-    def clock(self) -> tuple[float, int]:
-        rate = float(self.floats[_RATE])
-        return (rate if math.isfinite(rate) and rate > 0.0 else 1.0), int(self.header[_STAMP])
 
 
 class ProximityProcess:
     """The companion's side of the process (module docstring); the same interface as
-    :class:`~companion.proximity.stream.ProximityStream` for the service.
+    :class:`~companion.proximity.stream.ProximityStream` for the service, plus
+    :meth:`share`, which the main loop calls each pass.
 
     Parameters
     ----------
     sender : ProximitySender
         The core's sender (its configuration; the process keeps its own figures).
     spec : ProcessSpec
-        Without ``shm_name`` and ``parent_pid`` (filled in here).
+        ``parent_pid`` is filled in here.
     """
 
     def __init__(self, sender: ProximitySender, spec: ProcessSpec) -> None:
         self.sender = sender
         self._shared = SharedMap(spec.space)
         self._spec = replace(spec, parent_pid=os.getpid())
-        self._pose = TelemetryPose(spec.autopilot)
+        self._pose: SharedPose | None = None  # as last shared
+        self._pose_key: tuple | None = None
         self._proc: _Forked | None = None
         self._rfd, self._wfd = os.pipe()  # never readable: the service selects on it too
         self._exit_reported = False
@@ -264,12 +151,14 @@ class ProximityProcess:
         self._ready = False
         self.errors = 0  # the process ended by itself
 
-    def start(self) -> None:
+    def start(self, link: SharedLink) -> None:
         """Fork the process (it has every module and kernel the companion loaded, so it
         sends within a second even on a loaded machine, where a fresh interpreter took
-        17.7 s to import them at load 21). Call before any thread is started (Zenoh).
+        17.7 s to import them at load 21), sending to ``link``'s peers until the main loop
+        shares newer ones. Call before any thread is started (Zenoh).
         Raises RuntimeError when it cannot be started."""
         warm_up()  # here: the main loop's sends need the kernel too, and the child has it
+        self._shared.write_link(link)
         ready_r, ready_w = os.pipe()
         try:
             pid = os.fork()
@@ -291,7 +180,7 @@ class ProximityProcess:
         self._proc = _Forked(pid, ready_r)
 
     def wait_ready(self, timeout_s: float = _READY_TIMEOUT_S) -> bool:
-        """Wait (at most ``timeout_s``) until the process sends; False if it did not."""
+        """Wait (at most ``timeout_s``) until the process runs its loop; False if not."""
         deadline = time.monotonic() + timeout_s
         while not self._poll_ready() and self._proc is not None and self._proc.poll() is None:
             left = deadline - time.monotonic()
@@ -308,9 +197,10 @@ class ProximityProcess:
             self._ready = proc.stdout.readline().strip() == b"ready"
             if self._ready:
                 _log.info(
-                    "OBSTACLE_DISTANCE process sending (pid %d, real-time: %s)",
+                    "OBSTACLE_DISTANCE process sending through the companion's socket "
+                    "(pid %d, real-time: %s)",
                     proc.pid,
-                    "yes" if self._shared.counters[_REALTIME] else "no",
+                    "yes" if self._shared.counter("realtime") else "no",
                 )
         return self._ready
 
@@ -335,23 +225,32 @@ class ProximityProcess:
         return self._rfd
 
     def take_inbox(self) -> list:
-        return []  # the process reads its own socket; the main loop reads the companion's
+        return []  # the process never reads the link: the main loop does
 
     def observe(self, messages, now_ns: int) -> None:
-        for msg in messages:
-            self._pose.observe(msg, now_ns)
+        """Nothing: the pose comes from the core, through :meth:`share`."""
 
-    def pose(self):
-        return self._pose.pose()
+    def pose(self) -> VehiclePose | None:
+        """The pose as last shared (None: none yet)."""
+        p = self._pose
+        if p is None:
+            return None
+        return VehiclePose(p.pos_ned_m, p.vel_ned_mps, p.received_ns, p.yaw_rad)
+
+    def share(self, pose: SharedPose | None, link: SharedLink) -> None:
+        """The core's newest pose (written when it changed) and the link's peers and
+        signing timestamp (when they changed); each main-loop pass."""
+        key = None if pose is None else (pose.frame_ns, pose.received_ns)
+        if key != self._pose_key:
+            self._pose_key, self._pose = key, pose
+            self._shared.write_pose(pose)
+        self._shared.write_link(link)
 
     def set_map(self, snapshot: MapSnapshot | None) -> None:
         self._shared.write(snapshot)
 
     def set_clock(self, rate: float, stamp_ns: int | None) -> None:
-        if stamp_ns is not None:
-            self._shared.write_clock(rate, max(int(stamp_ns), 0))
-        else:
-            self._shared.floats[_RATE] = rate
+        self._shared.write_clock(rate, None if stamp_ns is None else max(int(stamp_ns), 0))
 
     def check(self) -> str | None:
         """Once, when the process has ended by itself: why (for the log and the status);
@@ -368,30 +267,32 @@ class ProximityProcess:
         return f"the OBSTACLE_DISTANCE process ended (exit code {code}); the main loop sends alone"
 
     def figures(self) -> dict:
-        """Sends, errors, late sends, stale poses and the longest gap [s host] of the
-        process; ``main_longest_gap_s``: the main loop's own."""
+        """Sends, errors, late sends, stale poses, sends with no peer to send to and the
+        longest gap [s host] of the process; ``main_longest_gap_s``: the main loop's own."""
         if self._final is not None:
             return self._final
-        c = self._shared.counters
+        sh = self._shared
         alive = self._proc is not None and self._proc.poll() is None
         return {
             "process": True,
             "alive": alive,
             "ready": self._ready,
-            "sent": int(c[_SENT]),
-            "errors": int(c[_ERRORS]) + self.errors,
-            "late": int(c[_LATE_SENDS]),
-            "stale_pose": int(c[_STALE]),
-            "no_map": int(c[_NO_MAP]),
-            "telemetry": int(c[_TELEMETRY]),
-            "realtime": bool(c[_REALTIME]),
-            "longest_gap_s": round(int(c[_LONGEST_US]) * 1e-6, 3),
+            "sent": sh.counter("sent"),
+            "errors": sh.counter("errors") + self.errors,
+            "late": sh.counter("late"),
+            "stale_pose": sh.counter("stale_pose"),
+            "no_map": sh.counter("no_map"),
+            "no_peer": sh.counter("no_peer"),
+            "realtime": bool(sh.counter("realtime")),
+            "longest_gap_s": round(sh.counter("longest_us") * 1e-6, 3),
             "main_longest_gap_s": round(self.sender.longest_gap_s, 3),
-            "map_overflows": self._shared.overflows,
+            "map_overflows": sh.overflows,
         }
 
 
 # ---- the process --------------------------------------------------------------------------
+
+
 def _die_with_parent() -> None:
     with contextlib.suppress(OSError, AttributeError):
         libc = ctypes.CDLL(None, use_errno=True)
@@ -459,100 +360,136 @@ def _child(spec: ProcessSpec, shared: SharedMap, ready_fd: int) -> int:
     return _run(spec, shared, ready_fd)
 
 
+class _Wire:
+    """The process's writes on the companion's socket: OBSTACLE_DISTANCE, signed as link
+    :data:`SIGNING_LINK_ID` with a timestamp never below the main loop's, to each peer."""
+
+    def __init__(self, spec: ProcessSpec) -> None:
+        # a duplicate of the inherited descriptor: closing it leaves the companion's alone;
+        # its blocking mode (shared with the companion) is not touched
+        self._sock = socket.socket(fileno=os.dup(spec.link_fd))
+        self._mav = mavlink.MAVLink(None, srcSystem=spec.system_id, srcComponent=spec.component_id)
+        self._signing = spec.signing_secret is not None
+        if self._signing:
+            sig = self._mav.signing
+            sig.secret_key = spec.signing_secret
+            sig.link_id = SIGNING_LINK_ID
+            sig.sign_outgoing = True
+            sig.timestamp = signing_timestamp_now()
+
+    def send(self, msg, link: SharedLink) -> tuple[int, int]:
+        """(datagrams sent, failed) to ``link``'s peers."""
+        mav = self._mav
+        if self._signing:
+            mav.signing.timestamp = max(mav.signing.timestamp, link.signing_floor)
+        buf = msg.pack(mav)
+        mav.seq = (mav.seq + 1) % 256
+        sent = failed = 0
+        for addr in link.peers:
+            try:
+                self._sock.sendto(buf, addr)
+                sent += 1
+            except OSError as exc:  # a full buffer (the socket is non-blocking), no route
+                failed += 1
+                _log.debug("OBSTACLE_DISTANCE process: send to %s failed: %s", addr, exc)
+        return sent, failed
+
+    def close(self) -> None:
+        self._sock.close()
+
+
 def _run(spec: ProcessSpec, shared: SharedMap, ready_fd: int) -> int:
-    key = None if spec.signing_secret is None else SigningKey(spec.signing_secret)
-    link = MavlinkConnection(
-        spec.url,
-        system_id=spec.system_id,
-        component_id=spec.component_id,
-        baud=spec.baud,
-        signing_key=key,
-        signing_link_id=SIGNING_LINK_ID,
-    )
-    link.open()
-    shared.counters[_REALTIME] = _realtime(spec.proximity.realtime_priority)
+    wire = _Wire(spec)
+    shared.set_counter("realtime", _realtime(spec.proximity.realtime_priority))
     sender = ProximitySender(spec.proximity)
-    pose = TelemetryPose(spec.autopilot)
-    c = shared.counters
     snapshot: MapSnapshot | None = None
+    pose: SharedPose | None = None
+    link = SharedLink((), 0)
     seen_seq = -1
     period_s = sender.period_s
-    fd = link.fileno()
     next_s = time.monotonic()
     last_s = float("-inf")
-    _send(link, sender, shared, pose, snapshot, next_s)  # a peer of the autopilot at once
     os.write(ready_fd, b"ready\n")
     os.close(ready_fd)
     while os.getppid() == spec.parent_pid:
         now_s = time.monotonic()
         if now_s < next_s:
-            if fd is not None:
-                select.select([fd], [], [], next_s - now_s)
-            else:
-                time.sleep(min(next_s - now_s, 0.005))
-        messages = link.poll()
-        now_ns = time.monotonic_ns()
-        for msg in messages:
-            if pose.observe(msg, now_ns):
-                c[_TELEMETRY] += 1
-        now_s = time.monotonic()
-        if now_s < next_s:
-            continue
+            time.sleep(next_s - now_s)
+            now_s = time.monotonic()
         try:
-            if shared.sequence() != seen_seq:
-                seq = shared.sequence()
+            seq = shared.sequence()
+            if seq != seen_seq:
                 ok, snap = shared.read()
                 if ok:
                     snapshot, seen_seq = snap, seq
-            _send(link, sender, shared, pose, snapshot, now_s)
+            ok, newest = shared.read_pose()
+            if ok:
+                pose = newest
+            ok, newest_link = shared.read_link()
+            if ok and newest_link is not None:
+                link = newest_link
+            _send(wire, link, sender, shared, pose, snapshot, now_s)
         except Exception:  # counted and logged: the stream must go on
-            c[_ERRORS] += 1
+            shared.count("errors")
             _log.exception("OBSTACLE_DISTANCE process: a send failed")
         gap_s = now_s - last_s
         if math.isfinite(gap_s):
-            c[_LONGEST_US] = max(int(c[_LONGEST_US]), int(gap_s * 1e6))
+            shared.set_counter("longest_us", max(shared.counter("longest_us"), int(gap_s * 1e6)))
             if gap_s > _LATE_S:
-                c[_LATE_SENDS] += 1
+                shared.count("late")
                 _log.warning(
                     "OBSTACLE_DISTANCE process late: %.3f s since its previous send", gap_s
                 )
         last_s = now_s
-        c[_SENT] += 1
         next_s = max(next_s + period_s, now_s + 0.5 * period_s)
-    link.close()  # the shared block is the companion's: it unlinks it
+    wire.close()  # the shared block is the companion's: it unlinks it
     return 0
 
 
-def _send(link, sender, shared: SharedMap, pose: TelemetryPose, snapshot, now_s: float) -> None:
+def _send(
+    wire: _Wire,
+    link: SharedLink,
+    sender: ProximitySender,
+    shared: SharedMap,
+    pose: SharedPose | None,
+    snapshot: MapSnapshot | None,
+    now_s: float,
+) -> None:
     rate, stamp_ns = shared.clock()
-    p = pose.pose()
     pos = yaw = None
     if snapshot is None:
-        shared.counters[_NO_MAP] += 1
-    if p is not None and p.yaw_rad is not None:
-        age_s = (time.monotonic_ns() - p.received_ns) * 1e-9 * rate
-        pos = position_at_send(p.pos_ned_m, p.vel_ned_mps, age_s)
+        shared.count("no_map")
+    if pose is not None:
+        age_s = pose_age_s(
+            time.monotonic_ns(), pose.received_ns, pose.frame_ns, rate, pose.host_frame_clock
+        )
+        pos = position_at_send(pose.pos_ned_m, pose.vel_ned_mps, age_s)
         if pos is None:
-            shared.counters[_STALE] += 1
+            shared.count("stale_pose")
         else:
-            yaw = p.yaw_rad
+            yaw = pose.yaw_rad
     if snapshot is not None and snapshot.capture_ns is not None:
         stamp_ns = snapshot.capture_ns
     sectors = sender.on_timer(snapshot, pos, yaw, now_s)
-    link.send(obstacle_distance_message(max(stamp_ns, 0) // 1000, sectors))
+    sent, failed = wire.send(obstacle_distance_message(max(stamp_ns, 0) // 1000, sectors), link)
+    if sent:
+        shared.count("sent")
+    elif not failed:
+        shared.count("no_peer")  # udpin before any peer wrote to the companion
+    if failed:
+        shared.count("errors", failed)
 
 
-def new_spec(config, sender: ProximitySender) -> ProcessSpec:
-    """The spec of a companion configuration (:class:`~companion.config.CompanionConfig`)."""
+def new_spec(config, sender: ProximitySender, link_fd: int) -> ProcessSpec:
+    """The spec of a companion configuration (:class:`~companion.config.CompanionConfig`)
+    whose link's socket is ``link_fd``."""
     link = config.link
     return ProcessSpec(
         proximity=sender.config,
         space=config.known_space,
-        url=link.url,
+        link_fd=link_fd,
         system_id=link.system_id,
         component_id=link.component_id,
-        baud=link.baud,
         signing_secret=None if link.signing_key is None else link.signing_key.secret,
-        autopilot=(link.target_system, link.target_component),
         parent_pid=0,
     )

@@ -91,13 +91,13 @@ class ProximityConfig:
         long frame, a starved processor; :mod:`companion.proximity.stream`; on by
         default). Off: the main loop alone (what a replay reproduces).
     own_process : bool
-        With ``thread``: the stream runs in a process of its own with its own MAVLink
-        socket (:mod:`companion.proximity.process`), so it keeps the rate while the
-        companion's interpreter is busy; only on ``udpout`` links (the thread elsewhere,
-        and when the process does not come up). Off by default: its socket is a second
-        UDP peer, and an endpoint that answers only the newest peer (pymavlink's and
-        MAVProxy's ``udpin``) would send the telemetry to it instead of the companion;
-        turn it on where the autopilot or router answers every peer (plant-sim).
+        With ``thread``: the stream runs in a process of its own
+        (:mod:`companion.proximity.process`) that sends every period through the
+        companion's own UDP socket (inherited through the fork: the autopilot sees one
+        peer), so it keeps the rate while the companion's interpreter is busy. On by
+        default on ``udpout``, ``udpin`` and ``udp`` links where the system can fork; the
+        watchdog thread elsewhere (serial, TCP), when off, and when the process does not
+        come up (each said in the log).
     realtime_priority : int
         The process asks the kernel for ``SCHED_FIFO`` at this priority (1–99; 0: it
         stays a normal task). A normal task that sleeps 25 ms at a time still waited up
@@ -133,7 +133,7 @@ class ProximityConfig:
 
     enabled: bool = True
     thread: bool = True
-    own_process: bool = False
+    own_process: bool = True
     realtime_priority: int = bounded(10, integer=True, ge=0, le=99)
     rate_hz: float = bounded(20.0, "Hz", gt=0)
     n_sectors: int = bounded(72, integer=True, ge=1, le=MAX_SECTORS)

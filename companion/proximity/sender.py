@@ -51,7 +51,7 @@ from companion.proximity.sectors import (
     unknown_sectors,
 )
 
-__all__ = ["POSE_STALE_S", "ProximitySender", "position_at_send"]
+__all__ = ["POSE_STALE_S", "ProximitySender", "pose_age_s", "position_at_send"]
 
 #: Telemetry older than this [s wall] no longer places the vehicle in the map: the
 #: autopilots' own proximity timeout (ArduPilot ``PROXIMITY_MAV_TIMEOUT_MS``, PX4
@@ -71,6 +71,22 @@ def position_at_send(pos_ned_m, vel_ned_mps, age_s: float) -> np.ndarray | None:
         return None
     out = p + v * age_s
     return out if np.all(np.isfinite(out)) else None
+
+
+def pose_age_s(
+    now_ns: int, received_ns: int, frame_ns: int, rate: float, host_frame_clock: bool
+) -> float:
+    """Age of a pose at host time ``now_ns`` [s, frame clock]: the host time since its
+    position was read (``received_ns``) × the frame clock's ``rate``; with frames on the
+    host clock (``host_frame_clock``; ``frame_ns`` is then the autopilot's own stamp mapped
+    by TIMESYNC) at least ``now_ns − frame_ns``, which also counts the time the message
+    waited in the socket for a busy reader. On the autopilot's clock (the SIL) that second
+    figure is not used: a paced simulator may stall, and its stamps cannot be compared
+    with the host's (:meth:`~companion.clock_model.ClockModel.now_frame_ns`)."""
+    age_s = (now_ns - received_ns) * 1e-9 * rate
+    if host_frame_clock:
+        age_s = max(age_s, (now_ns - frame_ns) * 1e-9)
+    return age_s
 
 
 class ProximitySender:
