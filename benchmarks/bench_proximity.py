@@ -5,8 +5,9 @@ the companion (reporting only) run at real time beside ``--busy`` spinning proce
 (``python -c "while True: pass"`` at nice 0) for ``--seconds``; a pymavlink client on
 plant-sim's port times each OBSTACLE_DISTANCE that plant-sim forwards from the companion
 (as a MAVLink router forwards to a ground station). Once per mode: the stream in its own
-process (``[proximity] own_process = true``), the watchdog thread (``own_process =
-false``, the default) and the main loop alone (``thread = false``). Prints, per
+process (``[proximity] own_process = true``, the default: it sends through the companion's
+socket), the watchdog thread (``own_process = false``) and the main loop alone
+(``thread = false``). Prints, per
 mode, the receipt intervals' p50, p99 and maximum [ms], the count over 0.5 s (the
 autopilots' proximity timeout) and the frames the companion processed, with the
 machine's load (``os.getloadavg``).

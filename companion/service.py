@@ -359,12 +359,30 @@ class CompanionService:
             self._next_progress_s = now_s + self.config.status_log_period_s
             f = self.slot.counters
             _log.info(
-                "%s; frames received %d (malformed %d, superseded %d)",
+                "%s; frames received %d (malformed %d, superseded %d)%s",
                 self.core.progress_text(),
                 f.received,
                 f.malformed,
                 f.superseded,
+                self._stream_text(),
             )
+
+    def _stream_text(self) -> str:
+        """The OBSTACLE_DISTANCE process's or watchdog thread's figures, for the progress
+        line."""
+        if self.proximity is None:
+            return ""
+        f = self.proximity.figures()
+        if not f.get("process"):
+            return f"; OBSTACLE_DISTANCE watchdog thread: {f['fills']} sends of its own"
+        state = "sending" if f["alive"] else "ENDED"
+        return (
+            f"; OBSTACLE_DISTANCE process {state}: {f['sent']} sent, longest gap "
+            f"{f['longest_gap_s']:.2f} s"
+            + (f", {f['stale_pose']} all unknown (pose > 0.5 s old)" if f["stale_pose"] else "")
+            + (f", {f['no_peer']} with no peer yet" if f["no_peer"] else "")
+            + (f", {f['errors']} errors" if f["errors"] else "")
+        )
 
     def _report_health(self, now_s: float) -> None:
         """Rewrite the health file (companion.health) from the state we already have."""
