@@ -9,9 +9,12 @@ the wall for a minute (passage Monte Carlo seeds 0 and 112).
 
 Where the openings are (:func:`opening_points`)
 -----------------------------------------------
-For every pair of pieces whose voxels' boxes are at least ``2 · inflate_m`` apart (the
-vehicle and its margins fit between the real surfaces), the middle between the boxes'
-nearest faces is an opening's middle when it is a middle indeed, and seen free:
+For every pair of pieces side by side (their voxels' boxes overlap or touch in height:
+a way through them is level, as the vehicle flies openings; a piece above another, an
+obstacle over the ground, is not an opening here) whose boxes are at least
+``2 · inflate_m`` apart (the vehicle and its margins fit between the real surfaces), the
+middle between the boxes' nearest faces is an opening's middle when it is a middle
+indeed, and seen free:
 
 * its voxel is FREE (seen free; never unknown space);
 * no OCCUPIED or TENTATIVE voxel lies nearer than half the pair's gap, less a voxel (the
@@ -121,7 +124,9 @@ def opening_points(
     lo, hi = box[:, :3], box[:, 3:] + 1  # each piece's voxel cells [voxel index]
     sep = np.maximum(lo[None, :, :] - hi[:, None, :], lo[:, None, :] - hi[None, :, :])
     gap_m = np.linalg.norm(np.maximum(sep, 0), axis=2) * c.voxel_m
-    a, b = np.nonzero(np.triu((gap_m >= 2.0 * inflate_m) & (gap_m < widest_m), k=1))
+    side_by_side = sep[:, :, 2] <= 0  # their heights overlap or touch: a way through, level
+    pairs = (gap_m >= 2.0 * inflate_m) & (gap_m < widest_m) & side_by_side
+    a, b = np.nonzero(np.triu(pairs, k=1))
     if a.size == 0:
         return none
     # per axis, the middle between the boxes' nearest faces (of their overlap if they overlap)
