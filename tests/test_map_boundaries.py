@@ -10,6 +10,7 @@ import pytest
 
 from companion.guidance import BoundarySphere, GuidanceConfig
 from companion.guidance.cone import collision_cone, segment_intersects_sphere
+from companion.guidance.known_path import plan_known_path
 from companion.guidance.map_boundaries import (
     MapBoundaryConfig,
     goal_surely_blocked,
@@ -258,3 +259,102 @@ def test_a_goal_is_surely_blocked_only_within_the_inflation_of_a_seen_surface():
     assert any(np.linalg.norm(behind - np.array(s.center_ned_m)) < s.radius_m for s in spheres)
     assert not goal_surely_blocked(spheres, behind)
     assert not goal_surely_blocked(map_boundaries(space, POS, far), far)
+
+
+# --- openings seen free (issue 36: passages with stereo) ------------------------------
+
+WALL_N_M = 3.1  # the wall's near face (voxel boundary 3.0 … its first voxel)
+
+
+def _space_with_two_walls(opening_m: float, *, seen: bool = True, pole: bool = False):
+    """Two walls in one plane, two voxels thick (the 0.3 m walls of the passage scenes
+    map so), either side of an opening ``opening_m`` wide between their voxels' faces,
+    centred on the vehicle's line; with ``seen``, the space before the walls, the opening
+    and the space beyond it seen free (unknown otherwise); ``pole``: a column of OCCUPIED
+    voxels in the middle of the opening. Returns the map and the faces' east [m]."""
+    space = KnownSpace()
+    space.mark_vehicle(POS)
+    v, o = VOXEL_M, space.origin_vox
+    i0 = math.floor(WALL_N_M / v) - o[0]
+    n = round(opening_m / v)
+    j_left = math.floor(POS[1] / v) - o[1] - n // 2
+    j_right = j_left + n
+    g = space.grid
+    if seen:
+        g[:i0, :, :] = FREE
+        g[i0:, j_left:j_right, :] = FREE
+    g[i0 : i0 + 2, :j_left, :] = OCCUPIED
+    g[i0 : i0 + 2, j_right:, :] = OCCUPIED
+    if pole:
+        g[i0 : i0 + 2, (j_left + j_right) // 2, :] = OCCUPIED
+    return space, (j_left + o[1]) * v, (j_right + o[1]) * v
+
+
+def _opening_window_m(spheres, left_m: float, right_m: float, north_m: float) -> float:
+    """Width of the part of the line across the opening (at the vehicle's height,
+    ``north_m``) outside every sphere [m], sampled every 5 mm."""
+    east = np.arange(left_m, right_m + 1e-9, 0.005)
+    line = np.column_stack([np.full_like(east, north_m), east, np.full_like(east, POS[2])])
+    c = np.array([s.center_ned_m for s in spheres])
+    r = np.array([s.radius_m for s in spheres])
+    inside = (np.linalg.norm(line[:, None, :] - c[None], axis=2) < r[None]).any(axis=1)
+    return float(np.count_nonzero(~inside)) * 0.005
+
+
+def _every_voxel_enclosed(space: KnownSpace, spheres) -> None:
+    """Nothing the map has seen is left out: every OCCUPIED voxel's cell within reach lies
+    inside a sphere less its inflation, and inside a solid extent."""
+    c = np.array([s.center_ned_m for s in spheres])
+    r = np.array([s.radius_m for s in spheres]) - INFLATE_M
+    solid = solid_extent(spheres)
+    for p in _occupied_within(space, 4.0):
+        assert np.any(np.linalg.norm(c - p, axis=1) + HALF_DIAG_M <= r + 1e-9), p
+        assert np.any(np.linalg.norm(solid[:, :3] - p, axis=1) + HALF_DIAG_M <= solid[:, 3] + 1e-9)
+
+
+@pytest.mark.parametrize("opening_m", [1.0, 1.2, 1.6, 1.8, 2.0, 2.2, 2.6])
+def test_an_opening_seen_free_stays_open_when_the_vehicle_and_margins_fit(opening_m):
+    """Stereo maps a 2.5–2.7 m opening in a wall 2.0–2.2 m wide between its occupied
+    voxels, and the pieces at its edges (their spheres grown by the cube's height and the
+    blind spot) closed it: the vehicle paced along the wall (passage seeds 0 and 112).
+    Now an opening seen free wider than the vehicle, both margins and the map's resolution
+    (2 · 0.65 + 0.2 = 1.5 m) stays open to the cone rule — the line across its middle
+    has room outside every sphere — and from 1.8 m on the 0.2 m grid to the path search
+    (a path through voxel centres, outside every sphere, reaches the goal beyond); one
+    narrower than the vehicle and both margins (1.3 m) stays closed; and every voxel
+    the map has seen stays inside a sphere."""
+    bound_m = 2.0 * INFLATE_M + VOXEL_M
+    space, left, right = _space_with_two_walls(opening_m)
+    goal = np.array([8.1, 0.5 * (left + right), POS[2]])
+    spheres = map_boundaries(space, POS, goal)
+    window = _opening_window_m(spheres, left, right, WALL_N_M + VOXEL_M)
+    path = plan_known_path(space.grid, space.origin_vox, VOXEL_M, POS, goal, spheres=spheres)
+    reaches = path is not None and path.reaches_goal
+    if opening_m > bound_m:
+        assert window > 0.05, f"{opening_m} m: {window:.3f} m open"
+    if opening_m >= 1.8:
+        assert reaches
+        east = path.waypoints_ned_m[np.argmin(np.abs(path.waypoints_ned_m[:, 0] - WALL_N_M))][1]
+        assert left + INFLATE_M <= east <= right - INFLATE_M  # through it, clear of both
+    if opening_m < 2.0 * INFLATE_M:
+        assert window == 0.0 and not reaches
+    _every_voxel_enclosed(space, spheres)
+    assert len({s.track_key for s in spheres}) == len(spheres)
+
+
+@pytest.mark.parametrize(("seen", "pole"), [(False, False), (True, True)])
+def test_an_opening_not_seen_free_or_not_clear_is_not_opened(seen, pole):
+    """Only space seen free opens: the same 1.8 m opening unseen (unknown), or seen with a
+    pole in its middle (two slits of 0.8 m, narrower than the vehicle and its margins),
+    keeps the spheres that close it; the old pair rule (pieces' bounding spheres) does
+    not reach a 1.8 m opening either."""
+    space, left, right = _space_with_two_walls(1.8, seen=seen, pole=pole)
+    goal = np.array([8.1, 0.5 * (left + right), POS[2]])
+    spheres = map_boundaries(space, POS, goal)
+    assert _opening_window_m(spheres, left, right, WALL_N_M + VOXEL_M) == 0.0
+    assert all(_decode_level(s.track_key) == 0 for s in spheres)
+    _every_voxel_enclosed(space, spheres)
+
+
+def _decode_level(key: int) -> int:
+    return (key >> 60) & 3

@@ -7,7 +7,8 @@ a mode, the avoidance flag of Fig. 11, a position setpoint and a yaw out.
 * :mod:`~companion.guidance.planner` — aiming point among several obstacles, or none.
 * :mod:`~companion.guidance.memory` — obstacles remembered out of the field of view.
 * :mod:`~companion.guidance.map_boundaries` — the boundary spheres cut from the
-  known-space map (several bounded pieces per extended obstacle).
+  known-space map (several bounded pieces per extended obstacle); made smaller where they
+  would close an opening seen free (:mod:`~companion.guidance.openings`).
 * :mod:`~companion.guidance.avoidance` — NAVIGATE / AVOID / HOLD with hysteresis (the
   step); its :mod:`~companion.guidance.modes`, :mod:`~companion.guidance.step_types`
   (state and output), :mod:`~companion.guidance.goal_stop` (the stop short of an

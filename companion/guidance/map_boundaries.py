@@ -66,6 +66,25 @@ there.
 Pairs are tested in numpy, one vectorised pass (no per-pair Python loop): the corridor's
 two long walls give a few hundred pairs.
 
+Openings seen free
+------------------
+The pair rule above bounds a piece by its sphere, and a wall's piece at the edge of an
+opening is a flat cube whose sphere is set by its height: with stereo's edges (a 2.7 m
+opening maps 2.0–2.2 m wide between its occupied voxels) no pair passed it, and the
+spheres of the edge pieces and their neighbours, grown by the blind spot, closed the
+opening the map had seen free (passage Monte Carlo seeds 0 and 112: the vehicle paced
+along the wall for a minute, no path through it either, since the path search avoids
+the spheres). So every boundary that holds a point of an opening seen free (the middle
+between two pieces whose voxels leave the vehicle and its margins room, FREE and clear of
+every surface, and the voxel centres about it a path would cross) is made smaller, one
+step at a time while it still holds one: its own sphere without the blind spot's growth,
+then its sub-pieces, then a sub-piece's voxels nearest the opening one by one and the
+rest as one sphere (:mod:`companion.guidance.openings`, with the bound: open to the cone
+rule from 1.6 m between the voxels' faces, to the path search from 1.8 m, on the 0.2 m
+grid; closed below 2 · ``inflate_m``). Every sphere still encloses its voxels and the
+inflation; the blind spot dropped stays in the solid extent and is unknown space.
+Sub-piece, voxel and rest spheres have their own track keys (levels 1, 2 and 3).
+
 Each boundary carries a stable ``track_key``: the global index of its cube (and its
 level), the same in every frame, so guidance's hysteresis and side commitment follow a
 piece from frame to frame; the obstacle memory replaces a keyed track's sphere each frame
@@ -82,6 +101,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.guidance.openings import covers, opening_points, split_for_openings
 from companion.known_space import FREE, KnownSpace, Pieces
 from protocols.config import Checked, bounded
 
@@ -100,7 +120,8 @@ _TRIM_EPS_M = 1e-3  # a trimmed sphere ends this far short of the goal
 
 
 def track_key(level: int, cube: np.ndarray) -> int:
-    """Stable track id of the cube ``cube`` (3 ints) at ``level`` (0 piece, 1 sub-piece)."""
+    """Stable track id of the cube ``cube`` (3 ints) at ``level`` (0 piece, 1 sub-piece,
+    2 voxel, 3 the rest of a sub-piece kept open: module docstring)."""
     i, j, k = (int(v) + _KEY_OFFSET for v in cube)
     if not (0 <= i < 1 << 20 and 0 <= j < 1 << 20 and 0 <= k < 1 << 20):
         raise ValueError(f"cube index {tuple(int(v) for v in cube)} out of the key range")
@@ -119,10 +140,20 @@ class MapBoundaryConfig(Checked):
     inflate_m : float
         Vehicle radius + safety margin added to every sphere [m] (perception's
         ``vehicle_radius_m + safety_margin_m``, 0.35 + 0.3).
+    open_band_m : float
+        Openings seen free are kept open (module docstring, "Openings seen free") where
+        their middle lies within this height above or below the vehicle [m]: the local
+        path search reaches 1 m up and down, guidance aims no steeper than 12°; farther
+        openings keep their whole spheres (the cost stays bounded).
+    max_voxel_spheres : int
+        Most single-voxel spheres one frame's openings may add (their cost in the cone
+        rule); beyond it a piece keeps its coarser sphere (the opening stays closed there).
     """
 
     detect_range_m: float = bounded(4.0, "m", gt=0)
     inflate_m: float = bounded(0.65, "m", gt=0)
+    open_band_m: float = bounded(1.0, "m", ge=0)
+    max_voxel_spheres: int = bounded(64, integer=True, ge=0)
 
 
 @dataclass(frozen=True)
@@ -188,7 +219,7 @@ def _boundaries_of(
         gap = max(float(pieces.nearest_to_point_m[m]) - half_voxel, 0.0)
         trimmed = False
         to_goal = float(np.linalg.norm(goal - centre))
-        if level == 1 and to_goal < radius and not _blocks(gap, goal_free, space, config):
+        if level >= 1 and to_goal < radius and not _blocks(gap, goal_free, space, config):
             d = float(np.linalg.norm(goal - c))
             if d - _TRIM_EPS_M >= r:  # the trimmed sphere still encloses the voxels
                 centre, radius, e, trimmed = c.copy(), d - _TRIM_EPS_M, 0.0, True
@@ -305,6 +336,7 @@ def map_boundaries(
         boundaries = [b for b in boundaries if b.track_key not in split]
         boundaries += _boundaries_of(space, sub, 1, pos, goal, goal_free, cfg)
     boundaries = _open_gaps(boundaries, cfg)
+    boundaries = _keep_open(space, boundaries, pos, goal, cfg)
     return tuple(sorted(boundaries, key=lambda b: b.track_key))
 
 
@@ -338,6 +370,86 @@ def solid_extent(boundaries) -> np.ndarray:
             continue
         out[n, :3] = b.center_ned_m
         out[n, 3] = b.piece_radius_m + 0.5 * b.blind_depth_m
+    return out
+
+
+# -- openings seen free ------------------------------------------------------------------
+
+
+def _keep_open(
+    space: KnownSpace,
+    boundaries: list[MapBoundary],
+    pos: np.ndarray,
+    goal: np.ndarray,
+    config: MapBoundaryConfig,
+) -> list[MapBoundary]:
+    """Boundaries made smaller where they hold a point of an opening seen free
+    (:mod:`companion.guidance.openings`; module docstring, "Openings seen free")."""
+    if not boundaries:
+        return boundaries
+    c = space.config
+    reach = config.detect_range_m + c.piece_vox * c.voxel_m * math.sqrt(3.0)
+    points = opening_points(
+        space, pos, inflate_m=config.inflate_m, widest_m=2.0 * max(b.radius_m for b in boundaries),
+        reach_m=reach, near_m=config.detect_range_m, band_m=config.open_band_m,
+    )  # fmt: skip
+    if len(points) == 0:
+        return boundaries
+    centre = np.array([b.center_ned_m for b in boundaries])
+    radius = np.array([b.radius_m for b in boundaries])
+    goal_in = np.linalg.norm(centre - goal, axis=1) < radius
+    trimmed = np.array([b.trimmed for b in boundaries])
+    hold = covers(centre, radius, points) & ~goal_in & ~trimmed
+    out = [b for b, h in zip(boundaries, hold, strict=True) if not h]
+    owns = [
+        b if b.solid_ned_m is not None else _own_sphere(b, config)
+        for b in np.array(boundaries, dtype=object)[hold]
+    ]
+    if not owns:
+        return out
+    own_hold = covers(
+        np.array([b.center_ned_m for b in owns]), np.array([b.radius_m for b in owns]), points
+    )
+    out += [b for b, h in zip(owns, own_hold, strict=True) if not h]
+    split = [b for b, h in zip(owns, own_hold, strict=True) if h]
+    if not split:
+        return out
+    keys = [_decode_key(b.track_key) for b in split]
+    refined, replaced = split_for_openings(
+        space, pos, goal, np.array([k[0] for k in keys]), np.array([k[1] for k in keys]), points,
+        inflate_m=config.inflate_m, reach_m=reach, max_voxel_spheres=config.max_voxel_spheres,
+    )  # fmt: skip
+    out += [b for b, r in zip(split, replaced, strict=True) if not r]
+    if len(refined) == 0:
+        return out
+    e = space.unseen_runs_m(refined.centre_ned_m, pos, c.blind_depth_m)
+    bearing = refined.centre_ned_m - pos
+    dist = np.maximum(np.linalg.norm(bearing, axis=1), 1e-9)
+    solid = np.column_stack(
+        [
+            refined.centre_ned_m + (0.5 * e / dist)[:, None] * bearing,
+            refined.piece_radius_m + 0.5 * e,
+        ]
+    )
+    rows = zip(
+        refined.level.tolist(), refined.cube, refined.centre_ned_m.tolist(),
+        refined.piece_radius_m.tolist(), e.tolist(), refined.nearest_m.tolist(),
+        refined.goal_gap_m.tolist(), solid.tolist(), strict=True,
+    )  # fmt: skip
+    for level, cube, centre_m, r, depth, nearest, gap, solid_m in rows:
+        out.append(
+            MapBoundary(
+                center_ned_m=tuple(centre_m),
+                radius_m=r + config.inflate_m,
+                track_key=track_key(level, cube),
+                piece_radius_m=r,
+                blind_depth_m=depth,
+                nearest_m=nearest,
+                goal_gap_m=gap,
+                piece_center_ned_m=tuple(centre_m),
+                solid_ned_m=tuple(solid_m),
+            )
+        )
     return out
 
 

@@ -60,6 +60,7 @@ from companion.guidance.known_path import (
     _sphere_array,
     plan_known_path,
 )
+from companion.guidance.openings import warm_up as _warm_up_openings
 from companion.known_space import FREE, OCCUPIED
 
 #: the path's first leg and the cone's direction lead different ways beyond this angle
@@ -265,3 +266,4 @@ def warm_up() -> None:
     if path is not None:
         follow_known_path(path, grid, origin, 0.2, (0.35, 1.2, 1.2), (2.1, 1.2, 1.2))
     way_blocked(grid, origin, 0.2, (0.3, 1.2, 1.2), (2.1, 1.2, 1.2))
+    _warm_up_openings()
