@@ -53,17 +53,19 @@ def _free_among(balls, lookahead_m: float = 12.0):
     return free
 
 
-def _fly_switch(balls, speed_mps, accel_mps2, new_target, seconds=6.0):
+def _fly_switch(balls, speed_mps, accel_mps2, new_target, seconds=6.0, free=None, trace=None):
     """Closed loop from north at ``speed_mps`` accelerating at ``accel_mps2`` toward a far
-    target (the old one), the target switched to ``new_target`` at t = 0; returns the
-    closest approach to a ball's surface [m] and the frames step 8 braked."""
+    target (the old one), the target switched to ``new_target`` at t = 0, the brake's
+    target passed back each frame as the pipeline does; returns the closest approach to a
+    ball's surface [m] and the frames step 8 braked (``trace``: a list that receives
+    ``(pos, output)`` per frame)."""
     shaper = TargetShaper(GUIDED)
     shaper.reset((0.0, 0.0, ALT_D_M), (speed_mps, 0.0, 0.0))
     shaper.acc_ned_mps2 = [accel_mps2, 0.0, 0.0]
     shaper.go_to((8.0, 0.0, ALT_D_M))
-    free = _free_among(balls)
+    free = _free_among(balls) if free is None else free
     in_flight: list[np.ndarray] = []
-    closest, brakes = math.inf, 0
+    closest, brakes, held = math.inf, 0, None
     for _ in range(int(seconds / FRAME_S)):
         out = envelope_step(
             pos_ned_m=shaper.pos_ned_m,
@@ -73,7 +75,11 @@ def _fly_switch(balls, speed_mps, accel_mps2, new_target, seconds=6.0):
             free_distance=free,
             vehicle_radius_m=RADIUS_M,
             max_path_elevation_rad=ELEV_RAD,
+            held_brake_ned_m=held,
         )
+        held = out.brake_target_ned_m
+        if trace is not None:
+            trace.append((np.array(shaper.pos_ned_m), out))
         brakes += out.momentum_brake
         in_flight.append(out.setpoint_ned_m)
         if len(in_flight) > LATENCY_FRAMES:
@@ -117,8 +123,9 @@ def test_a_switch_at_speed_keeps_out_of_the_collision_distance(monkeypatch):
     assert all(r[1] > 0 for r, hit in zip(with_rule, collided, strict=True) if hit)
 
 
-def test_the_momentum_brake_states_the_bound_along_the_velocity():
-    """At the switch: the target is the vehicle's own position, the direction and the
+def test_the_momentum_brake_stops_at_the_stopping_point_and_states_the_bound_along_v():
+    """At the switch: the target is the jerk-limited stopping point along the velocity
+    (the closed form, inside the free distance less the margin), the direction and the
     bound stated are those along the velocity, and ``momentum_brake`` says why."""
     balls, v, a, new = _case(0.9, 2.5, (3.0, 0.9), (0.0, 10.0))
     free = _free_among(balls)
@@ -133,10 +140,13 @@ def test_the_momentum_brake_states_the_bound_along_the_velocity():
     )
     out = envelope_step(**common, accel_ned_mps2=(a, 0.0, 0.0))
     assert out.momentum_brake and out.limited
-    np.testing.assert_allclose(out.setpoint_ned_m, pos, atol=1e-12)
-    np.testing.assert_allclose(out.path_dir_ned, (1.0, 0.0, 0.0), atol=1e-12)
     cfg = EnvelopeConfig()
+    lim = ReferenceLimits(cfg.accel_mps2, cfg.jerk_mps3, 10.0)
     free_v = free(pos, np.array([1.0, 0.0, 0.0]), RADIUS_M, cfg.lookahead_m, 0, 0, 0)
+    stop_m = min(straight_stop_m(v, a, cfg.latency_s, lim), free_v - cfg.margin_m)
+    np.testing.assert_allclose(out.setpoint_ned_m, pos + np.array([stop_m, 0.0, 0.0]), atol=1e-12)
+    np.testing.assert_allclose(out.brake_target_ned_m, out.setpoint_ned_m, atol=0.0)
+    np.testing.assert_allclose(out.path_dir_ned, (1.0, 0.0, 0.0), atol=1e-12)
     assert out.free_distance_m == pytest.approx(free_v, abs=1e-9)
     # the same command straight ahead (within 15° of v and a) is steps 4–5's, not braked
     ahead = envelope_step(

@@ -72,6 +72,7 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -79,7 +80,7 @@ from typing import Any
 
 import numpy as np
 
-from companion.guidance.autopilot_path import ReferenceLimits, predict_path
+from companion.guidance.autopilot_path import ReferenceLimits, predict_path, straight_stop_m
 from protocols.config import Checked, bounded, dataclass_from_mapping
 
 __all__ = [
@@ -107,6 +108,9 @@ _MOMENTUM_COS = math.cos(math.radians(15.0))
 # prediction's own accuracy (its overshoot of a target ≤ 5 cm, twice that), within the
 # stop margin the carrot keeps.
 _MOMENTUM_TOLERANCE_M = 0.1
+# a leg of the predicted path is queried this much beyond its end, so a map that answers
+# in half-voxel steps does not cut a free leg short [m]
+_LEG_SLACK_M = 0.2
 # the largest acceleration step 8 believes [m/s²]: 2 g, beyond any multirotor's reference
 _MOMENTUM_MAX_ACCEL_MPS2 = 19.62
 
@@ -213,7 +217,11 @@ class EnvelopeOutput:
         least ``EnvelopeConfig.latency_s``).
     momentum_brake : bool
         Step 8 braked: the path the autopilot would fly from the present state to the
-        carrot was not seen free, so the target is the vehicle's own position.
+        carrot was not seen free, so the target is the brake's.
+    brake_target_ned_m : ndarray, shape (3,) or None
+        While step 8's brake holds (at speed): the stopping point sent [m, NED],
+        read-only, to be passed back as ``held_brake_ned_m`` with the next frame; None
+        otherwise.
     """
 
     setpoint_ned_m: np.ndarray
@@ -226,6 +234,7 @@ class EnvelopeOutput:
     overspeed: bool
     latency_s: float = 0.15
     momentum_brake: bool = False
+    brake_target_ned_m: np.ndarray | None = None
 
 
 def stopping_distance_m(speed_mps: float, latency_s: float, accel_mps2: float) -> float:
@@ -320,13 +329,14 @@ def _along(x: np.ndarray, to_carrot: np.ndarray, reach_m: float, floor: float) -
 
 
 def _momentum_clear(
-    pos, vel, acc, carrot, free_distance, tau_s, limit_mps, cfg, vehicle_radius_m
+    pos, vel, acc, carrot, free_distance, tau_s, limit_mps, cfg, vehicle_radius_m, brake_target
 ) -> bool:
     """Step 8: whether to send ``carrot`` rather than brake. True when the path the
-    autopilot flies from ``(pos, vel, acc)`` to it stays inside known-free space seen from
-    ``pos``, or when braking (target at the vehicle) would leave it by more. Only a carrot
-    off the velocity or the acceleration is predicted: one ahead along both (or the brake
-    target at the vehicle) is covered by steps 4–5."""
+    autopilot flies from ``(pos, vel, acc)`` to it stays inside known-free space (its
+    swept section, :func:`_excess_m`), or when the brake (``brake_target()``, the held or
+    predicted stopping point) would leave that space by more. Only a carrot off the
+    velocity or the acceleration is predicted: one ahead along both (or a target at the
+    vehicle) is covered by steps 4–5."""
     to_carrot = carrot - pos
     reach = math.sqrt(float(to_carrot @ to_carrot))
     if reach < 1e-6:
@@ -336,15 +346,58 @@ def _momentum_clear(
         for x, floor in ((vel, _MOMENTUM_MIN_SPEED_MPS), (acc, _MOMENTUM_MIN_ACCEL_MPS2))
     ):
         return True
-    speed = math.sqrt(float(vel @ vel))
-    limits = ReferenceLimits(cfg.accel_mps2, cfg.jerk_mps3, max(limit_mps, speed, 0.1))
+    limits = _reference_limits(vel, limit_mps, cfg)
 
     def excess(target) -> float:
         path = predict_path(pos, vel, acc, target, tau_s, limits)
         return _excess_m(path, pos, free_distance, vehicle_radius_m, cfg)
 
     to_carrot_excess = excess(carrot)
-    return to_carrot_excess <= _MOMENTUM_TOLERANCE_M or excess(pos) >= to_carrot_excess
+    return to_carrot_excess <= _MOMENTUM_TOLERANCE_M or excess(brake_target()) >= to_carrot_excess
+
+
+def _reference_limits(vel, limit_mps: float, cfg: EnvelopeConfig) -> ReferenceLimits:
+    """The autopilot's reference bounds as the envelope assumes them (its speed limit the
+    one stated, or the present speed when that is higher)."""
+    speed = math.sqrt(float(vel @ vel))
+    return ReferenceLimits(cfg.accel_mps2, cfg.jerk_mps3, max(limit_mps, speed, 0.1))
+
+
+def _stopping_point(pos, vel, acc, free_distance, tau_s, cfg, vehicle_radius_m) -> np.ndarray:
+    """The brake's target [m, NED]: where the autopilot's own stop from ``(p, v, a)``
+    comes to rest along ``v`` (:func:`~companion.guidance.autopilot_path.straight_stop_m`:
+    ``a``'s part along ``v`` held over ``τ``, then the jerk-limited ramp to the braking
+    deceleration), but no farther than the known-free distance along ``v`` less
+    ``margin_m``; the vehicle's position when that leaves less than ``min_advance_m``
+    (or it is not moving). ArduCopter brakes the same way, to a stopping point
+    (``AC_PosControl::get_stopping_point_xy_cm``), not to where it is."""
+    speed = math.sqrt(float(vel @ vel))
+    if speed < _BRAKE_MIN_SPEED_MPS:
+        return pos.copy()
+    unit = vel / speed
+    limits = _reference_limits(vel, 0.0, cfg)
+    reach = straight_stop_m(speed, float(acc @ unit), tau_s, limits)
+    room = _free_m(free_distance, pos, unit, vehicle_radius_m, cfg) - cfg.margin_m
+    reach = min(reach, room)
+    return pos + unit * reach if reach >= cfg.min_advance_m else pos.copy()
+
+
+def _held_brake(held_ned_m, pos, speed_mps, free_distance, cfg, vehicle_radius_m):
+    """The brake target held from the last frame while it still stands [m, NED], or None:
+    released once the vehicle has stopped (below ``_BRAKE_MIN_SPEED_MPS``), and dropped
+    when it is not three finite numbers or the straight way to it is no longer known free
+    with ``margin_m`` to spare (within the prediction's tolerance)."""
+    if held_ned_m is None or speed_mps < _BRAKE_MIN_SPEED_MPS:
+        return None
+    held = np.asarray(held_ned_m, dtype=float).reshape(-1)
+    if held.shape != (3,) or not np.all(np.isfinite(held)):
+        return None
+    to_held = held - pos
+    dist = math.sqrt(float(to_held @ to_held))
+    if dist < cfg.min_advance_m:
+        return held.copy()
+    room = _free_m(free_distance, pos, to_held / dist, vehicle_radius_m, cfg) - cfg.margin_m
+    return held.copy() if dist <= room + _MOMENTUM_TOLERANCE_M else None
 
 
 def _measured_accel(accel_ned_mps2) -> np.ndarray:
@@ -361,16 +414,29 @@ def _measured_accel(accel_ned_mps2) -> np.ndarray:
 
 
 def _excess_m(path, pos, free_distance, vehicle_radius_m, cfg) -> float:
-    """How far the path's points lie beyond the known-free distance along their rays from
-    ``pos`` (each ``q`` against the free distance along ``(q − p)/|q − p|``; the margin
-    is kept by where it stops, the carrot): ≤ 0 when all lie inside [m]."""
+    """How far the path leaves known-free space, following the path itself: each leg
+    ``q_i → q_{i+1}`` (from ``pos``) against the known-free distance of the vehicle's
+    section from ``q_i`` along the leg, so a path that curves round an obstacle is judged
+    by the space it sweeps, not by rays from ``pos`` that cut its corners. The near-field
+    and body allowances of the query shrink with ``|q_i − pos|`` (they are about the
+    camera's view from ``pos``); the margin is kept by where it stops, the carrot. ≤ 0
+    when every leg lies inside [m]."""
     worst = -math.inf
+    start = np.asarray(pos, dtype=float)
+    # the section widened by the prediction's accuracy: the path is not flown exactly
+    section = (vehicle_radius_m + _MOMENTUM_TOLERANCE_M, 0.0, cfg.vehicle_half_height_m)
     for q in path:
-        d = q - pos
-        s = math.sqrt(float(d @ d))
-        if s < cfg.min_advance_m:
+        leg = q - start
+        length = math.sqrt(float(leg @ leg))
+        if length < 1e-6:
             continue
-        worst = max(worst, s - _free_m(free_distance, pos, d / s, vehicle_radius_m, cfg))
+        off = math.dist(start, pos)
+        body = max(0.0, vehicle_radius_m - off)
+        near = max(0.0, cfg.near_field_m - off)
+        limit = min(length + _LEG_SLACK_M, cfg.lookahead_m)
+        free = float(free_distance(start, leg / length, section[0], limit, section[2], body, near))
+        worst = max(worst, length - free)
+        start = q
     return worst
 
 
@@ -386,6 +452,7 @@ def envelope_step(
     latency_s: float | None = None,
     heading_rad: float | None = None,
     accel_ned_mps2=None,
+    held_brake_ned_m=None,
 ) -> EnvelopeOutput:
     """Bound guidance's setpoint by known-free space and the stopping distance.
 
@@ -413,6 +480,9 @@ def envelope_step(
         The vehicle's heading [rad] (step 7's stages climb along it).
     accel_ned_mps2 : array_like, shape (3,), optional
         The vehicle's acceleration [m/s², NED] for step 8's prediction; zero when None.
+    held_brake_ned_m : array_like, shape (3,), optional
+        The last frame's ``brake_target_ned_m``: a brake keeps it as its target while the
+        vehicle moves and the way to it stays known free (step 8).
     """
     cfg = EnvelopeConfig() if config is None else config
     pos, vel = np.asarray(pos_ned_m, dtype=float), np.asarray(vel_ned_mps, dtype=float)
@@ -425,18 +495,35 @@ def envelope_step(
         heading_rad, cfg)  # fmt: skip
     limit = _limit_mps(free, tau, cfg)
     acc = _measured_accel(accel_ned_mps2)
+    held = _held_brake(held_brake_ned_m, pos, speed, free_distance, cfg, vehicle_radius_m)
+
+    @functools.cache
+    def brake_target() -> np.ndarray:
+        if held is not None:
+            return held
+        return _stopping_point(pos, vel, acc, free_distance, tau, cfg, vehicle_radius_m)
+
     momentum = speed <= limit and not _momentum_clear(
-        pos, vel, acc, carrot, free_distance, tau, limit, cfg, vehicle_radius_m
+        pos, vel, acc, carrot, free_distance, tau, limit, cfg, vehicle_radius_m, brake_target
     )
-    if momentum:
-        carrot, limited = pos.copy(), True
+    brake = None
     if (speed > limit or momentum) and speed >= _BRAKE_MIN_SPEED_MPS:
         # Too fast to turn onto the path (or the path's free space shrank, or the
-        # autopilot's way to the carrot is not seen free): the carrot is at the vehicle
-        # (reach 0), and the stated bound is the one for the way it moves.
+        # autopilot's way to the carrot is not seen free): brake, and state the bound
+        # for the way the vehicle moves. Step 8's brake targets the stopping point and
+        # holds it (also through frames where step 5 brakes) until the vehicle has
+        # stopped or a certified carrot replaces it; step 5's alone keeps step 4's
+        # target at the vehicle.
+        if momentum or held is not None:
+            brake = brake_target()
+            carrot, limited = brake.copy(), True
         direction = vel / speed
         free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
         limit = _limit_mps(free, tau, cfg)
+    elif momentum:
+        carrot, limited = pos.copy(), True
+    if brake is not None:
+        brake.setflags(write=False)
     carrot.setflags(write=False)
     direction.setflags(write=False)
     return EnvelopeOutput(
@@ -450,4 +537,5 @@ def envelope_step(
         overspeed=speed > limit + cfg.overspeed_tolerance_mps,
         latency_s=tau,
         momentum_brake=momentum,
+        brake_target_ned_m=brake,
     )
