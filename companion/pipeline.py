@@ -212,9 +212,9 @@ class AvoidancePipeline:
             latency_s=latency_s,
             heading_rad=pose.yaw_rad,
             accel_ned_mps2=self._accel(frame.capture_ns, pose.vel_ned_mps),
-            held_brake_ned_m=self._brake_ned_m,
+            held_brake_ned_m=self._brake_ned_m if steering else None,
         )
-        self._brake_ned_m = bounded.brake_target_ned_m
+        self._brake_ned_m = bounded.brake_target_ned_m if steering else None
         escape, kept_out = None, None
         if decision.mode is Mode.HOLD:
             escape = self._hold_outside(pose, bounded, boundaries)

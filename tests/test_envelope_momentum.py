@@ -393,7 +393,8 @@ def test_a_held_brake_stands_until_stopped_replaced_or_no_longer_free():
     """``held_brake_ned_m``: kept while the vehicle moves and the way to it stays seen
     free (also when step 5 would brake at the vehicle); released once the vehicle has
     stopped or a certified carrot is sent; replaced by a new stopping point when
-    something is seen in the way; ignored when not three finite numbers."""
+    something is seen in the way or it lies behind the motion; ignored when not three
+    finite numbers."""
     balls, v, a, new = _case(0.9, 2.5, (3.0, 0.9), (0.0, 10.0))
     free = _free_among(balls)
     pos = np.array([0.0, 0.0, ALT_D_M])
@@ -432,7 +433,12 @@ def test_a_held_brake_stands_until_stopped_replaced_or_no_longer_free():
     assert not np.array_equal(moved.brake_target_ned_m, held)
     room = blocked(pos, np.array([1.0, 0.0, 0.0]), RADIUS_M, 12.0, 0, 0, 0) - 0.3
     assert float(moved.brake_target_ned_m[0] - pos[0]) <= room + 1e-9
-    for garbage in ((math.nan, 0.0, ALT_D_M), (1.0, 2.0)):
+    # left behind the motion (not a brake of it): a new stopping point ahead
+    behind = envelope_step(
+        **common, vel_ned_mps=(v, 0, 0), held_brake_ned_m=pos - np.array([1.0, 0.0, 0.0])
+    )
+    assert behind.brake_target_ned_m is not None and behind.brake_target_ned_m[0] > pos[0]
+    for garbage in ((math.nan, 0.0, ALT_D_M), (1.0, 2.0), (-1.0, 0.0, ALT_D_M)):
         out = envelope_step(**common, vel_ned_mps=(v, 0, 0), held_brake_ned_m=garbage)
         assert np.all(np.isfinite(out.setpoint_ned_m))
         np.testing.assert_array_equal(

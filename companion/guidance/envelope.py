@@ -57,14 +57,24 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    vehicle on the way it was going. When the carrot lies more than 15° off the velocity
    (≥ 0.1 m/s) or the acceleration (≥ 1 m/s²), the path the autopilot flies to it from
    ``(p, v, a)`` is predicted (:mod:`companion.guidance.autopilot_path`, ``accel_mps2``
-   and ``jerk_mps3``, the acceleration held over ``τ``) and each point ``q`` of it must
-   lie within the known-free distance along ``(q − p)/|q − p|`` (0.1 m of tolerance, the
-   prediction's accuracy). If not, and the brake's own predicted path leaves that space
-   by less, the vehicle brakes: the carrot is its own position (the reference
-   decelerates at once at its limits), the bound stated is the one along ``v`` (as in
-   step 5's braking) and ``momentum_brake`` reports it (the core counts it and tells the
-   operator). When braking would carry it farther out (a velocity toward less free space
-   than the turn), the carrot stands. Found on
+   and ``jerk_mps3``, the acceleration held over ``τ``) and the space it sweeps must be
+   known free: each leg ``q_i → q_{i+1}`` of it within the known-free distance of the
+   vehicle's section (widened by the prediction's 0.1 m) from ``q_i`` along the leg, 0.1 m
+   of tolerance (a score that follows the path, so a turn away round an obstacle is
+   judged by where it goes, not by rays from ``p`` that cut its corners). If not, and
+   the brake's own predicted path leaves that space by less, the vehicle brakes to its
+   **stopping point**: where the jerk-limited stop from ``(p, v, a)`` along ``v`` ends
+   (:func:`~companion.guidance.autopilot_path.straight_stop_m`, ArduCopter's own brake
+   target), no farther than the known-free distance along ``v`` less ``margin_m`` (the
+   vehicle's position when that leaves less than ``min_advance_m``). The target is
+   *held* (``brake_target_ned_m``, passed back as ``held_brake_ned_m``), also through
+   frames where step 5 would brake, until the vehicle has stopped (< 0.1 m/s), a
+   certified carrot replaces it, or the way to it is no longer known free (then a new
+   stopping point): re-targeting a brake at a moving vehicle each frame does not stop
+   a laggy airframe (stop 42, the suite's seed 107). The bound stated is the one along
+   ``v`` (as in step 5's braking) and ``momentum_brake`` reports it (the core counts it
+   and tells the operator). When braking would carry it farther out (a velocity toward
+   less free space than the turn), the carrot stands. Found on
    the fast ``corridor-3m`` (stop 40): a switch from into the corridor to round the
    wall's end at 0.9 m/s; the reference accelerated on for 0.6 s, 1.7 m/s toward the
    wall's end with 4.9 m/s stated along the new path, 0.31 m from the surface.
@@ -111,6 +121,9 @@ _MOMENTUM_TOLERANCE_M = 0.1
 # a leg of the predicted path is queried this much beyond its end, so a map that answers
 # in half-voxel steps does not cut a free leg short [m]
 _LEG_SLACK_M = 0.2
+# a held brake target this far behind the vehicle's motion is not its stop (the prediction
+# overshoots a target by up to ~0.4 m before it returns) [m]
+_BRAKE_PASSED_M = 0.5
 # the largest acceleration step 8 believes [m/s²]: 2 g, beyond any multirotor's reference
 _MOMENTUM_MAX_ACCEL_MPS2 = 19.62
 
@@ -382,17 +395,21 @@ def _stopping_point(pos, vel, acc, free_distance, tau_s, cfg, vehicle_radius_m) 
     return pos + unit * reach if reach >= cfg.min_advance_m else pos.copy()
 
 
-def _held_brake(held_ned_m, pos, speed_mps, free_distance, cfg, vehicle_radius_m):
+def _held_brake(held_ned_m, pos, vel, free_distance, cfg, vehicle_radius_m):
     """The brake target held from the last frame while it still stands [m, NED], or None:
     released once the vehicle has stopped (below ``_BRAKE_MIN_SPEED_MPS``), and dropped
-    when it is not three finite numbers or the straight way to it is no longer known free
-    with ``margin_m`` to spare (within the prediction's tolerance)."""
+    when it is not three finite numbers, lies more than ``_BRAKE_PASSED_M`` behind the
+    vehicle's motion, or the straight way to it is no longer known free with
+    ``margin_m`` to spare (within the prediction's tolerance)."""
+    speed_mps = math.sqrt(float(vel @ vel))
     if held_ned_m is None or speed_mps < _BRAKE_MIN_SPEED_MPS:
         return None
     held = np.asarray(held_ned_m, dtype=float).reshape(-1)
     if held.shape != (3,) or not np.all(np.isfinite(held)):
         return None
     to_held = held - pos
+    if float(to_held @ vel) < -_BRAKE_PASSED_M * speed_mps:
+        return None  # left behind (not a brake of this motion): a new stopping point
     dist = math.sqrt(float(to_held @ to_held))
     if dist < cfg.min_advance_m:
         return held.copy()
@@ -495,7 +512,7 @@ def envelope_step(
         heading_rad, cfg)  # fmt: skip
     limit = _limit_mps(free, tau, cfg)
     acc = _measured_accel(accel_ned_mps2)
-    held = _held_brake(held_brake_ned_m, pos, speed, free_distance, cfg, vehicle_radius_m)
+    held = _held_brake(held_brake_ned_m, pos, vel, free_distance, cfg, vehicle_radius_m)
 
     @functools.cache
     def brake_target() -> np.ndarray:
