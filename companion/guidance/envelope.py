@@ -60,8 +60,10 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    and ``jerk_mps3``, the acceleration held over ``τ``) and the space it sweeps must be
    known free: each leg ``q_i → q_{i+1}`` of it within the known-free distance of the
    vehicle's section (widened by the prediction's 0.1 m) from ``q_i`` along the leg, 0.1 m
-   of tolerance (a score that follows the path, so a turn away round an obstacle is
-   judged by where it goes, not by rays from ``p`` that cut its corners). If not, and
+   of tolerance, the rim allowed in unseen space outside every obstacle's extent within
+   ``near_field_m`` of each leg's start as in step 2 (a score that follows the path, so
+   a turn away round an obstacle is judged by where it goes, not by rays from ``p`` that
+   cut its corners). If not, and
    the brake's own predicted path leaves that space by less, the vehicle brakes to its
    **stopping point**: where the jerk-limited stop from ``(p, v, a)`` along ``v`` ends
    (:func:`~companion.guidance.autopilot_path.straight_stop_m`, ArduCopter's own brake
@@ -433,25 +435,31 @@ def _measured_accel(accel_ned_mps2) -> np.ndarray:
 def _excess_m(path, pos, free_distance, vehicle_radius_m, cfg) -> float:
     """How far the path leaves known-free space, following the path itself: each leg
     ``q_i → q_{i+1}`` (from ``pos``) against the known-free distance of the vehicle's
-    section from ``q_i`` along the leg, so a path that curves round an obstacle is judged
-    by the space it sweeps, not by rays from ``pos`` that cut its corners. The near-field
-    and body allowances of the query shrink with ``|q_i − pos|`` (they are about the
-    camera's view from ``pos``); the margin is kept by where it stops, the carrot. ≤ 0
-    when every leg lies inside [m]."""
+    section (widened by the prediction's accuracy) from ``q_i`` along the leg, so a path
+    that curves round an obstacle is judged by the space it sweeps, not by rays from
+    ``pos`` that cut its corners. Each leg's centre must lie in FREE voxels (beyond the
+    body allowance at ``pos``), and its rim too except within ``near_field_m`` of the
+    leg's start, where unseen space outside every obstacle's extent is allowed — the
+    allowance the straight check gives its first metre (the camera never sees the
+    section's rim that near; a turn's legs run beside the view). The margin is kept by
+    where it stops, the carrot. ≤ 0 when every leg lies inside [m]."""
     worst = -math.inf
     start = np.asarray(pos, dtype=float)
     # the section widened by the prediction's accuracy: the path is not flown exactly
-    section = (vehicle_radius_m + _MOMENTUM_TOLERANCE_M, 0.0, cfg.vehicle_half_height_m)
+    radius = vehicle_radius_m + _MOMENTUM_TOLERANCE_M
     for q in path:
         leg = q - start
         length = math.sqrt(float(leg @ leg))
         if length < 1e-6:
             continue
-        off = math.dist(start, pos)
-        body = max(0.0, vehicle_radius_m - off)
-        near = max(0.0, cfg.near_field_m - off)
+        body = max(0.0, vehicle_radius_m - math.dist(start, pos))
         limit = min(length + _LEG_SLACK_M, cfg.lookahead_m)
-        free = float(free_distance(start, leg / length, section[0], limit, section[2], body, near))
+        free = float(
+            free_distance(
+                start, leg / length, radius, limit, cfg.vehicle_half_height_m, body,
+                cfg.near_field_m,
+            )
+        )  # fmt: skip
         worst = max(worst, length - free)
         start = q
     return worst
