@@ -549,6 +549,10 @@ def envelope_step(
         carrot, limited = pos.copy(), True
     if brake is not None:
         brake.setflags(write=False)
+    # a stopping point at the vehicle (no room ahead) is not held: held, it would pull
+    # the vehicle back to where it was while it moves on (a climb along an unseen
+    # vertical velocity); re-taken at the vehicle each frame, it brakes as step 5 does
+    hold = brake is not None and math.dist(brake, pos) >= cfg.min_advance_m
     carrot.setflags(write=False)
     direction.setflags(write=False)
     return EnvelopeOutput(
@@ -562,5 +566,5 @@ def envelope_step(
         overspeed=speed > limit + cfg.overspeed_tolerance_mps,
         latency_s=tau,
         momentum_brake=momentum,
-        brake_target_ned_m=brake,
+        brake_target_ned_m=brake if hold else None,
     )
