@@ -444,3 +444,32 @@ def test_a_held_brake_stands_until_stopped_replaced_or_no_longer_free():
         np.testing.assert_array_equal(
             out.setpoint_ned_m, envelope_step(**common, vel_ned_mps=(v, 0, 0)).setpoint_ned_m
         )
+
+
+@pytest.mark.parametrize(("seen_north_m", "held"), [(0.6, False), (0.8, True), (1.0, True)])
+def test_a_brake_with_no_room_ahead_brakes_at_the_vehicle_and_is_not_held(seen_north_m, held):
+    """Space seen free along the velocity ends so near that the stopping point has less
+    than ``min_advance_m`` of room: the brake's target is the vehicle's position, not
+    held (held, it would pull the vehicle back to where it was as it moves on); with room,
+    the point ahead (free distance less the margin) is sent and held."""
+    balls = [(np.array([3.0, 0.9, ALT_D_M]), 0.4)]
+    free = _seen_up_to(balls, seen_north_m)
+    pos = np.array([0.0, 0.0, ALT_D_M])
+    out = envelope_step(
+        pos_ned_m=pos,
+        vel_ned_mps=(0.9, 0.0, 0.0),
+        accel_ned_mps2=(2.5, 0.0, 0.0),
+        setpoint_ned_m=(0.0, 10.0, ALT_D_M),
+        free_distance=free,
+        vehicle_radius_m=RADIUS_M,
+        max_path_elevation_rad=ELEV_RAD,
+    )
+    cfg = EnvelopeConfig()
+    room = seen_north_m - RADIUS_M - cfg.margin_m
+    assert out.momentum_brake
+    if held:
+        np.testing.assert_allclose(out.setpoint_ned_m, pos + np.array([room, 0, 0]), atol=1e-9)
+        np.testing.assert_array_equal(out.brake_target_ned_m, out.setpoint_ned_m)
+    else:
+        np.testing.assert_array_equal(out.setpoint_ned_m, pos)
+        assert out.brake_target_ned_m is None
