@@ -136,6 +136,7 @@ class AvoidancePipeline:
         self.envelope_config = EnvelopeConfig() if envelope is None else envelope
         self._last_path = None  # (map frame, goal, KnownPath or None) of the last search
         self._last_vel = None  # (capture_ns, vel_ned_mps) of the last frame: acceleration
+        self._brake_ned_m = None  # the envelope's held brake target (step 8), or None
         self._widen(self.perception.config.position_uncertainty_m)
         warm_up()
 
@@ -211,7 +212,9 @@ class AvoidancePipeline:
             latency_s=latency_s,
             heading_rad=pose.yaw_rad,
             accel_ned_mps2=self._accel(frame.capture_ns, pose.vel_ned_mps),
+            held_brake_ned_m=self._brake_ned_m if steering else None,
         )
+        self._brake_ned_m = bounded.brake_target_ned_m if steering else None
         escape, kept_out = None, None
         if decision.mode is Mode.HOLD:
             escape = self._hold_outside(pose, bounded, boundaries)

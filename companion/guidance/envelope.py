@@ -57,14 +57,26 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    vehicle on the way it was going. When the carrot lies more than 15° off the velocity
    (≥ 0.1 m/s) or the acceleration (≥ 1 m/s²), the path the autopilot flies to it from
    ``(p, v, a)`` is predicted (:mod:`companion.guidance.autopilot_path`, ``accel_mps2``
-   and ``jerk_mps3``, the acceleration held over ``τ``) and each point ``q`` of it must
-   lie within the known-free distance along ``(q − p)/|q − p|`` (0.1 m of tolerance, the
-   prediction's accuracy). If not, and the brake's own predicted path leaves that space
-   by less, the vehicle brakes: the carrot is its own position (the reference
-   decelerates at once at its limits), the bound stated is the one along ``v`` (as in
-   step 5's braking) and ``momentum_brake`` reports it (the core counts it and tells the
-   operator). When braking would carry it farther out (a velocity toward less free space
-   than the turn), the carrot stands. Found on
+   and ``jerk_mps3``, the acceleration held over ``τ``) and the space it sweeps must be
+   known free: each leg ``q_i → q_{i+1}`` of it within the known-free distance of the
+   vehicle's section (widened by the prediction's 0.1 m) from ``q_i`` along the leg, 0.1 m
+   of tolerance, the rim allowed in unseen space outside every obstacle's extent within
+   ``near_field_m`` of each leg's start as in step 2 (a score that follows the path, so
+   a turn away round an obstacle is judged by where it goes, not by rays from ``p`` that
+   cut its corners). If not, and
+   the brake's own predicted path leaves that space by less, the vehicle brakes to its
+   **stopping point**: where the jerk-limited stop from ``(p, v, a)`` along ``v`` ends
+   (:func:`~companion.guidance.autopilot_path.straight_stop_m`, ArduCopter's own brake
+   target), no farther than the known-free distance along ``v`` less ``margin_m`` (the
+   vehicle's position when that leaves less than ``min_advance_m``). The target is
+   *held* (``brake_target_ned_m``, passed back as ``held_brake_ned_m``), also through
+   frames where step 5 would brake, until the vehicle has stopped (< 0.1 m/s), a
+   certified carrot replaces it, or the way to it is no longer known free (then a new
+   stopping point): re-targeting a brake at a moving vehicle each frame does not stop
+   a laggy airframe (stop 42, the suite's seed 107). The bound stated is the one along
+   ``v`` (as in step 5's braking) and ``momentum_brake`` reports it (the core counts it
+   and tells the operator). When braking would carry it farther out (a velocity toward
+   less free space than the turn), the carrot stands. Found on
    the fast ``corridor-3m`` (stop 40): a switch from into the corridor to round the
    wall's end at 0.9 m/s; the reference accelerated on for 0.6 s, 1.7 m/s toward the
    wall's end with 4.9 m/s stated along the new path, 0.31 m from the surface.
@@ -72,6 +84,7 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -79,7 +92,7 @@ from typing import Any
 
 import numpy as np
 
-from companion.guidance.autopilot_path import ReferenceLimits, predict_path
+from companion.guidance.autopilot_path import ReferenceLimits, predict_path, straight_stop_m
 from protocols.config import Checked, bounded, dataclass_from_mapping
 
 __all__ = [
@@ -107,6 +120,12 @@ _MOMENTUM_COS = math.cos(math.radians(15.0))
 # prediction's own accuracy (its overshoot of a target ≤ 5 cm, twice that), within the
 # stop margin the carrot keeps.
 _MOMENTUM_TOLERANCE_M = 0.1
+# a leg of the predicted path is queried this much beyond its end, so a map that answers
+# in half-voxel steps does not cut a free leg short [m]
+_LEG_SLACK_M = 0.2
+# a held brake target this far behind the vehicle's motion is not its stop (the prediction
+# overshoots a target by up to ~0.4 m before it returns) [m]
+_BRAKE_PASSED_M = 0.5
 # the largest acceleration step 8 believes [m/s²]: 2 g, beyond any multirotor's reference
 _MOMENTUM_MAX_ACCEL_MPS2 = 19.62
 
@@ -213,7 +232,11 @@ class EnvelopeOutput:
         least ``EnvelopeConfig.latency_s``).
     momentum_brake : bool
         Step 8 braked: the path the autopilot would fly from the present state to the
-        carrot was not seen free, so the target is the vehicle's own position.
+        carrot was not seen free, so the target is the brake's.
+    brake_target_ned_m : ndarray, shape (3,) or None
+        While step 8's brake holds (at speed): the stopping point sent [m, NED],
+        read-only, to be passed back as ``held_brake_ned_m`` with the next frame; None
+        otherwise.
     """
 
     setpoint_ned_m: np.ndarray
@@ -226,6 +249,7 @@ class EnvelopeOutput:
     overspeed: bool
     latency_s: float = 0.15
     momentum_brake: bool = False
+    brake_target_ned_m: np.ndarray | None = None
 
 
 def stopping_distance_m(speed_mps: float, latency_s: float, accel_mps2: float) -> float:
@@ -320,13 +344,14 @@ def _along(x: np.ndarray, to_carrot: np.ndarray, reach_m: float, floor: float) -
 
 
 def _momentum_clear(
-    pos, vel, acc, carrot, free_distance, tau_s, limit_mps, cfg, vehicle_radius_m
+    pos, vel, acc, carrot, free_distance, tau_s, limit_mps, cfg, vehicle_radius_m, brake_target
 ) -> bool:
     """Step 8: whether to send ``carrot`` rather than brake. True when the path the
-    autopilot flies from ``(pos, vel, acc)`` to it stays inside known-free space seen from
-    ``pos``, or when braking (target at the vehicle) would leave it by more. Only a carrot
-    off the velocity or the acceleration is predicted: one ahead along both (or the brake
-    target at the vehicle) is covered by steps 4–5."""
+    autopilot flies from ``(pos, vel, acc)`` to it stays inside known-free space (its
+    swept section, :func:`_excess_m`), or when the brake (``brake_target()``, the held or
+    predicted stopping point) would leave that space by more. Only a carrot off the
+    velocity or the acceleration is predicted: one ahead along both (or a target at the
+    vehicle) is covered by steps 4–5."""
     to_carrot = carrot - pos
     reach = math.sqrt(float(to_carrot @ to_carrot))
     if reach < 1e-6:
@@ -336,15 +361,62 @@ def _momentum_clear(
         for x, floor in ((vel, _MOMENTUM_MIN_SPEED_MPS), (acc, _MOMENTUM_MIN_ACCEL_MPS2))
     ):
         return True
-    speed = math.sqrt(float(vel @ vel))
-    limits = ReferenceLimits(cfg.accel_mps2, cfg.jerk_mps3, max(limit_mps, speed, 0.1))
+    limits = _reference_limits(vel, limit_mps, cfg)
 
     def excess(target) -> float:
         path = predict_path(pos, vel, acc, target, tau_s, limits)
         return _excess_m(path, pos, free_distance, vehicle_radius_m, cfg)
 
     to_carrot_excess = excess(carrot)
-    return to_carrot_excess <= _MOMENTUM_TOLERANCE_M or excess(pos) >= to_carrot_excess
+    return to_carrot_excess <= _MOMENTUM_TOLERANCE_M or excess(brake_target()) >= to_carrot_excess
+
+
+def _reference_limits(vel, limit_mps: float, cfg: EnvelopeConfig) -> ReferenceLimits:
+    """The autopilot's reference bounds as the envelope assumes them (its speed limit the
+    one stated, or the present speed when that is higher)."""
+    speed = math.sqrt(float(vel @ vel))
+    return ReferenceLimits(cfg.accel_mps2, cfg.jerk_mps3, max(limit_mps, speed, 0.1))
+
+
+def _stopping_point(pos, vel, acc, free_distance, tau_s, cfg, vehicle_radius_m) -> np.ndarray:
+    """The brake's target [m, NED]: where the autopilot's own stop from ``(p, v, a)``
+    comes to rest along ``v`` (:func:`~companion.guidance.autopilot_path.straight_stop_m`:
+    ``a``'s part along ``v`` held over ``τ``, then the jerk-limited ramp to the braking
+    deceleration), but no farther than the known-free distance along ``v`` less
+    ``margin_m``; the vehicle's position when that leaves less than ``min_advance_m``
+    (or it is not moving). ArduCopter brakes the same way, to a stopping point
+    (``AC_PosControl::get_stopping_point_xy_cm``), not to where it is."""
+    speed = math.sqrt(float(vel @ vel))
+    if speed < _BRAKE_MIN_SPEED_MPS:
+        return pos.copy()
+    unit = vel / speed
+    limits = _reference_limits(vel, 0.0, cfg)
+    reach = straight_stop_m(speed, float(acc @ unit), tau_s, limits)
+    room = _free_m(free_distance, pos, unit, vehicle_radius_m, cfg) - cfg.margin_m
+    reach = min(reach, room)
+    return pos + unit * reach if reach >= cfg.min_advance_m else pos.copy()
+
+
+def _held_brake(held_ned_m, pos, vel, free_distance, cfg, vehicle_radius_m):
+    """The brake target held from the last frame while it still stands [m, NED], or None:
+    released once the vehicle has stopped (below ``_BRAKE_MIN_SPEED_MPS``), and dropped
+    when it is not three finite numbers, lies more than ``_BRAKE_PASSED_M`` behind the
+    vehicle's motion, or the straight way to it is no longer known free with
+    ``margin_m`` to spare (within the prediction's tolerance)."""
+    speed_mps = math.sqrt(float(vel @ vel))
+    if held_ned_m is None or speed_mps < _BRAKE_MIN_SPEED_MPS:
+        return None
+    held = np.asarray(held_ned_m, dtype=float).reshape(-1)
+    if held.shape != (3,) or not np.all(np.isfinite(held)):
+        return None
+    to_held = held - pos
+    if float(to_held @ vel) < -_BRAKE_PASSED_M * speed_mps:
+        return None  # left behind (not a brake of this motion): a new stopping point
+    dist = math.sqrt(float(to_held @ to_held))
+    if dist < cfg.min_advance_m:
+        return held.copy()
+    room = _free_m(free_distance, pos, to_held / dist, vehicle_radius_m, cfg) - cfg.margin_m
+    return held.copy() if dist <= room + _MOMENTUM_TOLERANCE_M else None
 
 
 def _measured_accel(accel_ned_mps2) -> np.ndarray:
@@ -361,16 +433,35 @@ def _measured_accel(accel_ned_mps2) -> np.ndarray:
 
 
 def _excess_m(path, pos, free_distance, vehicle_radius_m, cfg) -> float:
-    """How far the path's points lie beyond the known-free distance along their rays from
-    ``pos`` (each ``q`` against the free distance along ``(q − p)/|q − p|``; the margin
-    is kept by where it stops, the carrot): ≤ 0 when all lie inside [m]."""
+    """How far the path leaves known-free space, following the path itself: each leg
+    ``q_i → q_{i+1}`` (from ``pos``) against the known-free distance of the vehicle's
+    section (widened by the prediction's accuracy) from ``q_i`` along the leg, so a path
+    that curves round an obstacle is judged by the space it sweeps, not by rays from
+    ``pos`` that cut its corners. Each leg's centre must lie in FREE voxels (beyond the
+    body allowance at ``pos``), and its rim too except within ``near_field_m`` of the
+    leg's start, where unseen space outside every obstacle's extent is allowed — the
+    allowance the straight check gives its first metre (the camera never sees the
+    section's rim that near; a turn's legs run beside the view). The margin is kept by
+    where it stops, the carrot. ≤ 0 when every leg lies inside [m]."""
     worst = -math.inf
+    start = np.asarray(pos, dtype=float)
+    # the section widened by the prediction's accuracy: the path is not flown exactly
+    radius = vehicle_radius_m + _MOMENTUM_TOLERANCE_M
     for q in path:
-        d = q - pos
-        s = math.sqrt(float(d @ d))
-        if s < cfg.min_advance_m:
+        leg = q - start
+        length = math.sqrt(float(leg @ leg))
+        if length < 1e-6:
             continue
-        worst = max(worst, s - _free_m(free_distance, pos, d / s, vehicle_radius_m, cfg))
+        body = max(0.0, vehicle_radius_m - math.dist(start, pos))
+        limit = min(length + _LEG_SLACK_M, cfg.lookahead_m)
+        free = float(
+            free_distance(
+                start, leg / length, radius, limit, cfg.vehicle_half_height_m, body,
+                cfg.near_field_m,
+            )
+        )  # fmt: skip
+        worst = max(worst, length - free)
+        start = q
     return worst
 
 
@@ -386,6 +477,7 @@ def envelope_step(
     latency_s: float | None = None,
     heading_rad: float | None = None,
     accel_ned_mps2=None,
+    held_brake_ned_m=None,
 ) -> EnvelopeOutput:
     """Bound guidance's setpoint by known-free space and the stopping distance.
 
@@ -413,6 +505,9 @@ def envelope_step(
         The vehicle's heading [rad] (step 7's stages climb along it).
     accel_ned_mps2 : array_like, shape (3,), optional
         The vehicle's acceleration [m/s², NED] for step 8's prediction; zero when None.
+    held_brake_ned_m : array_like, shape (3,), optional
+        The last frame's ``brake_target_ned_m``: a brake keeps it as its target while the
+        vehicle moves and the way to it stays known free (step 8).
     """
     cfg = EnvelopeConfig() if config is None else config
     pos, vel = np.asarray(pos_ned_m, dtype=float), np.asarray(vel_ned_mps, dtype=float)
@@ -425,18 +520,39 @@ def envelope_step(
         heading_rad, cfg)  # fmt: skip
     limit = _limit_mps(free, tau, cfg)
     acc = _measured_accel(accel_ned_mps2)
+    held = _held_brake(held_brake_ned_m, pos, vel, free_distance, cfg, vehicle_radius_m)
+
+    @functools.cache
+    def brake_target() -> np.ndarray:
+        if held is not None:
+            return held
+        return _stopping_point(pos, vel, acc, free_distance, tau, cfg, vehicle_radius_m)
+
     momentum = speed <= limit and not _momentum_clear(
-        pos, vel, acc, carrot, free_distance, tau, limit, cfg, vehicle_radius_m
+        pos, vel, acc, carrot, free_distance, tau, limit, cfg, vehicle_radius_m, brake_target
     )
-    if momentum:
-        carrot, limited = pos.copy(), True
+    brake = None
     if (speed > limit or momentum) and speed >= _BRAKE_MIN_SPEED_MPS:
         # Too fast to turn onto the path (or the path's free space shrank, or the
-        # autopilot's way to the carrot is not seen free): the carrot is at the vehicle
-        # (reach 0), and the stated bound is the one for the way it moves.
+        # autopilot's way to the carrot is not seen free): brake, and state the bound
+        # for the way the vehicle moves. Step 8's brake targets the stopping point and
+        # holds it (also through frames where step 5 brakes) until the vehicle has
+        # stopped or a certified carrot replaces it; step 5's alone keeps step 4's
+        # target at the vehicle.
+        if momentum or held is not None:
+            brake = brake_target()
+            carrot, limited = brake.copy(), True
         direction = vel / speed
         free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
         limit = _limit_mps(free, tau, cfg)
+    elif momentum:
+        carrot, limited = pos.copy(), True
+    if brake is not None:
+        brake.setflags(write=False)
+    # a stopping point at the vehicle (no room ahead) is not held: held, it would pull
+    # the vehicle back to where it was while it moves on (a climb along an unseen
+    # vertical velocity); re-taken at the vehicle each frame, it brakes as step 5 does
+    hold = brake is not None and math.dist(brake, pos) >= cfg.min_advance_m
     carrot.setflags(write=False)
     direction.setflags(write=False)
     return EnvelopeOutput(
@@ -450,4 +566,5 @@ def envelope_step(
         overspeed=speed > limit + cfg.overspeed_tolerance_mps,
         latency_s=tau,
         momentum_brake=momentum,
+        brake_target_ned_m=brake if hold else None,
     )
