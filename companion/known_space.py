@@ -89,7 +89,10 @@ be (``solid_ned_m``: the collision safety boundaries without their inflation, ea
 piece of occupied space and its blind spot, Fig. 4 — the unseen flank of an obstacle
 whose other side was seen is taken as obstacle). Named limitation: a thin obstacle that
 reaches into the rim's path only within 1 m ahead, never into the view and never near
-anything seen occupied. Outside the grid is UNKNOWN.
+anything seen occupied. The envelope passes ``near_field_m`` only for a path the camera
+looks along (:mod:`companion.guidance.envelope`, step 2): the flank of an obstacle
+beside a path the vehicle has not looked along is not in the view either (windy seed
+147). Outside the grid is UNKNOWN.
 
 Costs (``benchmarks/bench_known_space.py``): median 0.9–1.1 ms per 320 × 240 frame at the
 default stride of 4 (up to 4 800 rays) on the 2-core machine under a load of 8–9; with the
