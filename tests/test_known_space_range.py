@@ -95,3 +95,33 @@ def test_a_real_wall_stays_occupied_from_its_first_near_frames():
         space.integrate(_wall_below(top_m, climbed[2], 3.1), K, climbed, LEVEL_NORTH)
         states = np.array([space.state_at(p) for p in wall])
         assert np.all(states == OCCUPIED), (dz, int(np.sum(states != OCCUPIED)), len(states))
+
+
+def test_the_goal_unreachable_latch_asks_for_a_surface_seen_near():
+    """The pipeline's latch (``AvoidancePipeline._goal_surely_blocked``): a goal 0.4 m in
+    front of a surface seen only from 7.7 m is blocked by its boundary but not surely (the
+    hold is not latched); the same surface hit from 3 m is."""
+    from types import SimpleNamespace
+
+    from companion.guidance.map_boundaries import (
+        MapBoundaryConfig,
+        goal_surely_blocked,
+        map_boundaries,
+    )
+    from companion.pipeline import AvoidancePipeline
+
+    space = KnownSpace()
+    start = np.array([0.0, 0.0, -7.0])
+    for _ in range(3):
+        space.integrate(_wall(7.7), K, start, LEVEL_NORTH)
+    goal = start + np.array([7.3, 0.0, 0.0])
+    near_pos = start + np.array([4.7, 0.0, 0.0])  # within the 4 m detection range
+    cfg = MapBoundaryConfig(detect_range_m=4.0, inflate_m=0.65)
+    pipeline = SimpleNamespace(goal_ned_m=goal, boundary_config=cfg, known_space=space)
+    boundaries = map_boundaries(space, near_pos, goal, cfg)
+    assert goal_surely_blocked(boundaries, goal, cfg)
+    assert not AvoidancePipeline._goal_surely_blocked(pipeline, boundaries)
+    for _ in range(2):
+        space.integrate(_wall(3.0), K, near_pos, LEVEL_NORTH)
+    boundaries = map_boundaries(space, near_pos, goal, cfg)
+    assert AvoidancePipeline._goal_surely_blocked(pipeline, boundaries)
