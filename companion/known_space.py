@@ -40,15 +40,15 @@ block is matched):
   voxel only from ``√(voxel · f · b / confirm_disparity_px)`` (3.8 m with the paper's
   camera at 1 px; at 8 m one pixel is 0.89 m). ``near_hit`` records, per voxel, a hit
   from within that range since it was last FREE. A far hit still becomes OCCUPIED by the
-  two-frame rule (the proximity sectors hear of a wall at their range), but while no
-  near hit confirms it, a ray from within that range passing within ``free_core_m`` of
-  its centre sees it free (the wider core of unknown space), and it is not a surface
-  *seen near* (:meth:`KnownSpace.seen_near`: what latches a goal as unreachable). Found
+  two-frame rule (the proximity sectors hear of a wall at their range, guidance avoids
+  it), but while no near hit confirms it, it is not a surface *seen near*
+  (:meth:`KnownSpace.seen_near`: what latches a goal as unreachable). Seeing a far-only
+  voxel through with the wider core of unknown space was tried and dropped: it lost
+  passages corridor-9 (a goal at the base, ``no_progress`` with it). Found
   on the suite's Monte Carlo seed 102: voxels 0.52–0.92 m in front of a sphere's true
   surface, hit from 7.7 m for 200+ frames, latched a ``goal_unreachable`` hold; a rule
-  on the number of frames cannot drop a consistent bias. A real surface is hit from
-  near in its first near frames and then keeps the narrow core (no flicker at a wall's
-  top edge). The far layer keeps the old rule.
+  on the number of frames cannot drop a consistent bias. The far layer keeps the old
+  rule.
 * **Matched, beyond range** (finite or +inf depth, range > ``max_range_m``): FREE up to
   ``max_range_m``, nothing occupied.
 * **Unmatched** (NaN depth: no match, the matcher's blind band, nearer than its minimum
@@ -177,15 +177,11 @@ def _cell(grid, origin, inv_voxel, x, y, z):
 
 
 @numba.njit(cache=True)
-def _mark_ray(
-    grid, near, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m, free_core_m, near_m
-):
+def _mark_ray(grid, near, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m, free_core_m):
     """FREE in every UNKNOWN voxel whose centre the segment from (ox, oy, oz) over
     ``length`` [m] passes within ``free_core_m`` [m] of, and in every OCCUPIED or
-    TENTATIVE one whose centre it passes within ``core_m`` [m] of (0: never) — within
-    ``free_core_m`` for one never hit from near (``near`` 0) that lies within ``near_m``
-    of the origin (range-aware occupancy: a far hit is good to a pixel of disparity, not
-    to a voxel). A voxel made FREE forgets that it was hit from near.
+    TENTATIVE one whose centre it passes within ``core_m`` [m] of (0: never). A voxel
+    made FREE forgets that it was hit from near (``near``).
 
     Amanatides–Woo traversal: each voxel is visited once, in order along the ray; the
     walk stops at the grid's edge. ``(dx, dy, dz)`` is a unit direction.
@@ -239,9 +235,7 @@ def _mark_ray(
             qz = (k + origin[2] + 0.5) * voxel - oz
             along = qx * dx + qy * dy + qz * dz
             off2 = qx * qx + qy * qy + qz * qz - along * along
-            core = core_m
-            if cur == 0 or (near[i, j, k] == 0 and along <= near_m):
-                core = free_core_m
+            core = free_core_m if cur == 0 else core_m
             if off2 <= core * core:
                 grid[i, j, k] = 1
                 near[i, j, k] = 0
@@ -412,7 +406,7 @@ def _integrate_depth(
     for s in range(n_seg):
         _mark_ray(grid, near, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
                   segments[s, 0], segments[s, 1], segments[s, 2], segments[s, 3],
-                  segments[s, 4], free_core, near_m)  # fmt: skip
+                  segments[s, 4], free_core)  # fmt: skip
     for h in range(n_new):  # this frame's hits: tentative on a first hit, else occupied
         i, j, k = new_hits[h, 0], new_hits[h, 1], new_hits[h, 2]
         if grid[i, j, k] == _NEW_HIT_AGAIN:

@@ -75,10 +75,9 @@ class KnownSpaceConfig:
         Range-aware occupancy: a hit is *near* when a disparity error of this many pixels
         moves it by at most a voxel, i.e. from a range ``r ≤ √(voxel · f · b / px)``
         (3.8 m at 1 px with the paper's camera, f·b = 71.9 px·m: at 8 m one pixel is
-        0.89 m). An OCCUPIED or TENTATIVE voxel never hit from near is cleared by a ray
-        that passes within ``free_core_m`` of its centre (not ``clear_core_m``) from
-        within that range, and does not count as a surface seen near
-        (:meth:`KnownSpace.seen_near`). 0: every hit is near (the far layer's rule).
+        0.89 m). An OCCUPIED voxel never hit from near does not count as a surface
+        seen near (:meth:`KnownSpace.seen_near`, what latches a goal as unreachable).
+        0: every hit is near (the far layer's rule).
     """
 
     voxel_m: float = bounded(0.2, "m", gt=0)

@@ -331,7 +331,7 @@ def test_an_obstacle_passed_at_close_range_stays_in_the_way():
     ("state", "hit_near", "core_name", "block_uv"),
     [
         (OCCUPIED, 1, "clear_core_m", (40, 37)),
-        (OCCUPIED, 0, "free_core_m", (36, 36)),
+        (OCCUPIED, 0, "clear_core_m", (40, 37)),
         (UNKNOWN, 0, "free_core_m", (36, 36)),
     ],
 )
@@ -340,9 +340,8 @@ def test_a_ray_frees_only_the_voxels_whose_core_it_crosses(state, hit_near, core
     3 m away frees exactly those whose centre it passes within ``clear_core_m``
     (``free_core_m``); the rest keep their state. A ray through a voxel's corner saw the
     corner, not the surface point that made it occupied, nor the inside of an obstacle
-    whose limb it grazed. Occupied voxels never hit from near (range-aware occupancy:
-    their place is good to a pixel of disparity, not a voxel) are seen through from 3 m
-    with the wider core of unknown ones."""
+    whose limb it grazed. Whether the occupied voxels were hit from near (range-aware
+    occupancy) does not change the core."""
     cfg = KnownSpaceConfig(start_free_radius_m=0.0, sky_min_elevation_deg=90.0)  # no sky
     space = KnownSpace(cfg)
     pos = np.array([0.0, 0.0, -7.0])

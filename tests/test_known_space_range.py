@@ -3,9 +3,8 @@
 The suite's Monte Carlo seed 102 (stop 41): voxels 0.52-0.92 m in front of a sphere's
 true surface, hit from 7.7 m (one pixel of disparity is 0.89 m there), OCCUPIED for 200+
 frames and the goal's `goal_unreachable` hold latched on them. A surface hit only from
-far is not a surface *seen near* (``KnownSpace.seen_near``, what the latch asks for), and
-nearer rays see through it with the wider core of unknown space; a real wall is seen near
-from its first near frames and stays occupied.
+far is not a surface *seen near* (``KnownSpace.seen_near``, what the latch asks for); a
+real wall is seen near from its first near frames and stays occupied.
 """
 
 from __future__ import annotations
