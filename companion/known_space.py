@@ -36,6 +36,19 @@ block is matched):
   graze an obstacle's limb (in every frame, at the edge of the silhouette) otherwise
   freed voxels reaching 0.17 m into it, and the swept section's samples found free
   space inside the flank they were about to hit (Monte Carlo seed 762).
+* **Range-aware occupancy** (issue 36): a hit is good to a pixel of disparity, so to a
+  voxel only from ``√(voxel · f · b / confirm_disparity_px)`` (3.8 m with the paper's
+  camera at 1 px; at 8 m one pixel is 0.89 m). ``near_hit`` records, per voxel, a hit
+  from within that range since it was last FREE. A far hit still becomes OCCUPIED by the
+  two-frame rule (the proximity sectors hear of a wall at their range, guidance avoids
+  it), but while no near hit confirms it, it is not a surface *seen near*
+  (:meth:`KnownSpace.seen_near`: what latches a goal as unreachable). Seeing a far-only
+  voxel through with the wider core of unknown space was tried and dropped: it lost
+  passages corridor-9 (a goal at the base, ``no_progress`` with it). Found
+  on the suite's Monte Carlo seed 102: voxels 0.52–0.92 m in front of a sphere's true
+  surface, hit from 7.7 m for 200+ frames, latched a ``goal_unreachable`` hold; a rule
+  on the number of frames cannot drop a consistent bias. The far layer keeps the old
+  rule.
 * **Matched, beyond range** (finite or +inf depth, range > ``max_range_m``): FREE up to
   ``max_range_m``, nothing occupied.
 * **Unmatched** (NaN depth: no match, the matcher's blind band, nearer than its minimum
@@ -76,7 +89,10 @@ be (``solid_ned_m``: the collision safety boundaries without their inflation, ea
 piece of occupied space and its blind spot, Fig. 4 — the unseen flank of an obstacle
 whose other side was seen is taken as obstacle). Named limitation: a thin obstacle that
 reaches into the rim's path only within 1 m ahead, never into the view and never near
-anything seen occupied. Outside the grid is UNKNOWN.
+anything seen occupied. The envelope passes ``near_field_m`` only for a path the camera
+looks along (:mod:`companion.guidance.envelope`, step 2): the flank of an obstacle
+beside a path the vehicle has not looked along is not in the view either (windy seed
+147). Outside the grid is UNKNOWN.
 
 Costs (``benchmarks/bench_known_space.py``): median 0.9–1.1 ms per 320 × 240 frame at the
 default stride of 4 (up to 4 800 rays) on the 2-core machine under a load of 8–9; with the
@@ -89,15 +105,13 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, replace
-from typing import Any
+from dataclasses import dataclass
 
 import numba
 import numpy as np
 
+from companion.known_space_config import KnownSpaceConfig
 from protocols.camera import R_FRD_FROM_CAM, StereoIntrinsics, eye_offset_frd_m
-from protocols.config import ConfigError, bounded, check_fields, dataclass_from_mapping
 
 __all__ = [
     "FREE",
@@ -115,126 +129,6 @@ OCCUPIED = np.int8(2)
 TENTATIVE = np.int8(3)  # hit in one frame only: not free, not yet an obstacle
 _NEW_HIT = 4  # first hit, in the frame being integrated (becomes TENTATIVE at its end)
 _NEW_HIT_AGAIN = 5  # hit in this frame and in an earlier one (becomes OCCUPIED at its end)
-
-
-@dataclass(frozen=True)
-class KnownSpaceConfig:
-    """Size, resolution and update rules of the known-space map.
-
-    Attributes
-    ----------
-    voxel_m : float
-        Voxel edge [m].
-    size_xy_vox, size_z_vox : int
-        Grid size in voxels, north/east and down (default 128 × 128 × 64: 25.6 × 25.6 ×
-        12.8 m at 0.2 m, 1 MiB).
-    max_range_m : float
-        Rays certify free space up to this range [m]; hits beyond it are not obstacles.
-        Must exceed the distance the vehicle needs to stop from its highest speed plus
-        the range at which the top of the tube ahead enters the view (see the module
-        docstring of :mod:`companion.guidance.envelope`).
-    pixel_stride : int
-        One ray per n × n pixel block (4 → 4 800 rays at 320 × 240).
-    block_min_matched : float
-        Fraction of a block's pixels that must be matched for its ray to be cast (to the
-        nearest of them); fewer is unknown (or open sky).
-    hit_clear_m : float
-        Free marking stops this far before a hit [m] (range noise must not clear the
-        surface voxel).
-    clear_core_m : float
-        An OCCUPIED or TENTATIVE voxel is seen free again only by a ray that passes this
-        close to its centre [m] (a ray through a corner of the voxel saw the corner free,
-        not the surface point in it: the flank of an obstacle beside the vehicle is
-        grazed by the rays at the edge of the view in every frame). 0.06 m: at the 8 m
-        range, rays 4 px apart are 9 cm apart, so a voxel seen through from anywhere
-        nearer is crossed within 6 cm of its centre.
-    free_core_m : float
-        An UNKNOWN voxel is seen free only by a ray that passes this close to its centre
-        [m] (see ``clear_core_m``; a voxel's half diagonal, 0.173 m at 0.2 m, frees every
-        voxel crossed). 0.1 m, half a voxel: rays 4 px apart are 9 cm apart at the 8 m
-        range, so every voxel in the view has a ray this close to its centre, and a voxel
-        centre seen free lies at most 0.1 m inside an obstacle whose limb a ray grazed.
-    sky_min_elevation_deg : float
-        Open-sky rule: lowest ray elevation above the horizon [deg] (negative: below).
-    ego_clear_radius_m : float
-        OCCUPIED voxels centred within this distance of the vehicle become FREE (the
-        vehicle is there) [m].
-    start_free_radius_m : float
-        On the first frame, voxels within this distance become FREE [m] (assumption).
-    piece_vox : int
-        Edge of the cubes that cut OCCUPIED voxels into pieces [voxels], even (6 → 1.2 m:
-        a piece's cells lie within 1.04 m of its centroid; its eight sub-pieces are cubes
-        of half the edge); see :meth:`KnownSpace.pieces`.
-    blind_depth_m : float
-        Deepest blind spot assumed behind a piece, away from the viewer (Fig. 4) [m];
-        it ends earlier where the map has seen the space free.
-    far_range_m : float
-        Reach of the far layer [m] (0: none): the same depth rays folded, by the same
-        rules, into a coarser vehicle-centred grid that reaches this far (``KnownSpace.far``,
-        :meth:`far_config`). Only the proximity sectors read it, beyond the grid's own
-        reach (an autopilot's avoidance needs to hear of a wall from its stopping distance
-        at the pilot's speed: 13-14 m at 8 m/s); guidance and the envelope never do.
-    far_voxel_m : float
-        The far layer's voxel edge [m].
-    """
-
-    voxel_m: float = bounded(0.2, "m", gt=0)
-    size_xy_vox: int = bounded(128, "voxel", integer=True, ge=8)
-    size_z_vox: int = bounded(64, "voxel", integer=True, ge=8)
-    max_range_m: float = bounded(8.0, "m", gt=0)
-    pixel_stride: int = bounded(4, "px", integer=True, ge=1)
-    block_min_matched: float = bounded(0.25, gt=0, le=1)
-    hit_clear_m: float = bounded(0.2, "m", ge=0)
-    clear_core_m: float = bounded(0.06, "m", ge=0)
-    # free_core_m = 0 would free nothing the camera sees: a vehicle that never moves
-    free_core_m: float = bounded(0.1, "m", gt=0)
-    sky_min_elevation_deg: float = bounded(-5.0, "deg", ge=-90, le=90)
-    ego_clear_radius_m: float = bounded(0.25, "m", ge=0)
-    start_free_radius_m: float = bounded(1.2, "m", ge=0)
-    piece_vox: int = bounded(6, "voxel", integer=True, ge=2)
-    blind_depth_m: float = bounded(1.2, "m", ge=0)
-    far_range_m: float = bounded(16.0, "m", ge=0)
-    far_voxel_m: float = bounded(0.4, "m", gt=0)
-
-    def __post_init__(self) -> None:
-        check_fields(self)
-        if self.piece_vox % 2:
-            raise ConfigError(f"must be even, got {self.piece_vox}", key="piece_vox")
-        if self.far_range_m > 0.0 and self.far_voxel_m < self.voxel_m:
-            raise ConfigError(
-                f"must not be finer than voxel_m {self.voxel_m}, got {self.far_voxel_m}",
-                key="far_voxel_m",
-            )
-
-    def far_config(self) -> KnownSpaceConfig | None:
-        """The far layer's configuration (None without one): ``far_voxel_m`` voxels, a grid
-        whose recentring rule keeps ``far_range_m`` inside it, rays to ``far_range_m``, the
-        same height in metres, and the lengths that follow the voxel (ray cores, the clear
-        distance before a hit) scaled with it. Its rays are twice as sparse (a quarter of
-        the cost): 8 px apart, 0.36 m at 16 m with the paper's camera, so a far voxel is
-        freed by a ray passing within 0.65 of its edge (0.26 m at 0.4 m) of its centre, the
-        farthest a voxel centre in the view can be from the nearest ray."""
-        if self.far_range_m <= 0.0:
-            return None
-        scale = self.far_voxel_m / self.voxel_m
-        return replace(
-            self,
-            voxel_m=self.far_voxel_m,
-            size_xy_vox=4 * (math.ceil(self.far_range_m / self.far_voxel_m) + 1),
-            size_z_vox=max(8, math.ceil(self.size_z_vox / scale)),
-            max_range_m=self.far_range_m,
-            pixel_stride=2 * self.pixel_stride,
-            hit_clear_m=self.hit_clear_m * scale,
-            clear_core_m=self.clear_core_m * scale,
-            free_core_m=max(self.free_core_m * scale, 0.65 * self.far_voxel_m),
-            far_range_m=0.0,
-        )
-
-    @classmethod
-    def from_dict(cls, values: Mapping[str, Any], where: str = "known_space") -> KnownSpaceConfig:
-        """Build from a mapping; unknown keys and values out of bounds raise
-        :class:`~protocols.config.ConfigError` naming the key."""
-        return dataclass_from_mapping(cls, values, where)
 
 
 @dataclass(frozen=True, eq=False)
@@ -283,10 +177,11 @@ def _cell(grid, origin, inv_voxel, x, y, z):
 
 
 @numba.njit(cache=True)
-def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m, free_core_m):
+def _mark_ray(grid, near, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m, free_core_m):
     """FREE in every UNKNOWN voxel whose centre the segment from (ox, oy, oz) over
     ``length`` [m] passes within ``free_core_m`` [m] of, and in every OCCUPIED or
-    TENTATIVE one whose centre it passes within ``core_m`` [m] of (0: never).
+    TENTATIVE one whose centre it passes within ``core_m`` [m] of (0: never). A voxel
+    made FREE forgets that it was hit from near (``near``).
 
     Amanatides–Woo traversal: each voxel is visited once, in order along the ray; the
     walk stops at the grid's edge. ``(dx, dy, dz)`` is a unit direction.
@@ -343,6 +238,7 @@ def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m, free_
             core = free_core_m if cur == 0 else core_m
             if off2 <= core * core:
                 grid[i, j, k] = 1
+                near[i, j, k] = 0
         if tx <= ty and tx <= tz:
             t = tx
             tx += ddx
@@ -362,6 +258,7 @@ def _mark_ray(grid, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m, free_
 @numba.njit(cache=True)
 def _integrate_depth(
     grid,
+    near,
     origin,
     voxel,
     depth,
@@ -379,8 +276,13 @@ def _integrate_depth(
     free_core,
     sky_min_sin_elev,
     blind_band_px,
+    near_m,
 ):
     """Cast one ray per ``stride`` × ``stride`` block of ``depth`` (float32, NaN unknown).
+
+    ``near`` (uint8, the grid's shape) is set to 1 in every voxel hit from within
+    ``near_m`` [m] (range-aware occupancy, :class:`KnownSpaceConfig`
+    ``confirm_disparity_px``; ``inf``: every hit).
 
     A block with at least ``min_matched`` matched pixels casts a ray through its centre to
     the *nearest* of them (min-pooling: small holes are filled conservatively and a thin
@@ -487,6 +389,8 @@ def _integrate_depth(
                 cam_ned[2] + rng * dz,
             )  # fmt: skip
             if i >= 0:
+                if rng <= near_m:
+                    near[i, j, k] = 1
                 cur = grid[i, j, k]
                 if cur < _NEW_HIT:
                     # hit in an earlier frame too (OCCUPIED, TENTATIVE): an obstacle
@@ -500,7 +404,7 @@ def _integrate_depth(
     # clear the voxel another ray hit, OctoMap's rule), so an obstacle seen obliquely —
     # its flank, passed at close range — still becomes occupied
     for s in range(n_seg):
-        _mark_ray(grid, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
+        _mark_ray(grid, near, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
                   segments[s, 0], segments[s, 1], segments[s, 2], segments[s, 3],
                   segments[s, 4], free_core)  # fmt: skip
     for h in range(n_new):  # this frame's hits: tentative on a first hit, else occupied
@@ -521,9 +425,10 @@ def _solid_array(solid_ned_m) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _mark_ball(grid, origin, voxel, px, py, pz, radius, free_unknown, clear_occupied):
+def _mark_ball(grid, near, origin, voxel, px, py, pz, radius, free_unknown, clear_occupied):
     """FREE for voxels centred within ``radius`` of (px, py, pz): UNKNOWN ones if
-    ``free_unknown``, OCCUPIED or TENTATIVE ones if ``clear_occupied``."""
+    ``free_unknown``, OCCUPIED or TENTATIVE ones if ``clear_occupied`` (which forget
+    that they were hit from near)."""
     inv = 1.0 / voxel
     r_vox = math.ceil(radius * inv) + 1
     ci = math.floor(px * inv) - origin[0]
@@ -540,6 +445,7 @@ def _mark_ball(grid, origin, voxel, px, py, pz, radius, free_unknown, clear_occu
                     cur = grid[i, j, k]
                     if (free_unknown and cur == 0) or (clear_occupied and cur >= 2):
                         grid[i, j, k] = 1
+                        near[i, j, k] = 0
 
 
 @numba.njit(cache=True)
@@ -767,19 +673,42 @@ def _unseen_runs(grid, origin, voxel, points, vx, vy, vz, limit):
     return out
 
 
+@numba.njit(cache=True)
+def _seen_near(grid, near, origin, voxel, px, py, pz, radius):
+    """Whether an OCCUPIED voxel hit from near (``near`` 1) is centred within ``radius``
+    [m] of (px, py, pz)."""
+    inv = 1.0 / voxel
+    r_vox = math.ceil(radius * inv) + 1
+    ci = math.floor(px * inv) - origin[0]
+    cj = math.floor(py * inv) - origin[1]
+    ck = math.floor(pz * inv) - origin[2]
+    r2 = radius * radius
+    for i in range(max(ci - r_vox, 0), min(ci + r_vox + 1, grid.shape[0])):
+        xc = (i + origin[0] + 0.5) * voxel - px
+        for j in range(max(cj - r_vox, 0), min(cj + r_vox + 1, grid.shape[1])):
+            yc = (j + origin[1] + 0.5) * voxel - py
+            for k in range(max(ck - r_vox, 0), min(ck + r_vox + 1, grid.shape[2])):
+                zc = (k + origin[2] + 0.5) * voxel - pz
+                if grid[i, j, k] == 2 and near[i, j, k] == 1 and xc * xc + yc * yc + zc * zc <= r2:
+                    return True
+    return False
+
+
 @functools.cache
 def _warm_up() -> None:
     """Compile (or load from numba's cache) the kernels once per process."""
     grid = np.zeros((8, 8, 8), np.int8)
+    near = np.zeros((8, 8, 8), np.uint8)
     origin = np.zeros(3, np.int64)
     depth = np.full((4, 4), np.nan, np.float32)
     depth[2, 2] = 0.5
     depth.flags.writeable = False  # perception's depth is read-only: its own specialization
     _integrate_depth(
-        grid, origin, 0.2, depth, 2, 1, 2.0, 2.0, 1.5, 1.5, np.full(3, 0.8),
-        np.eye(3), 1.0, 0.1, 0.05, 0.1, -0.1, 0,
+        grid, near, origin, 0.2, depth, 2, 1, 2.0, 2.0, 1.5, 1.5, np.full(3, 0.8),
+        np.eye(3), 1.0, 0.1, 0.05, 0.1, -0.1, 0, 1.0,
     )  # fmt: skip
-    _mark_ball(grid, origin, 0.2, 0.8, 0.8, 0.8, 0.3, True, True)
+    _mark_ball(grid, near, origin, 0.2, 0.8, 0.8, 0.8, 0.3, True, True)
+    _seen_near(grid, near, origin, 0.2, 0.8, 0.8, 0.8, 0.5)
     _free_distance(
         grid, origin, 0.2, 0.8, 0.8, 0.8, 1.0, 0.0, 0.0, 0.1, 0.1, 0.5, 0.1, 0.2, np.zeros((1, 4))
     )
@@ -800,6 +729,9 @@ class KnownSpace:
         self.config = KnownSpaceConfig() if config is None else config
         c = self.config
         self.grid = np.zeros((c.size_xy_vox, c.size_xy_vox, c.size_z_vox), np.int8)
+        # 1 where the voxel was hit from near since it was last FREE (range-aware
+        # occupancy, KnownSpaceConfig.confirm_disparity_px)
+        self.near_hit = np.zeros(self.grid.shape, np.uint8)
         self.origin_vox = np.zeros(3, np.int64)  # global voxel index of grid[0, 0, 0]
         self._started = False
         self.frames = 0
@@ -822,12 +754,15 @@ class KnownSpace:
         new_origin = vox - shape // 2
         shift = new_origin - self.origin_vox
         new = np.zeros_like(self.grid)
+        new_near = np.zeros_like(self.near_hit)
         if self._started:
             src = tuple(slice(max(s, 0), min(n + s, n)) for s, n in zip(shift, shape, strict=True))
             dst = tuple(slice(max(-s, 0), min(n - s, n)) for s, n in zip(shift, shape, strict=True))
             if all(sl.stop > sl.start for sl in src):
                 new[dst] = self.grid[src]
+                new_near[dst] = self.near_hit[src]
         self.grid = new
+        self.near_hit = new_near
         self.origin_vox = new_origin
 
     # -- update ----------------------------------------------------------------------------
@@ -868,14 +803,16 @@ class KnownSpace:
         self.range_m = float(min(c.max_range_m, trusted_range_m))
         if not self._started:
             _mark_ball(
-                self.grid, self.origin_vox, c.voxel_m, *pos, c.start_free_radius_m, True, False
-            )
+                self.grid, self.near_hit, self.origin_vox, c.voxel_m, *pos,
+                c.start_free_radius_m, True, False,
+            )  # fmt: skip
             self._started = True
         cam_ned = pos + R @ eye_offset_frd_m(intrinsics.baseline_m, "left")
         R_ned_from_cam = np.ascontiguousarray(R @ R_FRD_FROM_CAM)
         depth = np.ascontiguousarray(depth_m, dtype=np.float32)
         n = _integrate_depth(
             self.grid,
+            self.near_hit,
             self.origin_vox,
             c.voxel_m,
             depth,
@@ -893,6 +830,7 @@ class KnownSpace:
             c.free_core_m,
             math.sin(math.radians(c.sky_min_elevation_deg)),
             int(blind_band_px),
+            self.near_range_m(intrinsics),
         )
         self.mark_vehicle(pos)
         self.frames += 1
@@ -906,11 +844,36 @@ class KnownSpace:
         pos = np.asarray(pos_ned_m, dtype=float)
         self._centre_on(pos)
         self._started = True
-        _mark_ball(self.grid, self.origin_vox, c.voxel_m, *pos, c.ego_clear_radius_m, False, True)
+        _mark_ball(
+            self.grid, self.near_hit, self.origin_vox, c.voxel_m, *pos, c.ego_clear_radius_m,
+            False, True,
+        )  # fmt: skip
         if self.far is not None:
             self.far.mark_vehicle(pos)
 
+    def near_range_m(self, intrinsics: StereoIntrinsics) -> float:
+        """Range [m] within which a hit of this camera is good to a voxel (range-aware
+        occupancy): ``√(voxel · f · b / confirm_disparity_px)``; ``inf`` when the rule is
+        off (``confirm_disparity_px`` 0) or the camera states no baseline."""
+        c = self.config
+        fb = float(intrinsics.fx_px) * float(intrinsics.baseline_m)
+        if c.confirm_disparity_px <= 0.0 or not fb > 0.0:
+            return math.inf
+        return math.sqrt(c.voxel_m * fb / c.confirm_disparity_px)
+
     # -- queries ---------------------------------------------------------------------------
+
+    def seen_near(self, point_ned_m, radius_m: float) -> bool:
+        """Whether an OCCUPIED voxel centred within ``radius_m`` of ``point_ned_m`` was hit
+        from near (:meth:`near_range_m`): a surface whose place the camera measured to a
+        voxel, not one seen only from where a pixel of disparity is more than that."""
+        p = np.asarray(point_ned_m, dtype=float)
+        return bool(
+            _seen_near(
+                self.grid, self.near_hit, self.origin_vox, self.config.voxel_m, float(p[0]),
+                float(p[1]), float(p[2]), float(radius_m),
+            )
+        )  # fmt: skip
 
     def state_at(self, point_ned_m) -> int:
         """UNKNOWN, FREE or OCCUPIED at a NED point (UNKNOWN outside the grid)."""

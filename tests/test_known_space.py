@@ -328,15 +328,20 @@ def test_an_obstacle_passed_at_close_range_stays_in_the_way():
 
 
 @pytest.mark.parametrize(
-    ("state", "core_name", "block_uv"),
-    [(OCCUPIED, "clear_core_m", (40, 37)), (UNKNOWN, "free_core_m", (36, 36))],
+    ("state", "hit_near", "core_name", "block_uv"),
+    [
+        (OCCUPIED, 1, "clear_core_m", (40, 37)),
+        (OCCUPIED, 0, "clear_core_m", (40, 37)),
+        (UNKNOWN, 0, "free_core_m", (36, 36)),
+    ],
 )
-def test_a_ray_frees_only_the_voxels_whose_core_it_crosses(state, core_name, block_uv):
+def test_a_ray_frees_only_the_voxels_whose_core_it_crosses(state, hit_near, core_name, block_uv):
     """One matched ray (depth 30 m) through a block of occupied (or never seen) voxels
-    frees exactly those whose centre it passes within ``clear_core_m`` (``free_core_m``);
-    the rest keep their state. A ray through a voxel's corner saw the corner, not the
-    surface point that made it occupied, nor the inside of an obstacle whose limb it
-    grazed."""
+    3 m away frees exactly those whose centre it passes within ``clear_core_m``
+    (``free_core_m``); the rest keep their state. A ray through a voxel's corner saw the
+    corner, not the surface point that made it occupied, nor the inside of an obstacle
+    whose limb it grazed. Whether the occupied voxels were hit from near (range-aware
+    occupancy) does not change the core."""
     cfg = KnownSpaceConfig(start_free_radius_m=0.0, sky_min_elevation_deg=90.0)  # no sky
     space = KnownSpace(cfg)
     pos = np.array([0.0, 0.0, -7.0])
@@ -358,6 +363,7 @@ def test_a_ray_frees_only_the_voxels_whose_core_it_crosses(state, core_name, blo
     near = np.floor((cam_ned + 3.0 * ray) / VOXEL_M).astype(int) - space.origin_vox
     block = tuple(slice(c - 2, c + 3) for c in near)
     space.grid[block] = state
+    space.near_hit[block] = hit_near
     space.integrate(depth, K, pos, LEVEL_NORTH)
     idx = np.stack(np.meshgrid(*(np.arange(s.start, s.stop) for s in block), indexing="ij"), -1)
     centres = (idx + space.origin_vox + 0.5) * VOXEL_M - cam_ned

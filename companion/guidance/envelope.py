@@ -15,7 +15,15 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
 2. **Known-free distance** ``F`` along ``u`` for the vehicle's section
    (``vehicle_radius_m`` wide, the radius perception inflates boundaries by: one vehicle
    size; ``vehicle_half_height_m`` high; ``KnownSpace.free_distance_m``), up to
-   ``lookahead_m``.
+   ``lookahead_m``. **The near field needs a look** (issue 36): unseen space beside the
+   path within ``near_field_m`` is excused only while the camera looks along the path
+   (its horizontal bearing within ``look_half_angle_deg`` of the heading). The excuse
+   stands for space no forward camera could show from here: whatever reaches into the
+   rim there from farther out is in the view and seen. A path off the heading has not
+   been looked along: its whole section must be seen free, so the carrot stays where it
+   was, and guidance's yaw (step 6) turns the camera first. Found on windy stereo seed
+   147 (stop 42): an escape target beside a sphere's never-seen flank, 0.13 m from its
+   surface, flown to with the vehicle facing elsewhere.
 3. **Stopping distance** at the current speed: ``d_stop(v) = τ·v + v²/(2·accel_mps2)``
    (reaction over the frame → command → autopilot latency ``τ``, then constant braking).
    ``τ`` is the measured latency budget passed in (:mod:`companion.guidance.latency`: a
@@ -177,6 +185,10 @@ class EnvelopeConfig(Checked):
     stage_horizontal_m : float
         A setpoint steeper than the path limit and nearer than this horizontally is
         climbed to (or descended to) along the vehicle's heading (step 7) [m].
+    look_half_angle_deg : float
+        The near-field excuse holds only for a path whose horizontal bearing lies within
+        this angle of the heading [deg] (step 2): half the paper camera's 48° HFOV, the
+        path's own line in the view.
     jerk_mps3 : float
         Jerk limit of the autopilot's shaped reference [m/s³] (step 8). 2.0: below
         ArduCopter's PSC_JERK_XY (5 m/s³) and PX4's MPC_JERK_AUTO (4 m/s³) defaults and
@@ -198,6 +210,7 @@ class EnvelopeConfig(Checked):
     overspeed_tolerance_mps: float = bounded(0.3, "m/s", ge=0)
     stage_horizontal_m: float = bounded(1.0, "m", ge=0)
     jerk_mps3: float = bounded(2.0, "m/s³", gt=0)
+    look_half_angle_deg: float = bounded(24.0, "deg", ge=0, le=180)
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> EnvelopeConfig:
@@ -300,10 +313,25 @@ def _budget_s(cfg: EnvelopeConfig, latency_s: float | None) -> float:
     return cfg.latency_s
 
 
-def _free_m(free_distance: FreeDistanceFn, pos, unit, vehicle_radius_m: float, cfg) -> float:
-    """Known-free distance along ``unit`` for the vehicle's section [m]."""
+def _free_m(
+    free_distance: FreeDistanceFn, pos, unit, vehicle_radius_m: float, cfg, looked: bool = True
+) -> float:
+    """Known-free distance along ``unit`` for the vehicle's section [m]; the near field's
+    unseen rim excused only when ``looked`` (step 2)."""
     section = (vehicle_radius_m, cfg.lookahead_m, cfg.vehicle_half_height_m)
-    return float(free_distance(pos, unit, *section, vehicle_radius_m, cfg.near_field_m))
+    near_field_m = cfg.near_field_m if looked else 0.0
+    return float(free_distance(pos, unit, *section, vehicle_radius_m, near_field_m))
+
+
+def _looked_along(unit: np.ndarray, heading_rad: float | None, cfg: EnvelopeConfig) -> bool:
+    """Step 2: the camera looks along ``unit`` (its horizontal bearing within
+    ``look_half_angle_deg`` of the heading). True without a heading (the caller states
+    none) and for a path with no horizontal part (nothing to turn toward)."""
+    horiz_m = math.hypot(float(unit[0]), float(unit[1]))
+    if heading_rad is None or horiz_m < 1e-6:
+        return True
+    cos_off = float(unit[0]) * math.cos(heading_rad) + float(unit[1]) * math.sin(heading_rad)
+    return cos_off >= horiz_m * math.cos(math.radians(cfg.look_half_angle_deg))
 
 
 def _carrot(pos, target, direction, room_m: float, cfg) -> tuple[np.ndarray, bool]:
@@ -331,7 +359,8 @@ def _path_and_carrot(pos, target, d_stop, free_distance, radius_m, max_elev_rad,
     if float(to_setpoint @ to_setpoint) < 1e-12:
         return np.zeros(3), 0.0, target.copy(), False
     direction = _path_direction(to_setpoint, max_elev_rad, heading, cfg.stage_horizontal_m)
-    free = _free_m(free_distance, pos, direction, radius_m, cfg)
+    looked = _looked_along(direction, heading, cfg)
+    free = _free_m(free_distance, pos, direction, radius_m, cfg, looked)
     carrot, limited = _carrot(pos, target, direction, free - d_stop - cfg.margin_m, cfg)
     return direction, free, carrot, limited
 
