@@ -21,9 +21,7 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    stands for space no forward camera could show from here: whatever reaches into the
    rim there from farther out is in the view and seen. A path off the heading has not
    been looked along: its whole section must be seen free, so the carrot stays where it
-   was, and guidance's yaw (step 6) turns the camera first. Found on windy stereo seed
-   147 (stop 42): an escape target beside a sphere's never-seen flank, 0.13 m from its
-   surface, flown to with the vehicle facing elsewhere.
+   was, and guidance's yaw (step 6) turns the camera first (windy stereo seed 147).
 3. **Stopping distance** at the current speed: ``d_stop(v) = τ·v + v²/(2·accel_mps2)``
    (reaction over the frame → command → autopilot latency ``τ``, then constant braking).
    ``τ`` is the measured latency budget passed in (:mod:`companion.guidance.latency`: a
@@ -42,11 +40,9 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    turned onto a path with less free space, a hold was entered at speed, or the space ahead
    shrank), the carrot is the vehicle's own position (step 4 gives ``c = 0``) and the bound
    stated is the one along the *velocity*, the way the vehicle actually moves while it
-   brakes: the known-free distance ``F_v`` along ``v/|v|`` and its limit. The stated
-   speed is then the flown speed: a turn at speed no longer states the slower bound of the
-   new direction the vehicle cannot take yet, and a hold entered at speed no longer
-   states 0 m/s. When ``F_v`` itself shrank below the stopping distance (something new
-   ahead), the limit is below the speed and ``overspeed`` reports it, as it must.
+   brakes: the known-free distance ``F_v`` along ``v/|v|`` and its limit, so the stated
+   speed is the flown speed. When ``F_v`` itself shrank below the stopping distance
+   (something new ahead), the limit is below the speed and ``overspeed`` reports it.
 7. **Vertical moves in stages** (issue 36): a setpoint steeper than
    ``max_path_elevation_rad`` whose horizontal distance is below ``stage_horizontal_m``
    (a goal straight above or below) is climbed to, or descended to, along the vehicle's
@@ -71,8 +67,8 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    of tolerance, the rim allowed in unseen space outside every obstacle's extent within
    ``near_field_m`` of each leg's start as in step 2 (a score that follows the path, so
    a turn away round an obstacle is judged by where it goes, not by rays from ``p`` that
-   cut its corners). If not, and
-   the brake's own predicted path leaves that space by less, the vehicle brakes to its
+   cut its corners). If not, and the brake's own predicted path leaves that space by
+   less, the vehicle brakes to its
    **stopping point**: where the jerk-limited stop from ``(p, v, a)`` along ``v`` ends
    (:func:`~companion.guidance.autopilot_path.straight_stop_m`, ArduCopter's own brake
    target), no farther than the known-free distance along ``v`` less ``margin_m`` (the
@@ -81,13 +77,10 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    frames where step 5 would brake, until the vehicle has stopped (< 0.1 m/s), a
    certified carrot replaces it, or the way to it is no longer known free (then a new
    stopping point): re-targeting a brake at a moving vehicle each frame does not stop
-   a laggy airframe (stop 42, the suite's seed 107). The bound stated is the one along
-   ``v`` (as in step 5's braking) and ``momentum_brake`` reports it (the core counts it
-   and tells the operator). When braking would carry it farther out (a velocity toward
-   less free space than the turn), the carrot stands. Found on
-   the fast ``corridor-3m`` (stop 40): a switch from into the corridor to round the
-   wall's end at 0.9 m/s; the reference accelerated on for 0.6 s, 1.7 m/s toward the
-   wall's end with 4.9 m/s stated along the new path, 0.31 m from the surface.
+   a laggy airframe. The bound stated is the one along ``v`` (as in step 5's braking)
+   and ``momentum_brake`` reports it (the core counts it and tells the operator). When
+   braking would carry it farther out (a velocity toward less free space than the
+   turn), the carrot stands. The cases that found it: docs/safety-envelope.md.
 """
 
 from __future__ import annotations
@@ -124,15 +117,10 @@ _BRAKE_MIN_SPEED_MPS = 0.1  # below this the vehicle has no direction of motion 
 _MOMENTUM_MIN_SPEED_MPS = 0.1
 _MOMENTUM_MIN_ACCEL_MPS2 = 1.0
 _MOMENTUM_COS = math.cos(math.radians(15.0))
-# A predicted path leaving known-free space by less than this is not braked for [m]: the
-# prediction's own accuracy (its overshoot of a target ≤ 5 cm, twice that), within the
-# stop margin the carrot keeps.
+# not braked for when leaving known-free space by less: twice the prediction's accuracy [m]
 _MOMENTUM_TOLERANCE_M = 0.1
-# a leg of the predicted path is queried this much beyond its end, so a map that answers
-# in half-voxel steps does not cut a free leg short [m]
-_LEG_SLACK_M = 0.2
-# a held brake target this far behind the vehicle's motion is not its stop (the prediction
-# overshoots a target by up to ~0.4 m before it returns) [m]
+_LEG_SLACK_M = 0.2  # a leg is queried this far past its end (the map answers in half voxels) [m]
+# a held brake target this far behind the motion is not its stop (overshoot ≤ ~0.4 m) [m]
 _BRAKE_PASSED_M = 0.5
 # the largest acceleration step 8 believes [m/s²]: 2 g, beyond any multirotor's reference
 _MOMENTUM_MAX_ACCEL_MPS2 = 19.62
@@ -494,6 +482,50 @@ def _excess_m(path, pos, free_distance, vehicle_radius_m, cfg) -> float:
     return worst
 
 
+def _brake_steps(pos, vel, chosen, free_distance, tau, cfg, vehicle_radius_m, accel, held_brake):
+    """Steps 5 and 8 on ``chosen`` = (carrot, limited, direction, free, limit): brake when
+    too fast for the path's free space (5) or when the autopilot's way to the carrot is
+    not seen free (8). Returns them as sent, whether step 8 braked, and the brake target
+    to hold next frame (None when there is none, or it is at the vehicle)."""
+    carrot, limited, direction, free, limit = chosen
+    speed = math.sqrt(float(vel @ vel))
+    acc = _measured_accel(accel)
+    held = _held_brake(held_brake, pos, vel, free_distance, cfg, vehicle_radius_m)
+
+    @functools.cache
+    def brake_target() -> np.ndarray:
+        if held is not None:
+            return held
+        return _stopping_point(pos, vel, acc, free_distance, tau, cfg, vehicle_radius_m)
+
+    momentum = speed <= limit and not _momentum_clear(
+        pos, vel, acc, carrot, free_distance, tau, limit, cfg, vehicle_radius_m, brake_target
+    )
+    brake = None
+    if (speed > limit or momentum) and speed >= _BRAKE_MIN_SPEED_MPS:
+        # Too fast to turn onto the path (or the path's free space shrank, or the
+        # autopilot's way to the carrot is not seen free): brake, and state the bound
+        # for the way the vehicle moves. Step 8's brake targets the stopping point and
+        # holds it (also through frames where step 5 brakes) until the vehicle has
+        # stopped or a certified carrot replaces it; step 5's alone keeps step 4's
+        # target at the vehicle.
+        if momentum or held is not None:
+            brake = brake_target()
+            carrot, limited = brake.copy(), True
+        direction = vel / speed
+        free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
+        limit = _limit_mps(free, tau, cfg)
+    elif momentum:
+        carrot, limited = pos.copy(), True
+    if brake is not None:
+        brake.setflags(write=False)
+    # a stopping point at the vehicle (no room ahead) is not held: held, it would pull
+    # the vehicle back to where it was while it moves on (a climb along an unseen
+    # vertical velocity); re-taken at the vehicle each frame, it brakes as step 5 does
+    hold = brake is not None and math.dist(brake, pos) >= cfg.min_advance_m
+    return carrot, limited, direction, free, limit, momentum, brake if hold else None
+
+
 def envelope_step(
     *,
     pos_ned_m,
@@ -548,40 +580,9 @@ def envelope_step(
         pos, target, d_stop, free_distance, vehicle_radius_m, max_path_elevation_rad,
         heading_rad, cfg)  # fmt: skip
     limit = _limit_mps(free, tau, cfg)
-    acc = _measured_accel(accel_ned_mps2)
-    held = _held_brake(held_brake_ned_m, pos, vel, free_distance, cfg, vehicle_radius_m)
-
-    @functools.cache
-    def brake_target() -> np.ndarray:
-        if held is not None:
-            return held
-        return _stopping_point(pos, vel, acc, free_distance, tau, cfg, vehicle_radius_m)
-
-    momentum = speed <= limit and not _momentum_clear(
-        pos, vel, acc, carrot, free_distance, tau, limit, cfg, vehicle_radius_m, brake_target
-    )
-    brake = None
-    if (speed > limit or momentum) and speed >= _BRAKE_MIN_SPEED_MPS:
-        # Too fast to turn onto the path (or the path's free space shrank, or the
-        # autopilot's way to the carrot is not seen free): brake, and state the bound
-        # for the way the vehicle moves. Step 8's brake targets the stopping point and
-        # holds it (also through frames where step 5 brakes) until the vehicle has
-        # stopped or a certified carrot replaces it; step 5's alone keeps step 4's
-        # target at the vehicle.
-        if momentum or held is not None:
-            brake = brake_target()
-            carrot, limited = brake.copy(), True
-        direction = vel / speed
-        free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
-        limit = _limit_mps(free, tau, cfg)
-    elif momentum:
-        carrot, limited = pos.copy(), True
-    if brake is not None:
-        brake.setflags(write=False)
-    # a stopping point at the vehicle (no room ahead) is not held: held, it would pull
-    # the vehicle back to where it was while it moves on (a climb along an unseen
-    # vertical velocity); re-taken at the vehicle each frame, it brakes as step 5 does
-    hold = brake is not None and math.dist(brake, pos) >= cfg.min_advance_m
+    carrot, limited, direction, free, limit, momentum, brake = _brake_steps(
+        pos, vel, (carrot, limited, direction, free, limit), free_distance, tau, cfg,
+        vehicle_radius_m, accel_ned_mps2, held_brake_ned_m)  # fmt: skip
     carrot.setflags(write=False)
     direction.setflags(write=False)
     return EnvelopeOutput(
@@ -595,5 +596,5 @@ def envelope_step(
         overspeed=speed > limit + cfg.overspeed_tolerance_mps,
         latency_s=tau,
         momentum_brake=momentum,
-        brake_target_ned_m=brake if hold else None,
+        brake_target_ned_m=brake,
     )
