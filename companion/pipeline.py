@@ -227,7 +227,10 @@ class AvoidancePipeline:
             if kept_out is not None:
                 escape = _read_only(kept_out.pos_ned_m)
         if escape is not None:
-            bounded = dataclasses.replace(bounded, setpoint_ned_m=escape)
+            # the target sent is not the envelope's: a brake target moved out of a
+            # boundary is not held (the next frame takes a new stopping point)
+            self._brake_ned_m = None
+            bounded = dataclasses.replace(bounded, setpoint_ned_m=escape, brake_target_ned_m=None)
         return PipelineOutput(
             perception=seen,
             guidance=decision,
