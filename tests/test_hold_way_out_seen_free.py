@@ -209,3 +209,45 @@ def test_the_seen_free_question_is_the_sections_free_distance(off, seen_free):
     check = _check(_map(UNKNOWN))
     assert check.seen_free(POS, POS + np.array(off)) is seen_free
     assert check.seen_free(POS, POS)  # staying put is no move
+
+
+def _step_search(pos, balls, clearance_m, prefer, search_m=4.0, step_m=0.05):
+    """The per-step search ``nearest_outside`` ran before it became the first of
+    ``ways_outside`` (one step at a time over all 200 directions)."""
+    from companion.guidance.hold import _DIRECTIONS
+
+    centres = np.array([b.center_ned_m for b in balls])
+    radii = np.array([b.radius_m for b in balls])
+    along = None if prefer is None else _DIRECTIONS @ (prefer / np.linalg.norm(prefer))
+    for clearance in (clearance_m, 0.0) if clearance_m > 0.0 else (0.0,):
+        for k in range(1, int(search_m / step_m) + 1):
+            points = pos + _DIRECTIONS * (k * step_m)
+            dist = np.linalg.norm(points[:, None, :] - centres[None, :, :], axis=-1)
+            clear = np.flatnonzero(np.all(dist >= radii + clearance, axis=1))
+            if clear.size:
+                return points[clear[0] if along is None else clear[np.argmax(along[clear])]]
+    return None
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_the_first_way_out_is_the_nearest_point_the_step_search_found(seed):
+    """Unchecked, the way out is what it was: ``ways_outside`` tests the steps in blocks
+    and drops directions already out, on the same points (bit for bit)."""
+    from companion.guidance.hold import nearest_outside
+
+    rng = np.random.default_rng([seed, 36])
+    for _ in range(20):
+        balls = [
+            Ball(tuple(rng.uniform(-2.0, 2.0, 3)), float(rng.uniform(0.3, 1.5)))
+            for _ in range(int(rng.integers(1, 30)))
+        ]
+        pos = rng.uniform(-2.5, 2.5, 3)
+        prefer = rng.normal(size=3) if rng.uniform() < 0.5 else None
+        clearance = float(rng.choice([0.0, 0.3]))
+        if not inside_any(pos, [Ball(b.center_ned_m, b.radius_m + clearance) for b in balls]):
+            continue
+        got = nearest_outside(pos, balls, clearance_m=clearance, prefer_ned=prefer)
+        want = _step_search(pos, balls, clearance, prefer)
+        assert (got is None) == (want is None)
+        if want is not None:
+            np.testing.assert_array_equal(got, want)

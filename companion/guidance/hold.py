@@ -330,6 +330,8 @@ def _fibonacci_directions(n: int) -> np.ndarray:
 
 #: search directions of :func:`nearest_outside`: ~14° apart
 _DIRECTIONS = _fibonacci_directions(200)
+#: steps along every direction tested at once by :func:`ways_outside` (cost only)
+_STEP_BLOCK = 8
 
 
 def nearest_outside(
@@ -400,19 +402,26 @@ def ways_outside(
     n_steps = int(search_m / step_m)
     for clearance in (clearance_m, 0.0) if clearance_m > 0.0 else (0.0,):
         reach = radii + clearance
-        taken = np.zeros(len(_DIRECTIONS), dtype=bool)
-        for k in range(1, n_steps + 1):  # outward, so a direction's first clear step is nearest
-            points = pos + _DIRECTIONS * (k * step_m)  # (dirs, 3)
-            dist = np.linalg.norm(points[:, None, :] - centres[None, :, :], axis=-1)
-            clear = np.flatnonzero(np.all(dist >= reach, axis=1) & ~taken)
-            if not clear.size:
-                continue
-            taken[clear] = True
-            if along is not None:
-                clear = clear[np.argsort(-along[clear], kind="stable")]
-            for pick in clear:
-                yield points[pick].copy(), HoldPlacement.NEAREST_OUT
-            if taken.all():
+        open_dirs = np.arange(len(_DIRECTIONS))  # directions with no clear step yet
+        # outward, so a direction's first clear step is its nearest point out; the steps
+        # are tested _STEP_BLOCK at a time (the same points, fewer numpy calls)
+        for k0 in range(1, n_steps + 1, _STEP_BLOCK):
+            ks = np.arange(k0, min(k0 + _STEP_BLOCK, n_steps + 1), dtype=float)
+            points = pos + _DIRECTIONS[open_dirs][None, :, :] * (ks * step_m)[:, None, None]
+            dist = np.linalg.norm(points[:, :, None, :] - centres[None, None, :, :], axis=-1)
+            is_clear = np.all(dist >= reach, axis=2)  # (steps, open dirs)
+            taken = np.zeros(open_dirs.size, dtype=bool)
+            for row in range(ks.size):
+                clear = np.flatnonzero(is_clear[row] & ~taken)  # by direction index
+                if not clear.size:
+                    continue
+                taken[clear] = True
+                if along is not None:
+                    clear = clear[np.argsort(-along[open_dirs[clear]], kind="stable")]
+                for pick in clear:
+                    yield points[row, pick].copy(), HoldPlacement.NEAREST_OUT
+            open_dirs = open_dirs[~taken]
+            if not open_dirs.size:
                 break
 
 
