@@ -251,3 +251,20 @@ def test_the_first_way_out_is_the_nearest_point_the_step_search_found(seed):
         assert (got is None) == (want is None)
         if want is not None:
             np.testing.assert_array_equal(got, want)
+
+
+def test_a_hold_with_no_way_out_seen_free_is_said_as_such():
+    from types import SimpleNamespace
+
+    from companion.core.mission import Mission
+
+    mission = Mission([(0.0, 0.0, -7.0)], goal_tolerance_m=0.5)
+    out = SimpleNamespace(target_kept_out=HoldPlacement.UNSEEN, setpoint_ned_m=POS)
+    notices, events = [], []
+    mission._report_kept_out(out, 0, notices, events)
+    assert [n.text for n in notices] == [
+        "Inside a boundary, no way out seen free: holding where it is"
+    ]
+    assert [(e.name, e.fields["placement"]) for e in events] == [
+        ("target_kept_out", "no_way_out_seen_free")
+    ]
