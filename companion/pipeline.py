@@ -22,7 +22,14 @@ import numpy as np
 from companion.depth_source import DepthSource
 from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput, Mode
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
-from companion.guidance.hold import HoldPlacement, hold_point, inside_any, keep_target_out
+from companion.guidance.hold import (
+    HoldPlacement,
+    HoldPoint,
+    WayCheck,
+    hold_point,
+    inside_any,
+    keep_target_out,
+)
 from companion.guidance.known_path import KnownPath, KnownPathConfig, plan_known_path
 from companion.guidance.map_boundaries import (
     MapBoundary,
@@ -79,8 +86,13 @@ class PipelineOutput:
     # target) was found inside of this frame (drift, wind, a jump of the estimate)
     hold_escape: bool = False
     # guidance steered (not a hold) and the envelope's carrot lay inside a boundary: where
-    # it was put instead (companion.guidance.hold.keep_target_out), None when it stood
+    # it was put instead (companion.guidance.hold.keep_target_out), None when it stood;
+    # in a hold, UNSEEN when the vehicle is inside and no way out is seen free (it holds
+    # where it is)
     target_kept_out: HoldPlacement | None = None
+    # the yaw sent instead of guidance's [rad, NED]: facing a way out of a boundary the
+    # camera must look along first (companion.guidance.hold.HoldPoint.look_yaw_rad)
+    look_yaw_rad: float | None = None
     # how much wider the vehicle counted for the position estimate's uncertainty, and
     # whether the margins covered it (companion.position_uncertainty)
     widening: Widening = NO_WIDENING
@@ -101,8 +113,8 @@ class PipelineOutput:
 
     @property
     def yaw_rad(self) -> float:
-        """Yaw to send [rad, NED]."""
-        return self.guidance.yaw_rad
+        """Yaw to send [rad, NED]: guidance's, or facing a way out to look along."""
+        return self.guidance.yaw_rad if self.look_yaw_rad is None else self.look_yaw_rad
 
 
 class AvoidancePipeline:
@@ -197,13 +209,14 @@ class AvoidancePipeline:
             known_path=self._known_path,
             way_blocked=self._way_blocked,
         )
+        free_distance = functools.partial(
+            self.known_space.free_distance_m, solid_ned_m=solid_extent(boundaries)
+        )
         bounded = envelope_step(
             pos_ned_m=pose.pos_ned_m,
             vel_ned_mps=pose.vel_ned_mps,
             setpoint_ned_m=decision.setpoint_ned_m,
-            free_distance=functools.partial(
-                self.known_space.free_distance_m, solid_ned_m=solid_extent(boundaries)
-            ),
+            free_distance=free_distance,
             vehicle_radius_m=self.vehicle_radius_m,
             max_path_elevation_rad=self.guidance.config.max_aim_elevation_rad,
             config=self.envelope_config,
@@ -213,9 +226,13 @@ class AvoidancePipeline:
             held_brake_ned_m=self._brake_ned_m if steering else None,
         )
         self._brake_ned_m = bounded.brake_target_ned_m if steering else None
-        escape, kept_out = None, None
+        escape, kept_out, moved = None, None, None
+        way_check = self.way_check(boundaries, pose.yaw_rad)
         if decision.mode is Mode.HOLD:
-            escape = self._hold_outside(pose, bounded, boundaries)
+            moved = self._hold_outside(pose, bounded, boundaries, way_check)
+            # no way out seen free: reported as such, not as an escape
+            if moved is not None and moved.placement is HoldPlacement.UNSEEN:
+                kept_out = moved
         else:
             kept_out = keep_target_out(
                 pose.pos_ned_m,
@@ -223,9 +240,11 @@ class AvoidancePipeline:
                 boundaries,
                 free_m=bounded.free_distance_m,
                 clearance_m=self.guidance.config.escape_clearance_m,
+                way_check=way_check,
             )
-            if kept_out is not None:
-                escape = _read_only(kept_out.pos_ned_m)
+            moved = kept_out
+        if moved is not None:
+            escape = _read_only(moved.pos_ned_m)
         if escape is not None:
             # the target sent is not the envelope's: a brake target moved out of a
             # boundary is not held (the next frame takes a new stopping point)
@@ -238,7 +257,25 @@ class AvoidancePipeline:
             boundaries=boundaries,
             hold_escape=escape is not None and kept_out is None,
             target_kept_out=None if kept_out is None else kept_out.placement,
+            look_yaw_rad=None if moved is None else moved.look_yaw_rad,
             widening=widened,
+        )
+
+    def way_check(self, boundaries, heading_rad: float | None) -> WayCheck:
+        """The map's question for a way back out of ``boundaries`` (invariants 1 and 3,
+        :class:`~companion.guidance.hold.WayCheck`): the envelope's check of a path on the
+        known-space map, the vehicle's section as counted now, the boundaries' solid
+        extent, the near field excused only along ``heading_rad`` (the camera's)."""
+        e = self.envelope_config
+        return WayCheck(
+            free_distance=functools.partial(
+                self.known_space.free_distance_m, solid_ned_m=solid_extent(boundaries)
+            ),
+            radius_m=self.vehicle_radius_m,
+            half_height_m=e.vehicle_half_height_m,
+            near_field_m=e.near_field_m,
+            heading_rad=heading_rad,
+            look_half_angle_deg=e.look_half_angle_deg,
         )
 
     def _goal_surely_blocked(self, boundaries) -> bool:
@@ -319,25 +356,25 @@ class AvoidancePipeline:
         )  # fmt: skip
 
     def _hold_outside(
-        self, pose: PoseAtCapture, bounded: EnvelopeOutput, boundaries
-    ) -> np.ndarray | None:
+        self, pose: PoseAtCapture, bounded: EnvelopeOutput, boundaries, way_check
+    ) -> HoldPoint | None:
         """Invariant 3 of the envelope for guidance's holds: when the vehicle or its hold
-        target is inside a boundary, the target that leads out through the escape
-        direction (:func:`~companion.guidance.hold.hold_point`); None when both are
-        outside (the hold target stands)."""
+        target is inside a boundary, the target that leads out through space seen free
+        (:func:`~companion.guidance.hold.hold_point` with the map's ``way_check``); None
+        when both are outside (the hold target stands)."""
         if not (
             inside_any(pose.pos_ned_m, boundaries) or inside_any(bounded.setpoint_ned_m, boundaries)
         ):
             return None
-        point = hold_point(
+        return hold_point(
             pose.pos_ned_m,
             pose.vel_ned_mps,
             boundaries,
             latency_s=bounded.latency_s,
             accel_mps2=self.envelope_config.accel_mps2,
             clearance_m=self.guidance.config.escape_clearance_m,
+            way_check=way_check,
         )
-        return _read_only(point.pos_ned_m)
 
 
 def _read_only(point) -> np.ndarray:

@@ -169,9 +169,11 @@ def test_core_hold_target_moves_out_of_a_boundary_once():
     rig.run(1.5)
     assert rig.events("hold")
 
-    class Ball:
+    class Ball:  # a map boundary (companion.guidance.map_boundaries.MapBoundary)
         center_ned_m = np.array([0.6, 0.0, -7.0])
         radius_m = 1.0
+        piece_radius_m = 0.35  # the piece of occupied space inside it
+        blind_depth_m = 0.0
 
     core = rig.core
     # what the map would give after a drift: the vehicle 0.4 m inside a boundary (blank

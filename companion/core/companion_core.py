@@ -315,10 +315,15 @@ class CompanionCore:
         self._after_phase_change(self.modes.changed(before), now_s)
 
     def _hold_view(self) -> HoldView:
-        """The newest pose, the last frame's boundaries and the latency budget."""
+        """The newest pose, the last frame's boundaries, the latency budget and the map's
+        question for a way out of them."""
         newest = self.poses.newest_ns
         pose = None if newest is None else self.poses.at(newest).pose
-        return HoldView(pose, self.frames.boundaries, self.frames.data_age.budget_s())
+        boundaries = self.frames.boundaries
+        check = None
+        if pose is not None:
+            check = self.frames.mission.pipeline.way_check(boundaries, pose.yaw_rad)
+        return HoldView(pose, boundaries, self.frames.data_age.budget_s(), check)
 
     def _recheck_hold_target(self, pos_ned_m) -> None:
         """A processed frame in a position hold: the target moved out of a boundary the

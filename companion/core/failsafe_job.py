@@ -21,13 +21,22 @@ from companion.config import CompanionConfig
 from companion.core.counters import CoreCounters
 from companion.core.outbox import SEV_WARNING, Outbox
 from companion.failsafe import FailsafeMonitor, FailsafeStatus, Health, Response
-from companion.guidance.hold import HoldPlacement, hold_point, inside_any
+from companion.guidance.hold import HoldPlacement, WayCheck, hold_point, inside_any
 from companion.link.setpoints import PositionTarget
 from companion.pipeline import PoseAtCapture
 
 _log = logging.getLogger("companion")
 
 __all__ = ["FailsafeJob", "HoldView"]
+
+
+#: what a hold that stays where the vehicle is says, by why it stays
+_HELD_WHERE_IT_IS = {
+    HoldPlacement.CURRENT: (
+        "Hold target: no way out of a boundary within reach, holding where it is"
+    ),
+    HoldPlacement.UNSEEN: "Hold target: no way out of a boundary seen free, holding where it is",
+}
 
 
 @dataclass(frozen=True)
@@ -37,6 +46,9 @@ class HoldView:
     pose: PoseAtCapture | None  # the newest pose (None: none)
     boundaries: tuple  # the last processed frame's collision safety boundaries
     latency_s: float  # the latency budget now [s]
+    # the map's question for a way out of a boundary (companion.guidance.hold.WayCheck;
+    # None: ways out unchecked)
+    way_check: WayCheck | None = None
 
 
 class FailsafeJob:
@@ -160,14 +172,15 @@ class FailsafeJob:
             latency_s=view.latency_s,
             accel_mps2=self._config.envelope.accel_mps2,
             clearance_m=self._config.guidance.escape_clearance_m,
+            way_check=view.way_check,
         )
         if point.moved and not self._moved_told:
             self._moved_told = True
             self._counters.hold_targets_moved += 1
             self._out.notice(
-                "Hold target: no way out of a boundary within reach, holding where it is"
-                if point.placement is HoldPlacement.CURRENT
-                else f"Hold target kept out of a boundary ({point.placement.value})"
+                _HELD_WHERE_IT_IS.get(
+                    point.placement, f"Hold target kept out of a boundary ({point.placement.value})"
+                )
             )
             self._out.event(
                 "hold_target_moved",
@@ -175,7 +188,8 @@ class FailsafeJob:
                 setpoint_ned_m=[round(x, 3) for x in point.pos_ned_m],
                 pos_ned_m=[round(float(x), 3) for x in pose.pos_ned_m],
             )
-        return PositionTarget(point.pos_ned_m, pose.yaw_rad)
+        look = point.look_yaw_rad  # facing a way out the camera must look along first
+        return PositionTarget(point.pos_ned_m, pose.yaw_rad if look is None else look)
 
     def recheck_target(self, pos_ned_m, view: HoldView) -> PositionTarget | None:
         """In a position hold, a frame that shows the vehicle or its target inside a

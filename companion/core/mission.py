@@ -18,6 +18,7 @@ from companion.core.events import Event, MissionStep, Notice
 from companion.depth_source import DepthSource
 from companion.guidance import GuidanceConfig, Mode, Reason
 from companion.guidance.envelope import EnvelopeConfig
+from companion.guidance.hold import HoldPlacement
 from companion.guidance.tracking import TrackingMonitor
 from companion.known_space import KnownSpaceConfig
 from companion.perception import PerceptionConfig
@@ -156,7 +157,12 @@ class Mission:
         if not quiet:
             return
         placement = out.target_kept_out.value
-        notices.append(Notice(f"Target kept out of a boundary ({placement})", warning=True))
+        text = (
+            "Inside a boundary, no way out seen free: holding where it is"
+            if out.target_kept_out is HoldPlacement.UNSEEN
+            else f"Target kept out of a boundary ({placement})"
+        )
+        notices.append(Notice(text, warning=True))
         events.append(
             Event(
                 "target_kept_out",

@@ -18,6 +18,21 @@ So, in order:
    fixed set of directions (:attr:`HoldPlacement.NEAREST_OUT`, :func:`nearest_outside`).
    Only when nothing within ``search_m`` is outside: the current position
    (:attr:`HoldPlacement.CURRENT`), and never deeper.
+
+   Invariants 1 and 3 together: the vehicle is moved back out *through space seen free*,
+   and a direction the camera has not looked along is first looked at, then flown
+   (DESIGN.md). Given the map's question (:class:`WayCheck`: is the straight move from
+   the vehicle to a point seen free for its section, with the envelope's look rule?), a
+   way out counts only when its move is: the radial escape when it is, else the nearest
+   point out of every boundary whose move is (every direction's nearest point out,
+   nearest first, :func:`ways_outside`). A way that is seen free only thanks to the
+   near-field excuse of a looked-along move is flown facing it
+   (:attr:`HoldPoint.look_yaw_rad`). When no way out is seen free as the camera looks
+   now, but one would be once looked along, the vehicle holds where it is and turns to
+   look along the first such way (:attr:`HoldPlacement.UNSEEN` with ``look_yaw_rad``);
+   when none would be even then, it holds where it is (:attr:`HoldPlacement.UNSEEN`,
+   reported): inside the margin but not touching is better than a move into space
+   nobody has seen. Without a check (no map) the ways out are not checked.
 2. The braking point is inside a boundary: the farthest point of the segment from the
    vehicle to it that is outside every boundary, i.e. on the path the vehicle is flying
    through space the envelope let it into (:attr:`HoldPlacement.SHORTENED`).
@@ -29,25 +44,86 @@ Pure: arrays in, a point out.
 from __future__ import annotations
 
 import enum
+import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from companion.guidance.cone import SphereLike, escape_point
-from companion.guidance.envelope import stopping_distance_m
+from companion.guidance.envelope import FreeDistanceFn, stopping_distance_m
 
 __all__ = [
     "HoldPlacement",
     "HoldPoint",
+    "WayCheck",
     "clear_along_ray",
     "hold_point",
     "inside_any",
     "keep_target_out",
     "nearest_outside",
     "way_out",
+    "ways_outside",
 ]
+
+
+@dataclass(frozen=True)
+class WayCheck:
+    """The known-space map's question for a way back out of a boundary: is the straight
+    move from one point to another seen free for the vehicle's section?
+
+    The check the envelope makes of a path (:mod:`companion.guidance.envelope`, step 2):
+    ``free_distance`` (its :data:`~companion.guidance.envelope.FreeDistanceFn`, i.e.
+    :meth:`~companion.known_space.KnownSpace.free_distance_m`) must reach the move's
+    length with the section ``radius_m`` wide and ``half_height_m`` high, the vehicle's
+    own centre excused within ``radius_m``. The section's unseen rim within
+    ``near_field_m`` is excused only on a move the camera looks along: its horizontal
+    bearing within ``look_half_angle_deg`` of ``heading_rad`` (or no horizontal part, or
+    no heading stated), as the envelope's look rule; off it the whole section must be
+    seen free.
+    """
+
+    free_distance: FreeDistanceFn
+    radius_m: float  # the vehicle's section, half-width [m]
+    half_height_m: float  # the vehicle's section, half-height [m]
+    near_field_m: float = 0.0  # unseen rim excused this near on a looked-along move [m]
+    heading_rad: float | None = None  # where the camera looks now [rad, NED]; None: along
+    look_half_angle_deg: float = 24.0  # the camera looks along a bearing this near [deg]
+
+    def looked_along(self, start_ned_m, end_ned_m) -> bool:
+        """Whether the camera looks along the move now (the envelope's look rule)."""
+        leg = np.asarray(end_ned_m, dtype=float) - np.asarray(start_ned_m, dtype=float)
+        horiz_m = math.hypot(float(leg[0]), float(leg[1]))
+        if self.heading_rad is None or horiz_m < 1e-6:
+            return True
+        cos_off = float(leg[0]) * math.cos(self.heading_rad) + float(leg[1]) * math.sin(
+            self.heading_rad
+        )
+        return cos_off >= horiz_m * math.cos(math.radians(self.look_half_angle_deg))
+
+    def seen_free(self, start_ned_m, end_ned_m, *, looked: bool | None = None) -> bool:
+        """Whether the move is seen free; ``looked``: as if the camera looked along it
+        (True), or not (False); None: as it looks now (:meth:`looked_along`)."""
+        start = np.asarray(start_ned_m, dtype=float)
+        leg = np.asarray(end_ned_m, dtype=float) - start
+        length = float(np.linalg.norm(leg))
+        if not length > 1e-9:
+            return True
+        if looked is None:
+            looked = self.looked_along(start, start + leg)
+        near_field_m = self.near_field_m if looked else 0.0
+        free = self.free_distance(
+            start, leg / length, self.radius_m, length, self.half_height_m, self.radius_m,
+            near_field_m,
+        )  # fmt: skip
+        return float(free) >= length
+
+
+def _bearing_rad(start: np.ndarray, end: np.ndarray) -> float | None:
+    """Horizontal bearing of the move [rad, NED]; None for a (near) vertical one."""
+    north, east = float(end[0] - start[0]), float(end[1] - start[1])
+    return math.atan2(east, north) if math.hypot(north, east) > 1e-6 else None
 
 
 class HoldPlacement(enum.Enum):
@@ -58,6 +134,8 @@ class HoldPlacement(enum.Enum):
     ESCAPE = "escape"  # vehicle inside a boundary: out of it
     NEAREST_OUT = "nearest_out"  # the way out of one leads into another: nearest point out
     CURRENT = "current"  # vehicle inside and no way out found: where it is
+    # vehicle inside, and every way out crosses space not seen free: where it is
+    UNSEEN = "no_way_out_seen_free"
     EXTENDED = "extended"  # vehicle inside: the carrot carried on along its ray to the outside
 
 
@@ -67,6 +145,9 @@ class HoldPoint:
 
     pos_ned_m: tuple[float, float, float]
     placement: HoldPlacement
+    # the yaw to send with it [rad, NED]: facing a way out the camera must look along (to
+    # be seen free before it is flown, or while it is flown); None: the caller's yaw
+    look_yaw_rad: float | None = None
 
     @property
     def moved(self) -> bool:
@@ -113,6 +194,7 @@ def hold_point(
     clearance_m: float = 0.0,
     standoff_m: float = 0.05,
     search_m: float = 4.0,
+    way_check: WayCheck | None = None,
 ) -> HoldPoint:
     """The hold target for a vehicle at ``pos_ned_m`` flying ``vel_ned_mps`` (module doc).
 
@@ -134,6 +216,8 @@ def hold_point(
     search_m : float
         How far :func:`nearest_outside` looks for a way out when the radial one is
         blocked [m].
+    way_check : WayCheck, optional
+        The map's question for a way out of a boundary (:func:`way_out`); None: unchecked.
     """
     pos = np.asarray(pos_ned_m, dtype=float)
     vel = np.asarray(vel_ned_mps, dtype=float)
@@ -141,7 +225,12 @@ def hold_point(
         vel = np.zeros(3)  # no usable velocity: hold where it is
     if inside_any(pos, boundaries):
         return way_out(
-            pos, boundaries, clearance_m=clearance_m, reference_ned=vel, search_m=search_m
+            pos,
+            boundaries,
+            clearance_m=clearance_m,
+            reference_ned=vel,
+            search_m=search_m,
+            way_check=way_check,
         )
     speed = float(np.linalg.norm(vel))
     if speed < 1e-6:
@@ -162,6 +251,7 @@ def way_out(
     clearance_m: float = 0.0,
     reference_ned=None,
     search_m: float = 4.0,
+    way_check: WayCheck | None = None,
 ) -> HoldPoint:
     """The way out for a vehicle inside a boundary (step 1 of the module docstring).
 
@@ -169,10 +259,18 @@ def way_out(
     (:func:`~companion.guidance.cone.escape_point`, sliding along ``reference_ned`` when
     given) when that point is outside every boundary (:attr:`HoldPlacement.ESCAPE`); else
     the nearest point outside all of them, the radial way preferred
-    (:attr:`HoldPlacement.NEAREST_OUT`, :func:`nearest_outside`); else, nothing within
+    (:attr:`HoldPlacement.NEAREST_OUT`, :func:`ways_outside`); else, nothing within
     ``search_m`` being outside, where the vehicle is (:attr:`HoldPlacement.CURRENT`), never
     deeper. No latency or braking enters: the vehicle is already where it must not be.
     A vehicle outside every boundary is where it is (:attr:`HoldPlacement.CURRENT`).
+
+    With ``way_check`` (:class:`WayCheck`) a way out counts only when its move is seen
+    free as the camera looks now (invariants 1 and 3: back out *through space seen
+    free*): the radial escape first, then every direction's nearest point out, nearest
+    first. Seen free only thanks to the near field of a looked-along move: flown facing
+    it (``look_yaw_rad``). None seen free now, but one once looked along: where the
+    vehicle is, facing the first such way (:attr:`HoldPlacement.UNSEEN` with
+    ``look_yaw_rad``); none even then: where it is (:attr:`HoldPlacement.UNSEEN`).
     """
     pos = np.asarray(pos_ned_m, dtype=float)
     containing = [b for b in boundaries if _inside(pos, b)]
@@ -186,14 +284,31 @@ def way_out(
     )
     reference = np.zeros(3) if reference_ned is None else np.asarray(reference_ned, dtype=float)
     out = escape_point(pos, deepest, clearance_m=clearance_m, reference_ned=reference)
-    if not inside_any(out, boundaries):
-        return HoldPoint(_tuple(out), HoldPlacement.ESCAPE)
-    nearest = nearest_outside(
+    ways = ways_outside(
         pos, boundaries, clearance_m=clearance_m, search_m=search_m, prefer_ned=out - pos
     )
-    if nearest is None:
+    if not inside_any(out, boundaries):
+        ways = itertools.chain([(out, HoldPlacement.ESCAPE)], ways)
+    if way_check is None:
+        first = next(ways, None)
+        if first is None:
+            return HoldPoint(_tuple(pos), HoldPlacement.CURRENT)
+        return HoldPoint(_tuple(first[0]), first[1])
+    tried = []
+    for point, placement in ways:  # as the camera looks now
+        tried.append(point)
+        if way_check.seen_free(pos, point):
+            looked_only = way_check.looked_along(pos, point) and not way_check.seen_free(
+                pos, point, looked=False
+            )
+            look = _bearing_rad(pos, point) if looked_only else None
+            return HoldPoint(_tuple(point), placement, look)
+    if not tried:
         return HoldPoint(_tuple(pos), HoldPlacement.CURRENT)
-    return HoldPoint(_tuple(nearest), HoldPlacement.NEAREST_OUT)
+    for point in tried:  # once looked along: turn to look first
+        if not way_check.looked_along(pos, point) and way_check.seen_free(pos, point, looked=True):
+            return HoldPoint(_tuple(pos), HoldPlacement.UNSEEN, _bearing_rad(pos, point))
+    return HoldPoint(_tuple(pos), HoldPlacement.UNSEEN)
 
 
 @dataclass(frozen=True)
@@ -215,6 +330,8 @@ def _fibonacci_directions(n: int) -> np.ndarray:
 
 #: search directions of :func:`nearest_outside`: ~14° apart
 _DIRECTIONS = _fibonacci_directions(200)
+#: steps along every direction tested at once by :func:`ways_outside` (cost only)
+_STEP_BLOCK = 8
 
 
 def nearest_outside(
@@ -235,10 +352,46 @@ def nearest_outside(
     escape from the deepest boundary); ties by the fixed direction order, so the answer is
     deterministic. With ``clearance_m > 0`` and nothing found, the search is repeated for
     a point merely outside (clearance 0). ``None`` when nothing within ``search_m`` is.
+    The first of :func:`ways_outside`.
+    """
+    first = next(
+        ways_outside(
+            pos_ned_m,
+            boundaries,
+            clearance_m=clearance_m,
+            search_m=search_m,
+            step_m=step_m,
+            prefer_ned=prefer_ned,
+        ),
+        None,
+    )
+    return None if first is None else first[0]
+
+
+def ways_outside(
+    pos_ned_m,
+    boundaries: Sequence[SphereLike],
+    *,
+    clearance_m: float = 0.0,
+    search_m: float = 4.0,
+    step_m: float = 0.05,
+    prefer_ned=None,
+) -> Iterator[tuple[np.ndarray, HoldPlacement]]:
+    """Every direction's nearest point [m, NED] outside every boundary, nearest first
+    (each with :attr:`HoldPlacement.NEAREST_OUT`).
+
+    The search of :func:`nearest_outside` carried on: each of the 200 directions yields
+    its first step that is at least ``clearance_m`` outside every boundary, in order of
+    that step (points at one step by ``prefer_ned``, then the fixed direction order);
+    then, with ``clearance_m > 0``, the same for points merely outside (clearance given
+    up before the way out is). Lazy: a caller that takes the first point pays for the
+    search up to it only. A vehicle already ``clearance_m`` outside every boundary yields
+    its own position alone.
     """
     pos = np.asarray(pos_ned_m, dtype=float)
     if not inside_any(pos, [_Ball(b.center_ned_m, b.radius_m + clearance_m) for b in boundaries]):
-        return pos.copy()
+        yield pos.copy(), HoldPlacement.NEAREST_OUT
+        return
     centres = np.array([np.asarray(b.center_ned_m, dtype=float) for b in boundaries])
     radii = np.array([float(b.radius_m) for b in boundaries])
     near = np.linalg.norm(centres - pos, axis=1) - radii < search_m + clearance_m
@@ -249,14 +402,27 @@ def nearest_outside(
     n_steps = int(search_m / step_m)
     for clearance in (clearance_m, 0.0) if clearance_m > 0.0 else (0.0,):
         reach = radii + clearance
-        for k in range(1, n_steps + 1):  # outward, so the first clear step is the nearest
-            points = pos + _DIRECTIONS * (k * step_m)  # (dirs, 3)
-            dist = np.linalg.norm(points[:, None, :] - centres[None, :, :], axis=-1)
-            clear = np.flatnonzero(np.all(dist >= reach, axis=1))
-            if clear.size:
-                pick = clear[0] if along is None else clear[np.argmax(along[clear])]
-                return points[pick].copy()
-    return None
+        open_dirs = np.arange(len(_DIRECTIONS))  # directions with no clear step yet
+        # outward, so a direction's first clear step is its nearest point out; the steps
+        # are tested _STEP_BLOCK at a time (the same points, fewer numpy calls)
+        for k0 in range(1, n_steps + 1, _STEP_BLOCK):
+            ks = np.arange(k0, min(k0 + _STEP_BLOCK, n_steps + 1), dtype=float)
+            points = pos + _DIRECTIONS[open_dirs][None, :, :] * (ks * step_m)[:, None, None]
+            dist = np.linalg.norm(points[:, :, None, :] - centres[None, None, :, :], axis=-1)
+            is_clear = np.all(dist >= reach, axis=2)  # (steps, open dirs)
+            taken = np.zeros(open_dirs.size, dtype=bool)
+            for row in range(ks.size):
+                clear = np.flatnonzero(is_clear[row] & ~taken)  # by direction index
+                if not clear.size:
+                    continue
+                taken[clear] = True
+                if along is not None:
+                    clear = clear[np.argsort(-along[open_dirs[clear]], kind="stable")]
+                for pick in clear:
+                    yield points[row, pick].copy(), HoldPlacement.NEAREST_OUT
+            open_dirs = open_dirs[~taken]
+            if not open_dirs.size:
+                break
 
 
 def keep_target_out(
@@ -268,6 +434,7 @@ def keep_target_out(
     clearance_m: float = 0.0,
     standoff_m: float = 0.05,
     step_m: float = 0.02,
+    way_check: WayCheck | None = None,
 ) -> HoldPoint | None:
     """Any target guidance sends, moved out of the boundaries (invariant 3), or None.
 
@@ -304,6 +471,8 @@ def keep_target_out(
         Distance kept from a boundary's surface along the ray [m].
     step_m : float
         Resolution of the exit along the ray [m] (:func:`clear_along_ray`).
+    way_check : WayCheck, optional
+        The map's question for :func:`way_out` (None: its ways out are not checked).
     """
     pos = np.asarray(pos_ned_m, dtype=float)
     target = np.asarray(target_ned_m, dtype=float)
@@ -319,7 +488,7 @@ def keep_target_out(
         s = clear_along_ray(pos, unit, length, boundaries, standoff_m, step_m)
         if s + standoff_m <= free_m:
             return HoldPoint(_tuple(pos + unit * (s + standoff_m)), HoldPlacement.EXTENDED)
-    return way_out(pos, boundaries, clearance_m=clearance_m)
+    return way_out(pos, boundaries, clearance_m=clearance_m, way_check=way_check)
 
 
 def clear_along_ray(
