@@ -205,6 +205,8 @@ class _MainLoop:
     def start(self) -> None:
         self.process.start(self.link_state())
         assert self.process.wait_ready(), self.process.figures()
+        self.link.forward_from(self.process)  # as the service does
+        self.link.seq_source = self.process.next_seq
 
     def heartbeat(self) -> None:
         self.link.send(mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3))

@@ -79,6 +79,13 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.known_space import KnownSpaceConfig
 from companion.link.messages import obstacle_distance_message
+from companion.proximity.forward import (
+    PENDING_BYTES,
+    ForwardQueue,
+    ForwardReader,
+    forward_pair,
+)
+from companion.proximity.pose_reader import PoseReader
 from companion.proximity.sectors import ProximityConfig
 from companion.proximity.sender import ProximitySender, pose_age_s, position_at_send
 from companion.proximity.shared import SharedLink, SharedMap, SharedPose
@@ -96,6 +103,12 @@ __all__ = [
 SIGNING_LINK_ID = 1
 _READY_TIMEOUT_S = 30.0  # a forked process: seconds only on a starved machine
 _LATE_S = 0.25  # a send this long after the previous one is logged [s host]
+#: The process has not run its loop for this long [s host]: the main loop reads the socket
+#: itself until it runs again (twice the autopilots' 0.5 s proximity timeout would lose
+#: telemetry the core's failsafes count on; a tenth of it is one period of sends).
+FORWARD_STALL_S = 0.3
+_READS_PER_PASS = 2000  # datagrams the process reads before it looks at its timer again
+_FLUSH_WAIT_S = 0.005  # datagrams wait in the process: look again this soon [s]
 _PR_SET_PDEATHSIG = 1
 _log = logging.getLogger("companion")
 
@@ -123,6 +136,7 @@ class ProcessSpec:
     component_id: int
     signing_secret: bytes | None
     parent_pid: int
+    autopilot: tuple[int, int] = (1, 1)  # (system, component) whose pose the process reads
 
 
 class ProximityProcess:
@@ -145,7 +159,11 @@ class ProximityProcess:
         self._pose: SharedPose | None = None  # as last shared
         self._pose_key: tuple | None = None
         self._proc: _Forked | None = None
-        self._rfd, self._wfd = os.pipe()  # never readable: the service selects on it too
+        self._rfd, self._wfd = os.pipe()  # never readable: selected on with no reader
+        self._reader: ForwardReader | None = None  # the datagrams the process forwards
+        self._main_reads = False  # the main loop reads the socket itself (the process not)
+        self._takeovers = 0  # times the main loop took the socket over
+        self._local_seq = 0  # the sequence number once the shared block is closed
         self._exit_reported = False
         self._final: dict | None = None  # the figures as of close()
         self._ready = False
@@ -159,24 +177,32 @@ class ProximityProcess:
         Raises RuntimeError when it cannot be started."""
         warm_up()  # here: the main loop's sends need the kernel too, and the child has it
         self._shared.write_link(link)
+        self._shared.set_main_reads(False)
+        self._shared.set_alive_ns(time.monotonic_ns())
         ready_r, ready_w = os.pipe()
+        ours, theirs = forward_pair()
         try:
             pid = os.fork()
         except OSError as exc:
-            os.close(ready_r)
-            os.close(ready_w)
+            for fd in (ready_r, ready_w):
+                os.close(fd)
+            ours.close()
+            theirs.close()
             raise RuntimeError(f"OBSTACLE_DISTANCE process did not start: {exc}") from None
         if pid == 0:  # the child: never returns into the companion's code
             code = 1
             try:
                 os.close(ready_r)
-                code = _child(self._spec, self._shared, ready_w)
+                ours.close()
+                code = _child(self._spec, self._shared, ready_w, theirs)
             except BaseException:
                 with contextlib.suppress(BaseException):
                     _log.exception("OBSTACLE_DISTANCE process failed")
             finally:
                 os._exit(code)
         os.close(ready_w)
+        theirs.close()
+        self._reader = ForwardReader(ours)
         self._proc = _Forked(pid, ready_r)
 
     def wait_ready(self, timeout_s: float = _READY_TIMEOUT_S) -> bool:
@@ -216,16 +242,62 @@ class ProximityProcess:
             if proc.stdout is not None:
                 proc.stdout.close()
             self._proc = None
+        if self._reader is not None:
+            self._reader.close()
+            self._reader = None
+        self._main_reads = True
         self._shared.close()
         for fd in (self._rfd, self._wfd):
             with contextlib.suppress(OSError):
                 os.close(fd)
 
     def fileno(self) -> int:
-        return self._rfd
+        """What the main loop selects on: the forwarded datagrams while the process reads
+        the socket (else a descriptor never readable)."""
+        reader = self._reader
+        return self._rfd if reader is None or reader.closed else reader.fileno()
 
     def take_inbox(self) -> list:
-        return []  # the process never reads the link: the main loop does
+        return []  # what the process reads reaches the main loop through forwarded()
+
+    # ---- the socket's reader (the link's forwarder: MavlinkConnection.forward_from) -----
+    def forwarded(self) -> list[tuple[tuple[str, int], bytes]]:
+        """The datagrams the process read since the last call, in order."""
+        reader = self._reader
+        return [] if reader is None else reader.take()
+
+    def main_reads(self) -> bool:
+        """Whether the main loop must read the socket itself: the process ended, its
+        forwarding stream closed, or it has not run its loop for :data:`FORWARD_STALL_S`
+        (until it runs again). Said in the log the first time; counted each time."""
+        proc, reader = self._proc, self._reader
+        if proc is None or reader is None or reader.closed or proc.poll() is not None:
+            why = "ended"
+        elif time.monotonic_ns() - self._shared.alive_ns() > FORWARD_STALL_S * 1e9:
+            why = "stalled"
+        else:
+            why = None
+        if (why is not None) != self._main_reads:
+            self._main_reads = why is not None
+            if self._shared.header is not None:
+                self._shared.set_main_reads(self._main_reads)
+            if self._main_reads:
+                self._takeovers += 1
+                log = _log.warning if self._takeovers == 1 else _log.debug
+                log(
+                    "the OBSTACLE_DISTANCE process %s (it read the companion's socket): the "
+                    "main loop reads it itself%s",
+                    "ended" if why == "ended" else f"has not run for {FORWARD_STALL_S} s",
+                    "" if why == "ended" else " until the process runs again",
+                )
+        return self._main_reads
+
+    def next_seq(self) -> int:
+        """The companion's next MAVLink sequence number, shared with the process."""
+        if self._shared.header is None:  # closed
+            self._local_seq = (self._local_seq + 1) % 256
+            return self._local_seq
+        return self._shared.next_seq()
 
     def observe(self, messages, now_ns: int) -> None:
         """Nothing: the pose comes from the core, through :meth:`share`."""
@@ -287,6 +359,12 @@ class ProximityProcess:
             "longest_gap_s": round(sh.counter("longest_us") * 1e-6, 3),
             "main_longest_gap_s": round(self.sender.longest_gap_s, 3),
             "map_overflows": sh.overflows,
+            "forwarded": sh.counter("forwarded"),
+            "forward_dropped": sh.counter("forward_dropped"),
+            "own_pose": sh.counter("own_pose"),
+            "pose_refused": sh.counter("pose_refused"),
+            "main_reads": self._main_reads,
+            "takeovers": self._takeovers,
         }
 
 
@@ -349,7 +427,7 @@ class _Forked:
         return True
 
 
-def _child(spec: ProcessSpec, shared: SharedMap, ready_fd: int) -> int:
+def _child(spec: ProcessSpec, shared: SharedMap, ready_fd: int, forward: socket.socket) -> int:
     """The forked process: ends with the companion, leaves the companion's signal
     handlers (SIGTERM ends it; SIGINT is the companion's to handle), then sends."""
     _die_with_parent()
@@ -357,7 +435,7 @@ def _child(spec: ProcessSpec, shared: SharedMap, ready_fd: int) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if os.getppid() != spec.parent_pid:
         return 0
-    return _run(spec, shared, ready_fd)
+    return _run(spec, shared, ready_fd, forward)
 
 
 class _Wire:
@@ -377,13 +455,13 @@ class _Wire:
             sig.sign_outgoing = True
             sig.timestamp = signing_timestamp_now()
 
-    def send(self, msg, link: SharedLink) -> tuple[int, int]:
-        """(datagrams sent, failed) to ``link``'s peers."""
+    def send(self, msg, link: SharedLink, seq: int) -> tuple[int, int]:
+        """(datagrams sent, failed) to ``link``'s peers, as sequence number ``seq``."""
         mav = self._mav
         if self._signing:
             mav.signing.timestamp = max(mav.signing.timestamp, link.signing_floor)
+        mav.seq = seq
         buf = msg.pack(mav)
-        mav.seq = (mav.seq + 1) % 256
         sent = failed = 0
         for addr in link.peers:
             try:
@@ -394,16 +472,36 @@ class _Wire:
                 _log.debug("OBSTACLE_DISTANCE process: send to %s failed: %s", addr, exc)
         return sent, failed
 
+    def fileno(self) -> int:
+        return self._sock.fileno()
+
+    def read(self, poses: PoseReader, queue: ForwardQueue) -> None:
+        """Every datagram waiting on the socket (never blocks: ``MSG_DONTWAIT``), into
+        ``poses`` and, unchanged with its source, onto ``queue`` for the main loop."""
+        for _ in range(_READS_PER_PASS):
+            try:
+                data, addr = self._sock.recvfrom(65535, socket.MSG_DONTWAIT)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:  # e.g. an ICMP error reported on the socket: go on
+                _log.debug("OBSTACLE_DISTANCE process: receive: %s", exc)
+                return
+            poses.feed(data, time.monotonic_ns())
+            queue.push(addr, data)
+
     def close(self) -> None:
         self._sock.close()
 
 
-def _run(spec: ProcessSpec, shared: SharedMap, ready_fd: int) -> int:
+def _run(spec: ProcessSpec, shared: SharedMap, ready_fd: int, forward: socket.socket) -> int:
     wire = _Wire(spec)
     shared.set_counter("realtime", _realtime(spec.proximity.realtime_priority))
     sender = ProximitySender(spec.proximity)
+    poses = PoseReader(spec.autopilot, spec.signing_secret)
+    queue = ForwardQueue()
+    forwarding = True  # False once the main loop's end of the stream is gone
     snapshot: MapSnapshot | None = None
-    pose: SharedPose | None = None
+    shared_pose: SharedPose | None = None
     link = SharedLink((), 0)
     seen_seq = -1
     period_s = sender.period_s
@@ -412,10 +510,26 @@ def _run(spec: ProcessSpec, shared: SharedMap, ready_fd: int) -> int:
     os.write(ready_fd, b"ready\n")
     os.close(ready_fd)
     while os.getppid() == spec.parent_pid:
+        shared.set_alive_ns(time.monotonic_ns())
+        reading = forwarding and not shared.main_reads()
+        wait_s = max(next_s - time.monotonic(), 0.0)
+        if len(queue):
+            wait_s = min(wait_s, _FLUSH_WAIT_S)
+        try:
+            if reading:
+                select.select([wire.fileno()], [], [], wait_s)
+                wire.read(poses, queue)
+            elif wait_s > 0.0:
+                time.sleep(wait_s)
+            if forwarding and len(queue):
+                queue.flush(forward)
+        except OSError as exc:  # the main loop's end is gone: it reads the socket itself
+            forwarding = False
+            _log.warning("OBSTACLE_DISTANCE process: forwarding stopped: %s", exc)
+        _count_forwarding(shared, poses, queue)
         now_s = time.monotonic()
         if now_s < next_s:
-            time.sleep(next_s - now_s)
-            now_s = time.monotonic()
+            continue
         try:
             seq = shared.sequence()
             if seq != seen_seq:
@@ -424,10 +538,14 @@ def _run(spec: ProcessSpec, shared: SharedMap, ready_fd: int) -> int:
                     snapshot, seen_seq = snap, seq
             ok, newest = shared.read_pose()
             if ok:
-                pose = newest
+                shared_pose = newest
             ok, newest_link = shared.read_link()
             if ok and newest_link is not None:
                 link = newest_link
+            own = poses.pose()
+            pose = _fresher(own, shared_pose)
+            if pose is not None and pose is own:
+                shared.count("own_pose")
             _send(wire, link, sender, shared, pose, snapshot, now_s)
         except Exception:  # counted and logged: the stream must go on
             shared.count("errors")
@@ -444,6 +562,28 @@ def _run(spec: ProcessSpec, shared: SharedMap, ready_fd: int) -> int:
         next_s = max(next_s + period_s, now_s + 0.5 * period_s)
     wire.close()  # the shared block is the companion's: it unlinks it
     return 0
+
+
+def _fresher(own: SharedPose | None, shared: SharedPose | None) -> SharedPose | None:
+    """The pose read last: the process's own (it reads at arrival) unless the main loop's
+    is newer (the main loop reads the socket itself, or the process's is refused)."""
+    if own is None or (shared is not None and shared.received_ns > own.received_ns):
+        return shared
+    return own
+
+
+def _count_forwarding(shared: SharedMap, poses: PoseReader, queue: ForwardQueue) -> None:
+    dropped_before = shared.counter("forward_dropped")
+    shared.set_counter("forwarded", queue.forwarded)
+    shared.set_counter("forward_dropped", queue.dropped)
+    shared.set_counter("pose_refused", poses.refused)
+    if queue.dropped > dropped_before:
+        _log.warning(
+            "OBSTACLE_DISTANCE process: %d datagrams not forwarded to the main loop (its "
+            "queue of %d bytes is full)",
+            queue.dropped,
+            PENDING_BYTES,
+        )
 
 
 def _send(
@@ -471,7 +611,8 @@ def _send(
     if snapshot is not None and snapshot.capture_ns is not None:
         stamp_ns = snapshot.capture_ns
     sectors = sender.on_timer(snapshot, pos, yaw, now_s)
-    sent, failed = wire.send(obstacle_distance_message(max(stamp_ns, 0) // 1000, sectors), link)
+    message = obstacle_distance_message(max(stamp_ns, 0) // 1000, sectors)
+    sent, failed = wire.send(message, link, shared.next_seq())
     if sent:
         shared.count("sent")
     elif not failed:
@@ -492,4 +633,5 @@ def new_spec(config, sender: ProximitySender, link_fd: int) -> ProcessSpec:
         component_id=link.component_id,
         signing_secret=None if link.signing_key is None else link.signing_key.secret,
         parent_pid=0,
+        autopilot=(link.target_system, link.target_component),
     )
