@@ -142,6 +142,8 @@ class _Autopilot:
         self.frames: list[bytes] = []  # every frame from the companion, in arrival order
         self.peers: list = []
         self.telemetry_sent = 0
+        self.vel_n_mps = 0.0  # fly(): north at this speed from POS
+        self.t0: float | None = None
         self.streaming = threading.Event()
         self.streaming.set()
         self._stop = threading.Event()
@@ -165,11 +167,22 @@ class _Autopilot:
             now = time.monotonic()
             if now >= next_s and self.peers and self.streaming.is_set():
                 next_s = now + 0.02
-                pos = mavlink.MAVLink_local_position_ned_message(0, *POS, 0.0, 0.0, 0.0)
+                north = self.north_m(now)
+                pos = mavlink.MAVLink_local_position_ned_message(
+                    0, north, *POS[1:], self.vel_n_mps if self.t0 else 0.0, 0.0, 0.0
+                )
                 att = mavlink.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
                 for m in (pos, att):
                     self.sock.sendto(m.pack(self.mav), self.peers[0])
                     self.telemetry_sent += 1
+
+    def fly(self, vel_n_mps: float) -> None:
+        """From now on, the telemetry's vehicle flies north at ``vel_n_mps`` from POS."""
+        self.vel_n_mps, self.t0 = vel_n_mps, time.monotonic()
+
+    def north_m(self, t_s: float) -> float:
+        """The vehicle's north at monotonic time ``t_s`` [m]."""
+        return POS[0] + (0.0 if self.t0 is None else self.vel_n_mps * max(t_s - self.t0, 0.0))
 
     def close(self) -> None:
         self._stop.set()

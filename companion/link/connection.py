@@ -24,6 +24,7 @@ Network I/O happens in :meth:`open`, never in ``__init__``. The key never reache
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import os
@@ -45,6 +46,7 @@ from protocols.signing import SignatureVerifier
 __all__ = ["Forwarder", "LinkCounters", "MavlinkConnection"]
 
 _log = logging.getLogger("companion.link")
+_RCVBUF_BYTES = 1 << 20  # the UDP socket's receive buffer [bytes]
 
 
 @dataclass
@@ -149,6 +151,11 @@ class MavlinkConnection:
         except (OSError, ValueError) as exc:
             raise OSError(f"cannot open MAVLink connection {self.url!r}: {exc}") from None
         conn.mav.robust_parsing = True
+        if isinstance(conn, mavutil.mavudp):
+            # room for a burst while the reader is off the processor (a loaded machine, the
+            # OBSTACLE_DISTANCE process descheduled): the kernel caps it at rmem_max
+            with contextlib.suppress(OSError):
+                conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _RCVBUF_BYTES)
         if self._signing_key is not None:
             conn.setup_signing(
                 self._signing_key.secret,

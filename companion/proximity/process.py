@@ -363,6 +363,7 @@ class ProximityProcess:
             "forward_dropped": sh.counter("forward_dropped"),
             "own_pose": sh.counter("own_pose"),
             "pose_refused": sh.counter("pose_refused"),
+            "pose_age_max_s": round(sh.counter("pose_age_max_us") * 1e-6, 3),
             "main_reads": self._main_reads,
             "takeovers": self._takeovers,
         }
@@ -608,6 +609,9 @@ def _send(
             shared.count("stale_pose")
         else:
             yaw = pose.yaw_rad
+            age_us = int(age_s * 1e6)
+            if age_us > shared.counter("pose_age_max_us"):
+                shared.set_counter("pose_age_max_us", age_us)
     if snapshot is not None and snapshot.capture_ns is not None:
         stamp_ns = snapshot.capture_ns
     sectors = sender.on_timer(snapshot, pos, yaw, now_s)

@@ -73,6 +73,7 @@ COUNTERS = (
     "forward_dropped",  # datagrams not handed over (the queue full): counted, logged
     "own_pose",  # sends placed with the pose the process decoded itself
     "pose_refused",  # LOCAL_POSITION_NED / ATTITUDE not used (signature, range, order)
+    "pose_age_max_us",  # the oldest pose a send placed the vehicle with [µs, frame clock]
 )
 _COUNTER_WORDS = len(COUNTERS)
 # the reader hand-over and the sequence number (int64)
