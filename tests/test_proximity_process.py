@@ -1,6 +1,7 @@
 """OBSTACLE_DISTANCE from a process of its own (issue 34): the shared block gives the live
 map's sectors, the pose and the link; the process sends through the companion's own
-socket (the autopilot sees one peer) and never reads it, keeps >= 10 Hz while the
+socket (the autopilot sees one peer), forwards every datagram it reads there to the main
+loop (test_proximity_reader.py has the rest of that), keeps >= 10 Hz while the
 companion's interpreter is held, places the vehicle from the pose the main loop shares
 (all unknown once it is older than 0.5 s), signs as its own link no lower than the main
 loop, dies with the companion and says when it ended.
@@ -313,7 +314,7 @@ def test_the_process_sends_through_the_companions_socket_at_rate_and_places_the_
         figures = main.process.figures()
         assert figures["alive"] and figures["errors"] == 0 and figures["stale_pose"] > 0
         assert figures["realtime"] == _may_be_realtime()
-        # one peer: the companion's port; and the process read none of the telemetry
+        # one peer: the companion's port; and the main loop has every telemetry message
         ap.streaming.clear()
         time.sleep(0.1)
         main.pass_(None)

@@ -18,10 +18,30 @@ took 17.7 s to import at load 21), after the sector kernel is loaded.
 inherited through the fork, to the peers the main loop sends to (``udpout``'s destination,
 or every peer a ``udpin`` socket has heard from: :meth:`MavlinkConnection.udp_peers
 <companion.link.connection.MavlinkConnection.udp_peers>`), so the autopilot, a router or a
-serial-to-UDP bridge that answers only one peer sees one: the companion's port. It never
-reads that socket: the main loop does, and two readers would take each other's
-datagrams. Serial ports and TCP streams are not shared (a frame written by one process
-could interleave with the other's): the watchdog thread sends there.
+serial-to-UDP bridge that answers only one peer sees one: the companion's port. Serial
+ports and TCP streams are not shared (a frame written by one process could interleave
+with the other's): the watchdog thread sends there.
+
+**The socket's only reader.** Measured at stop 43: at load 18–24 the main loop stalled for
+~2 s on two 8 m/s approaches; a pose that only the main loop read went stale, the process
+sent every sector unknown, and ArduCopter, with no data, let the pilot fly on. So the
+process reads the socket (two readers would take each other's datagrams: the main loop
+does not): it places the vehicle with the LOCAL_POSITION_NED and ATTITUDE it decodes
+itself as they arrive (:mod:`~companion.proximity.pose_reader`: only those two, found by
+the message id in the header; with a key only correctly signed ones, with its own replay
+state), and forwards every datagram, unchanged and in order, with its source address, to
+the main loop (:mod:`~companion.proximity.forward`: a local stream socket created before
+the fork, 2 MB of buffer and 8 MB of queue in the process, drops counted), which parses
+them exactly as it parsed its own reads
+(:meth:`~companion.link.connection.MavlinkConnection.forward_from`: signing, TIMESYNC,
+peers unchanged) and keeps sending on the socket. Telemetry is never lost to a dead or
+stopped helper: when the process has ended (``waitpid``, or its end of the stream closed)
+or has not run its loop for :data:`FORWARD_STALL_S`, the main loop reads the socket
+itself (:meth:`ProximityProcess.main_reads`, checked every pass; said in the log the
+first time, counted as ``takeovers``), and hands it back when a stopped process runs
+again. At the hand-over a datagram the process had read but not yet forwarded reaches
+the main loop after the ones it reads itself (reordered, not lost), unless the process
+was killed holding it (lost: at most what arrived in its last pass).
 
 What the process has from the main loop (:class:`~companion.proximity.shared.SharedMap`,
 one shared-memory block, a sequence lock per part: the main loop never waits; a copy read
@@ -31,15 +51,18 @@ during a write is discarded and the previous one kept):
   frame;
 * **the pose** the core accepted from LOCAL_POSITION_NED and ATTITUDE (after its range,
   boot-time and ordering checks), with the host time its position was read, written
-  whenever it changed. At each send the position is carried forward by its velocity over
+  whenever it changed: used when it is newer than the process's own (the main loop reads
+  the socket itself). At each send the position is carried forward by its velocity over
   its age (:func:`~companion.proximity.sender.pose_age_s`): the host time since the main
   loop read it × the frame clock's rate, and with frames on the host clock at least the
   time since the autopilot stamped it (TIMESYNC-mapped: it counts the time the message
   waited for a busy main loop). A pose older than
   :data:`~companion.proximity.sender.POSE_STALE_S` (0.5 s) places nothing: every sector
-  goes out unknown (``UINT16_MAX``), never clear, until the main loop reads telemetry
-  again; counted (``stale_pose``);
+  goes out unknown (``UINT16_MAX``), never clear, until telemetry arrives again; counted
+  (``stale_pose``);
 * **the link**: the peers and the main loop's signing timestamp;
+* **the reader hand-over** and **one MAVLink sequence counter** for both senders
+  (:meth:`~companion.proximity.shared.SharedMap.next_seq`);
 * the frame clock's rate and newest stamp (the message's ``time_usec`` before a map).
 
 **Signing.** MAVLink 2 keys the replay check by (system, component, link id): each stream's
@@ -51,65 +74,50 @@ process signs as link id :data:`SIGNING_LINK_ID` (the main loop is link 0): two 
 each strictly increasing. Its timestamp never falls below the main loop's (shared each
 pass), which follows the newest authentic timestamp the autopilot sent: after an
 autopilot reboot (its streams forgotten) the process's stream is within the minute as the
-main loop's is. The companion's sequence numbers are two interleaved counters (one per
-sender): a ground station's loss figure for component 196 counts the interleaving as
-loss (named limitation).
+main loop's is. The sequence number is one counter in the shared block for both
+senders (before issue 34's last step, two interleaved counters made a ground station
+count every interleaving as loss); it is not atomic across processes, so two sends in
+the same microseconds may carry one number twice (measured: none in 200+ frames of the
+burst test; the test allows 1 %).
 
 It sends every period (:attr:`ProximityConfig.rate_hz`) the sectors of the newest map;
 the main loop still sends each frame's sectors (its own stream, what a replay
 reproduces). It dies with the companion: ``PR_SET_PDEATHSIG`` and a parent check every
 period; its log lines go to the companion's stderr (the inherited logger) and its figures
-(sends, errors, longest gap, real-time) to the companion's status and exit statistics.
+(sends, errors, longest gap, real-time, datagrams forwarded and dropped, sends placed with
+its own pose, the oldest pose a send used) to the companion's status and exit
+statistics. Its loop is :mod:`companion.proximity.child`.
 """
 
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import logging
-import math
 import os
 import select
 import signal
-import socket
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
-
-from companion.known_space import KnownSpaceConfig
-from companion.link.messages import obstacle_distance_message
-from companion.proximity.forward import (
-    PENDING_BYTES,
-    ForwardQueue,
-    ForwardReader,
-    forward_pair,
-)
-from companion.proximity.pose_reader import PoseReader
-from companion.proximity.sectors import ProximityConfig
-from companion.proximity.sender import ProximitySender, pose_age_s, position_at_send
+from companion.proximity.child import SIGNING_LINK_ID, ProcessSpec, run_child
+from companion.proximity.forward import ForwardReader, forward_pair
+from companion.proximity.sender import ProximitySender
 from companion.proximity.shared import SharedLink, SharedMap, SharedPose
 from companion.proximity.stream import MapSnapshot, VehiclePose, warm_up
-from protocols.signing import signing_timestamp_now
 
 __all__ = [
+    "FORWARD_STALL_S",
     "SIGNING_LINK_ID",
     "ProcessSpec",
     "ProximityProcess",
     "own_process_refusal",
 ]
 
-#: MAVLink 2 signing link id of the process's stream (the main loop signs as link 0).
-SIGNING_LINK_ID = 1
 _READY_TIMEOUT_S = 30.0  # a forked process: seconds only on a starved machine
-_LATE_S = 0.25  # a send this long after the previous one is logged [s host]
 #: The process has not run its loop for this long [s host]: the main loop reads the socket
-#: itself until it runs again (twice the autopilots' 0.5 s proximity timeout would lose
-#: telemetry the core's failsafes count on; a tenth of it is one period of sends).
+#: itself until it runs again (the core's telemetry failsafe would count a longer wait as
+#: lost telemetry; three periods of sends).
 FORWARD_STALL_S = 0.3
-_READS_PER_PASS = 2000  # datagrams the process reads before it looks at its timer again
-_FLUSH_WAIT_S = 0.005  # datagrams wait in the process: look again this soon [s]
-_PR_SET_PDEATHSIG = 1
 _log = logging.getLogger("companion")
 
 
@@ -123,20 +131,6 @@ def own_process_refusal(url: str) -> str | None:
     if not url.startswith(("udpout:", "udpin:", "udp:")):
         return f"the link {url.split(':', 1)[0]!r} is not a UDP socket two processes can share"
     return None
-
-
-@dataclass(frozen=True)
-class ProcessSpec:
-    """What the process needs."""
-
-    proximity: ProximityConfig
-    space: KnownSpaceConfig
-    link_fd: int  # the companion's UDP socket, inherited through the fork
-    system_id: int
-    component_id: int
-    signing_secret: bytes | None
-    parent_pid: int
-    autopilot: tuple[int, int] = (1, 1)  # (system, component) whose pose the process reads
 
 
 class ProximityProcess:
@@ -194,7 +188,7 @@ class ProximityProcess:
             try:
                 os.close(ready_r)
                 ours.close()
-                code = _child(self._spec, self._shared, ready_w, theirs)
+                code = run_child(self._spec, self._shared, ready_w, theirs)
             except BaseException:
                 with contextlib.suppress(BaseException):
                     _log.exception("OBSTACLE_DISTANCE process failed")
@@ -369,31 +363,6 @@ class ProximityProcess:
         }
 
 
-# ---- the process --------------------------------------------------------------------------
-
-
-def _die_with_parent() -> None:
-    with contextlib.suppress(OSError, AttributeError):
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-
-
-def _realtime(priority: int) -> bool:
-    """``SCHED_FIFO`` at ``priority`` (0: none); False (said once) when not permitted."""
-    if priority <= 0:
-        return False
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (OSError, AttributeError) as exc:
-        _log.info(
-            "OBSTACLE_DISTANCE process: no real-time priority (%s): it runs as a normal task "
-            "and may wait for a processor on a loaded machine",
-            exc,
-        )
-        return False
-    return True
-
-
 class _Forked:
     """The forked process: its pid, exit status and the read end of its readiness pipe."""
 
@@ -426,203 +395,6 @@ class _Forked:
                 return False
             time.sleep(0.01)
         return True
-
-
-def _child(spec: ProcessSpec, shared: SharedMap, ready_fd: int, forward: socket.socket) -> int:
-    """The forked process: ends with the companion, leaves the companion's signal
-    handlers (SIGTERM ends it; SIGINT is the companion's to handle), then sends."""
-    _die_with_parent()
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if os.getppid() != spec.parent_pid:
-        return 0
-    return _run(spec, shared, ready_fd, forward)
-
-
-class _Wire:
-    """The process's writes on the companion's socket: OBSTACLE_DISTANCE, signed as link
-    :data:`SIGNING_LINK_ID` with a timestamp never below the main loop's, to each peer."""
-
-    def __init__(self, spec: ProcessSpec) -> None:
-        # a duplicate of the inherited descriptor: closing it leaves the companion's alone;
-        # its blocking mode (shared with the companion) is not touched
-        self._sock = socket.socket(fileno=os.dup(spec.link_fd))
-        self._mav = mavlink.MAVLink(None, srcSystem=spec.system_id, srcComponent=spec.component_id)
-        self._signing = spec.signing_secret is not None
-        if self._signing:
-            sig = self._mav.signing
-            sig.secret_key = spec.signing_secret
-            sig.link_id = SIGNING_LINK_ID
-            sig.sign_outgoing = True
-            sig.timestamp = signing_timestamp_now()
-
-    def send(self, msg, link: SharedLink, seq: int) -> tuple[int, int]:
-        """(datagrams sent, failed) to ``link``'s peers, as sequence number ``seq``."""
-        mav = self._mav
-        if self._signing:
-            mav.signing.timestamp = max(mav.signing.timestamp, link.signing_floor)
-        mav.seq = seq
-        buf = msg.pack(mav)
-        sent = failed = 0
-        for addr in link.peers:
-            try:
-                self._sock.sendto(buf, addr)
-                sent += 1
-            except OSError as exc:  # a full buffer (the socket is non-blocking), no route
-                failed += 1
-                _log.debug("OBSTACLE_DISTANCE process: send to %s failed: %s", addr, exc)
-        return sent, failed
-
-    def fileno(self) -> int:
-        return self._sock.fileno()
-
-    def read(self, poses: PoseReader, queue: ForwardQueue) -> None:
-        """Every datagram waiting on the socket (never blocks: ``MSG_DONTWAIT``), into
-        ``poses`` and, unchanged with its source, onto ``queue`` for the main loop."""
-        for _ in range(_READS_PER_PASS):
-            try:
-                data, addr = self._sock.recvfrom(65535, socket.MSG_DONTWAIT)
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError as exc:  # e.g. an ICMP error reported on the socket: go on
-                _log.debug("OBSTACLE_DISTANCE process: receive: %s", exc)
-                return
-            poses.feed(data, time.monotonic_ns())
-            queue.push(addr, data)
-
-    def close(self) -> None:
-        self._sock.close()
-
-
-def _run(spec: ProcessSpec, shared: SharedMap, ready_fd: int, forward: socket.socket) -> int:
-    wire = _Wire(spec)
-    shared.set_counter("realtime", _realtime(spec.proximity.realtime_priority))
-    sender = ProximitySender(spec.proximity)
-    poses = PoseReader(spec.autopilot, spec.signing_secret)
-    queue = ForwardQueue()
-    forwarding = True  # False once the main loop's end of the stream is gone
-    snapshot: MapSnapshot | None = None
-    shared_pose: SharedPose | None = None
-    link = SharedLink((), 0)
-    seen_seq = -1
-    period_s = sender.period_s
-    next_s = time.monotonic()
-    last_s = float("-inf")
-    os.write(ready_fd, b"ready\n")
-    os.close(ready_fd)
-    while os.getppid() == spec.parent_pid:
-        shared.set_alive_ns(time.monotonic_ns())
-        reading = forwarding and not shared.main_reads()
-        wait_s = max(next_s - time.monotonic(), 0.0)
-        if len(queue):
-            wait_s = min(wait_s, _FLUSH_WAIT_S)
-        try:
-            if reading:
-                select.select([wire.fileno()], [], [], wait_s)
-                wire.read(poses, queue)
-            elif wait_s > 0.0:
-                time.sleep(wait_s)
-            if forwarding and len(queue):
-                queue.flush(forward)
-        except OSError as exc:  # the main loop's end is gone: it reads the socket itself
-            forwarding = False
-            _log.warning("OBSTACLE_DISTANCE process: forwarding stopped: %s", exc)
-        _count_forwarding(shared, poses, queue)
-        now_s = time.monotonic()
-        if now_s < next_s:
-            continue
-        try:
-            seq = shared.sequence()
-            if seq != seen_seq:
-                ok, snap = shared.read()
-                if ok:
-                    snapshot, seen_seq = snap, seq
-            ok, newest = shared.read_pose()
-            if ok:
-                shared_pose = newest
-            ok, newest_link = shared.read_link()
-            if ok and newest_link is not None:
-                link = newest_link
-            own = poses.pose()
-            pose = _fresher(own, shared_pose)
-            if pose is not None and pose is own:
-                shared.count("own_pose")
-            _send(wire, link, sender, shared, pose, snapshot, now_s)
-        except Exception:  # counted and logged: the stream must go on
-            shared.count("errors")
-            _log.exception("OBSTACLE_DISTANCE process: a send failed")
-        gap_s = now_s - last_s
-        if math.isfinite(gap_s):
-            shared.set_counter("longest_us", max(shared.counter("longest_us"), int(gap_s * 1e6)))
-            if gap_s > _LATE_S:
-                shared.count("late")
-                _log.warning(
-                    "OBSTACLE_DISTANCE process late: %.3f s since its previous send", gap_s
-                )
-        last_s = now_s
-        next_s = max(next_s + period_s, now_s + 0.5 * period_s)
-    wire.close()  # the shared block is the companion's: it unlinks it
-    return 0
-
-
-def _fresher(own: SharedPose | None, shared: SharedPose | None) -> SharedPose | None:
-    """The pose read last: the process's own (it reads at arrival) unless the main loop's
-    is newer (the main loop reads the socket itself, or the process's is refused)."""
-    if own is None or (shared is not None and shared.received_ns > own.received_ns):
-        return shared
-    return own
-
-
-def _count_forwarding(shared: SharedMap, poses: PoseReader, queue: ForwardQueue) -> None:
-    dropped_before = shared.counter("forward_dropped")
-    shared.set_counter("forwarded", queue.forwarded)
-    shared.set_counter("forward_dropped", queue.dropped)
-    shared.set_counter("pose_refused", poses.refused)
-    if queue.dropped > dropped_before:
-        _log.warning(
-            "OBSTACLE_DISTANCE process: %d datagrams not forwarded to the main loop (its "
-            "queue of %d bytes is full)",
-            queue.dropped,
-            PENDING_BYTES,
-        )
-
-
-def _send(
-    wire: _Wire,
-    link: SharedLink,
-    sender: ProximitySender,
-    shared: SharedMap,
-    pose: SharedPose | None,
-    snapshot: MapSnapshot | None,
-    now_s: float,
-) -> None:
-    rate, stamp_ns = shared.clock()
-    pos = yaw = None
-    if snapshot is None:
-        shared.count("no_map")
-    if pose is not None:
-        age_s = pose_age_s(
-            time.monotonic_ns(), pose.received_ns, pose.frame_ns, rate, pose.host_frame_clock
-        )
-        pos = position_at_send(pose.pos_ned_m, pose.vel_ned_mps, age_s)
-        if pos is None:
-            shared.count("stale_pose")
-        else:
-            yaw = pose.yaw_rad
-            age_us = int(age_s * 1e6)
-            if age_us > shared.counter("pose_age_max_us"):
-                shared.set_counter("pose_age_max_us", age_us)
-    if snapshot is not None and snapshot.capture_ns is not None:
-        stamp_ns = snapshot.capture_ns
-    sectors = sender.on_timer(snapshot, pos, yaw, now_s)
-    message = obstacle_distance_message(max(stamp_ns, 0) // 1000, sectors)
-    sent, failed = wire.send(message, link, shared.next_seq())
-    if sent:
-        shared.count("sent")
-    elif not failed:
-        shared.count("no_peer")  # udpin before any peer wrote to the companion
-    if failed:
-        shared.count("errors", failed)
 
 
 def new_spec(config, sender: ProximitySender, link_fd: int) -> ProcessSpec:

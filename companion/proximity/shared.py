@@ -11,9 +11,9 @@ discards the copy and keeps its previous one). Parts:
   written after each frame;
 * **the pose**: the newest pose the core accepted from LOCAL_POSITION_NED and ATTITUDE
   (position, velocity, yaw), its time on the frame clock and the host time its position
-  arrived (:class:`SharedPose`), written whenever the core's pose changed. The process
-  does not read the MAVLink socket: the main loop does, and two readers would steal each
-  other's datagrams;
+  arrived (:class:`SharedPose`), written whenever the core's pose changed: the process's
+  fallback when the main loop reads the MAVLink socket itself (the process reads it
+  otherwise and decodes its own pose, :mod:`companion.proximity.pose_reader`);
 * **the link**: the peers the companion's UDP socket sends to (up to :data:`MAX_PEERS`)
   and the main loop's signing timestamp (:attr:`SharedLink.signing_floor`);
 * single words: the frame clock's rate and newest stamp;
