@@ -13,8 +13,10 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.link.connection import MavlinkConnection
+from companion.proximity.child import _pose_to_use
 from companion.proximity.forward import ForwardQueue, ForwardReader, encode_record, forward_pair
 from companion.proximity.pose_reader import PoseReader, frames_of
+from companion.proximity.shared import SharedPose
 from evaluation.sil import free_port
 from protocols.signing import SigningKey, signing_timestamp_now
 
@@ -132,6 +134,18 @@ def test_with_a_key_only_correctly_signed_poses_are_used():
     assert reader.pose().pos_ned_m[0] == 4.0 and reader.pose().received_ns == 3
     reader.feed(_position(genuine, 40, 5.0), 5)  # the forgery blocked nothing
     assert reader.pose().pos_ned_m[0] == 5.0
+
+
+def test_the_process_uses_its_own_pose_while_it_reads_and_else_the_newest():
+    def pose(received_ns: int) -> SharedPose:
+        return SharedPose((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, 0, received_ns, False)
+
+    own, main_loops = pose(100), pose(105)  # the main loop read the same message later
+    assert _pose_to_use(own, main_loops, reading=True) is own
+    assert _pose_to_use(None, main_loops, reading=True) is main_loops  # no yaw yet
+    assert _pose_to_use(own, main_loops, reading=False) is main_loops  # it reads itself
+    assert _pose_to_use(pose(200), main_loops, reading=False).received_ns == 200
+    assert _pose_to_use(None, None, reading=False) is None
 
 
 class _Forwarder:

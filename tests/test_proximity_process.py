@@ -268,8 +268,9 @@ def _spin_holding_the_gil(seconds: float) -> None:
 
 def test_the_process_sends_through_the_companions_socket_at_rate_and_places_the_vehicle():
     """One peer at the autopilot, every telemetry message read by the main loop, >= 10 Hz
-    while the interpreter is held, the distance ahead from the shared pose carried
-    forward, and all unknown once that pose is older than 0.5 s."""
+    while the interpreter is held, the distance ahead from the pose carried forward (the
+    process's own: the telemetry it reads flies as the shared pose does), and all unknown
+    once that pose is older than 0.5 s."""
     ap = _Autopilot()
     main = _MainLoop(f"udpout:127.0.0.1:{ap.port}")
     vel_n_mps = 0.3  # at most 3 m in the waits below: short of the wall
@@ -277,6 +278,7 @@ def test_the_process_sends_through_the_companions_socket_at_rate_and_places_the_
         main.start()
         main.heartbeat()  # the autopilot answers this port (the process's sends come from it)
         t0_ns = time.monotonic_ns()
+        ap.fly(vel_n_mps)  # the telemetry the process reads flies as the shared pose does
 
         def north_m(t_ns: float) -> float:
             return POS[0] + vel_n_mps * (t_ns - t0_ns) * 1e-9
@@ -302,8 +304,8 @@ def test_the_process_sends_through_the_companions_socket_at_rate_and_places_the_
         times = np.array([t for t, _ in got])
         assert times.size >= 10 * 1.5 * 0.8, times.size  # >= 10 Hz, with slack for load
         assert np.max(np.diff(times)) < 0.5, np.diff(times)  # the autopilots' timeout
-        # before the spin: the distance ahead is from the shared pose carried forward to
-        # the send (to a voxel)
+        # before the spin: the distance ahead is from the pose carried forward to the send
+        # (to a voxel)
         t, msg = next((t, m) for t, m, _ in reversed(ap.received) if t < start)
         assert msg.time_usec == 5_000
         expected_m = WALL_N_M - (north_m(t * 1e9) - POS[0])

@@ -199,7 +199,7 @@ def _run(spec: ProcessSpec, shared: SharedMap, ready_fd: int, forward: socket.so
             if ok and newest_link is not None:
                 link = newest_link
             own = poses.pose()
-            pose = _fresher(own, shared_pose)
+            pose = _pose_to_use(own, shared_pose, reading)
             if pose is not None and pose is own:
                 shared.count("own_pose")
             _send(wire, link, sender, shared, pose, snapshot, now_s)
@@ -220,9 +220,15 @@ def _run(spec: ProcessSpec, shared: SharedMap, ready_fd: int, forward: socket.so
     return 0
 
 
-def _fresher(own: SharedPose | None, shared: SharedPose | None) -> SharedPose | None:
-    """The pose read last: the process's own (it reads at arrival) unless the main loop's
-    is newer (the main loop reads the socket itself, or the process's is refused)."""
+def _pose_to_use(
+    own: SharedPose | None, shared: SharedPose | None, reading: bool
+) -> SharedPose | None:
+    """While the process reads the socket, its own pose (every datagram reaches it first;
+    the main loop's copy of the same message carries the later time the main loop read
+    it, which would understate its age), else (none yet, or the main loop reads the
+    socket itself) the one read last."""
+    if reading and own is not None:
+        return own
     if own is None or (shared is not None and shared.received_ns > own.received_ns):
         return shared
     return own
