@@ -51,10 +51,11 @@ during a write is discarded and the previous one kept):
   frame;
 * **the pose** the core accepted from LOCAL_POSITION_NED and ATTITUDE (after its range,
   boot-time and ordering checks), with the host time its position was read, written
-  whenever it changed: used when it is newer than the process's own (the main loop reads
-  the socket itself). At each send the position is carried forward by its velocity over
-  its age (:func:`~companion.proximity.sender.pose_age_s`): the host time since the main
-  loop read it × the frame clock's rate, and with frames on the host clock at least the
+  whenever it changed: the fallback, used while the main loop reads the socket itself
+  or before the process has a pose of its own. At each send the position (the process's
+  own or this one) is carried forward by its velocity over its age
+  (:func:`~companion.proximity.sender.pose_age_s`): the host time since it was read × the
+  frame clock's rate, and with frames on the host clock at least the
   time since the autopilot stamped it (TIMESYNC-mapped: it counts the time the message
   waited for a busy main loop). A pose older than
   :data:`~companion.proximity.sender.POSE_STALE_S` (0.5 s) places nothing: every sector
