@@ -179,8 +179,9 @@ def _run(spec: ProcessSpec, shared: SharedMap, ready_fd: int, forward: socket.so
                 time.sleep(wait_s)
             if forwarding and len(queue):
                 queue.flush(forward)
-        except OSError as exc:  # the main loop's end is gone: it reads the socket itself
+        except OSError as exc:  # closing our end tells the main loop to read the socket
             forwarding = False
+            forward.close()
             _log.warning("OBSTACLE_DISTANCE process: forwarding stopped: %s", exc)
         _count_forwarding(shared, poses, queue)
         now_s = time.monotonic()

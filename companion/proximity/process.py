@@ -266,10 +266,12 @@ class ProximityProcess:
         forwarding stream closed, or it has not run its loop for :data:`FORWARD_STALL_S`
         (until it runs again). Said in the log the first time; counted each time."""
         proc, reader = self._proc, self._reader
-        if proc is None or reader is None or reader.closed or proc.poll() is not None:
+        if proc is None or reader is None or proc.poll() is not None:
             why = "ended"
+        elif reader.closed:
+            why = "stopped forwarding"
         elif time.monotonic_ns() - self._shared.alive_ns() > FORWARD_STALL_S * 1e9:
-            why = "stalled"
+            why = f"has not run for {FORWARD_STALL_S} s"
         else:
             why = None
         if (why is not None) != self._main_reads:
@@ -282,8 +284,8 @@ class ProximityProcess:
                 log(
                     "the OBSTACLE_DISTANCE process %s (it read the companion's socket): the "
                     "main loop reads it itself%s",
-                    "ended" if why == "ended" else f"has not run for {FORWARD_STALL_S} s",
-                    "" if why == "ended" else " until the process runs again",
+                    why,
+                    " until the process runs again" if why.startswith("has not") else "",
                 )
         return self._main_reads
 
