@@ -287,3 +287,37 @@ def test_a_flight_goes_on_when_the_process_is_killed(tmp_path):
         assert truth["surface_distance_m"].min() >= 0.35
     finally:
         rig.close()
+
+
+def test_a_process_that_cannot_forward_stops_reading_and_the_main_loop_reads():
+    """The forwarding stream breaks while the process lives (here: the main loop's end
+    shut for reading, so the process's writes fail): the main loop reads the socket
+    itself, the process no longer does (from then on the main loop gets every telemetry
+    message) and keeps sending. (That the process closes its end, which is what tells the
+    main loop when only the process sees the failure, is not observed here.)"""
+    ap = _Autopilot()
+    main = _MainLoop(f"udpout:127.0.0.1:{ap.port}")
+    try:
+        main.start()
+        main.heartbeat()
+        assert _wait(lambda: (main.pass_(None), main.telemetry)[1] >= 10, 10.0)
+        main.process._reader._sock.shutdown(socket.SHUT_RD)
+        assert _wait(lambda: (main.pass_(None), not main.link.forwarded)[1], 2.0)
+        figures = main.process.figures()
+        assert figures["alive"] and figures["main_reads"] and figures["takeovers"] == 1
+        time.sleep(0.3)  # the process met the broken stream and stopped reading
+        main.pass_(None)
+        counted, sent = main.telemetry, ap.telemetry_sent
+        sent_od = len(ap.received)
+        deadline = time.monotonic() + 1.0
+        while time.monotonic() < deadline:
+            main.pass_(None)
+            time.sleep(0.01)
+        ap.streaming.clear()
+        time.sleep(0.1)
+        main.pass_(None)
+        assert main.telemetry - counted == ap.telemetry_sent - sent  # none taken elsewhere
+        assert len(ap.received) - sent_od >= 7  # the process still sends (>= 10 Hz)
+    finally:
+        main.close()
+        ap.close()
