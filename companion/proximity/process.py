@@ -77,9 +77,10 @@ pass), which follows the newest authentic timestamp the autopilot sent: after an
 autopilot reboot (its streams forgotten) the process's stream is within the minute as the
 main loop's is. The sequence number is one counter in the shared block for both
 senders (before issue 34's last step, two interleaved counters made a ground station
-count every interleaving as loss); it is not atomic across processes, so two sends in
-the same microseconds may carry one number twice (measured: none in 200+ frames of the
-burst test; the test allows 1 %).
+count every interleaving as loss); it is not atomic across processes and is taken just
+before the send, so two sends in the same microseconds may carry one number twice or
+reach the wire in the other order (measured: 689 of 693 steps consecutive over 6 s of
+100 Hz main-loop sends beside the process).
 
 It sends every period (:attr:`ProximityConfig.rate_hz`) the sectors of the newest map;
 the main loop still sends each frame's sectors (its own stream, what a replay

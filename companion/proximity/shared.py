@@ -361,8 +361,9 @@ class SharedMap:
     def next_seq(self) -> int:
         """The MAVLink sequence number (0-255) of the companion's next frame, from either
         sender. Not atomic across the two processes: two sends in the same microseconds may
-        both take one number (the receiver counts one loss), rare at 10 + ~60 sends a
-        second, against a loss counted at every interleaving with two counters."""
+        both take one number, or send in the other order (the receiver counts a loss):
+        measured 4 in 693 frames at 100 + 20 sends a second, against a loss counted at
+        every interleaving with two counters."""
         words = self._control
         n = int(words[_C_SEQ])
         words[_C_SEQ] = n + 1
