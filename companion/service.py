@@ -8,14 +8,18 @@ MAVLink messages and setpoints onto the link, ``COMPANION EVENT <name> {json}`` 
 stdout, status documents on Zenoh. OBSTACLE_DISTANCE keeps its rate while this loop is
 busy: on a UDP link (by default, ``[proximity] own_process``) a process of its own sends
 it every period through this loop's socket, inherited through the fork, so the autopilot
-sees one peer (:mod:`companion.proximity.process`); this loop shares with it, in shared
-memory, the map copy taken after each frame, the core's newest pose, the socket's peers
-and the signing timestamp, and alone reads the socket. Elsewhere (serial, TCP, no fork,
-``own_process = false``, or a process that does not come up) a watchdog thread sends
-when this loop has sent none for 1.5 periods (:mod:`companion.proximity.stream`),
-reading the link itself for a fresh position (one lock for the link; the main loop takes
-what it read first). Neither with a recorder or viewer attached: a recording replays the
-core's sends bit for bit.
+sees one peer (:mod:`companion.proximity.process`). That process is the socket's only
+reader: it takes its pose from the telemetry as it arrives and forwards every datagram,
+unchanged and in order, to this loop, which parses them as if it had read them itself
+(:meth:`MavlinkConnection.forward_from`); when the process ends or stops running, this
+loop reads the socket itself (said once). This loop shares with it, in shared memory, the
+map copy taken after each frame, the core's newest pose (the process's fallback), the
+socket's peers, the signing timestamp and one MAVLink sequence counter. Elsewhere
+(serial, TCP, no fork, ``own_process = false``, or a process that does not come up) a
+watchdog thread sends when this loop has sent none for 1.5 periods
+(:mod:`companion.proximity.stream`), reading the link itself for a fresh position (one
+lock for the link; the main loop takes what it read first). Neither with a recorder or
+viewer attached: a recording replays the core's sends bit for bit.
 Around that, reporting only: the health file, the progress log, signing refusals and "no frames on
 our key" hints. The log goes to stderr.
 Recorders and viewers (``--record``, ``--rerun``) see every step's input and outputs
@@ -157,6 +161,8 @@ class CompanionService:
                     _log.error("%s: the watchdog thread sends instead", exc)
                 else:
                     if process.wait_ready():
+                        self.link.forward_from(process)
+                        self.link.seq_source = process.next_seq
                         return process
                     process.close()
                     _log.error(
@@ -218,14 +224,14 @@ class CompanionService:
 
     # ---- main loop -----------------------------------------------------------------
     def run(self, should_stop: Callable[[], bool]) -> None:
-        fds = [self.slot.fileno()]
-        if self.proximity is not None:
-            fds.append(self.proximity.fileno())
         link_fd = self.link.fileno()
-        if link_fd is not None:
-            fds.append(link_fd)
         timeout = 0.01 if link_fd is not None else 0.002
         while not should_stop() and self.fatal is None:
+            fds = [self.slot.fileno()]
+            if self.proximity is not None:
+                fds.append(self.proximity.fileno())  # with the process: what it forwards
+            if link_fd is not None and not self.link.forwarded:
+                fds.append(link_fd)
             try:
                 select.select(fds, [], [], timeout)
             except InterruptedError:
@@ -382,6 +388,9 @@ class CompanionService:
             + (f", {f['stale_pose']} all unknown (pose > 0.5 s old)" if f["stale_pose"] else "")
             + (f", {f['no_peer']} with no peer yet" if f["no_peer"] else "")
             + (f", {f['errors']} errors" if f["errors"] else "")
+            + f"; it read {f['forwarded']} datagrams for this loop"
+            + (f" ({f['forward_dropped']} dropped)" if f["forward_dropped"] else "")
+            + (", this loop reads the socket" if f["main_reads"] else "")
         )
 
     def _report_health(self, now_s: float) -> None:

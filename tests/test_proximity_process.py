@@ -1,6 +1,7 @@
 """OBSTACLE_DISTANCE from a process of its own (issue 34): the shared block gives the live
 map's sectors, the pose and the link; the process sends through the companion's own
-socket (the autopilot sees one peer) and never reads it, keeps >= 10 Hz while the
+socket (the autopilot sees one peer), forwards every datagram it reads there to the main
+loop (test_proximity_reader.py has the rest of that), keeps >= 10 Hz while the
 companion's interpreter is held, places the vehicle from the pose the main loop shares
 (all unknown once it is older than 0.5 s), signs as its own link no lower than the main
 loop, dies with the companion and says when it ended.
@@ -142,6 +143,8 @@ class _Autopilot:
         self.frames: list[bytes] = []  # every frame from the companion, in arrival order
         self.peers: list = []
         self.telemetry_sent = 0
+        self.vel_n_mps = 0.0  # fly(): north at this speed from POS
+        self.t0: float | None = None
         self.streaming = threading.Event()
         self.streaming.set()
         self._stop = threading.Event()
@@ -165,11 +168,22 @@ class _Autopilot:
             now = time.monotonic()
             if now >= next_s and self.peers and self.streaming.is_set():
                 next_s = now + 0.02
-                pos = mavlink.MAVLink_local_position_ned_message(0, *POS, 0.0, 0.0, 0.0)
+                north = self.north_m(now)
+                pos = mavlink.MAVLink_local_position_ned_message(
+                    0, north, *POS[1:], self.vel_n_mps if self.t0 else 0.0, 0.0, 0.0
+                )
                 att = mavlink.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
                 for m in (pos, att):
                     self.sock.sendto(m.pack(self.mav), self.peers[0])
                     self.telemetry_sent += 1
+
+    def fly(self, vel_n_mps: float) -> None:
+        """From now on, the telemetry's vehicle flies north at ``vel_n_mps`` from POS."""
+        self.vel_n_mps, self.t0 = vel_n_mps, time.monotonic()
+
+    def north_m(self, t_s: float) -> float:
+        """The vehicle's north at monotonic time ``t_s`` [m]."""
+        return POS[0] + (0.0 if self.t0 is None else self.vel_n_mps * max(t_s - self.t0, 0.0))
 
     def close(self) -> None:
         self._stop.set()
@@ -205,6 +219,8 @@ class _MainLoop:
     def start(self) -> None:
         self.process.start(self.link_state())
         assert self.process.wait_ready(), self.process.figures()
+        self.link.forward_from(self.process)  # as the service does
+        self.link.seq_source = self.process.next_seq
 
     def heartbeat(self) -> None:
         self.link.send(mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3))
@@ -252,8 +268,9 @@ def _spin_holding_the_gil(seconds: float) -> None:
 
 def test_the_process_sends_through_the_companions_socket_at_rate_and_places_the_vehicle():
     """One peer at the autopilot, every telemetry message read by the main loop, >= 10 Hz
-    while the interpreter is held, the distance ahead from the shared pose carried
-    forward, and all unknown once that pose is older than 0.5 s."""
+    while the interpreter is held, the distance ahead from the pose carried forward (the
+    process's own: the telemetry it reads flies as the shared pose does), and all unknown
+    once that pose is older than 0.5 s."""
     ap = _Autopilot()
     main = _MainLoop(f"udpout:127.0.0.1:{ap.port}")
     vel_n_mps = 0.3  # at most 3 m in the waits below: short of the wall
@@ -261,6 +278,7 @@ def test_the_process_sends_through_the_companions_socket_at_rate_and_places_the_
         main.start()
         main.heartbeat()  # the autopilot answers this port (the process's sends come from it)
         t0_ns = time.monotonic_ns()
+        ap.fly(vel_n_mps)  # the telemetry the process reads flies as the shared pose does
 
         def north_m(t_ns: float) -> float:
             return POS[0] + vel_n_mps * (t_ns - t0_ns) * 1e-9
@@ -286,8 +304,8 @@ def test_the_process_sends_through_the_companions_socket_at_rate_and_places_the_
         times = np.array([t for t, _ in got])
         assert times.size >= 10 * 1.5 * 0.8, times.size  # >= 10 Hz, with slack for load
         assert np.max(np.diff(times)) < 0.5, np.diff(times)  # the autopilots' timeout
-        # before the spin: the distance ahead is from the shared pose carried forward to
-        # the send (to a voxel)
+        # before the spin: the distance ahead is from the pose carried forward to the send
+        # (to a voxel)
         t, msg = next((t, m) for t, m, _ in reversed(ap.received) if t < start)
         assert msg.time_usec == 5_000
         expected_m = WALL_N_M - (north_m(t * 1e9) - POS[0])
@@ -298,7 +316,7 @@ def test_the_process_sends_through_the_companions_socket_at_rate_and_places_the_
         figures = main.process.figures()
         assert figures["alive"] and figures["errors"] == 0 and figures["stale_pose"] > 0
         assert figures["realtime"] == _may_be_realtime()
-        # one peer: the companion's port; and the process read none of the telemetry
+        # one peer: the companion's port; and the main loop has every telemetry message
         ap.streaming.clear()
         time.sleep(0.1)
         main.pass_(None)

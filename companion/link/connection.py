@@ -12,19 +12,30 @@ adds what the companion needs around it:
 * Counters of every refused or malformed frame (:class:`LinkCounters`), never an exception.
 * ``poll()`` drains everything that is waiting (a receiver that falls behind a 50 Hz ×
   speedup stream must drain, DESIGN.md budget), ``fileno()`` for ``select``.
+* A forwarder (:meth:`MavlinkConnection.forward_from`): another reader of a UDP socket
+  (the OBSTACLE_DISTANCE process) hands over each datagram with its source, and ``poll()``
+  parses them exactly as if it had read them itself (the same parser, signing check and
+  peer bookkeeping), then reads the socket itself whenever the forwarder says so.
+* A shared sequence number (:attr:`MavlinkConnection.seq_source`) for two senders of one
+  component.
 
 Network I/O happens in :meth:`open`, never in ``__init__``. The key never reaches a log.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import os
 import socket
 import struct
+import time
 import types
+from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -32,9 +43,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.config import SigningKey
 from protocols.signing import SignatureVerifier
 
-__all__ = ["LinkCounters", "MavlinkConnection"]
+__all__ = ["Forwarder", "LinkCounters", "MavlinkConnection"]
 
 _log = logging.getLogger("companion.link")
+_RCVBUF_BYTES = 1 << 20  # the UDP socket's receive buffer [bytes]
 
 
 @dataclass
@@ -49,6 +61,17 @@ class LinkCounters:
 
     def as_dict(self) -> dict[str, int]:
         return dataclasses.asdict(self)
+
+
+class Forwarder(Protocol):
+    """Another reader of the link's UDP socket
+    (:class:`~companion.proximity.process.ProximityProcess`)."""
+
+    def forwarded(self) -> list[tuple[tuple[str, int], bytes]]:
+        """Datagrams read since the last call, with their sources, oldest first."""
+
+    def main_reads(self) -> bool:
+        """True while this connection must read the socket itself."""
 
 
 def _verified_by(verifier: SignatureVerifier):
@@ -101,6 +124,11 @@ class MavlinkConnection:
         self._conn = None
         self._resolved: tuple[str, str] | None = None  # udpout: (host, its IPv4 address)
         self.counters = LinkCounters()
+        self._forwarder: Forwarder | None = None
+        self._inbox: deque[tuple[tuple[str, int], bytes]] = deque()
+        self._reads_socket = True
+        #: Where the sequence number of each frame sent comes from (None: pymavlink's own)
+        self.seq_source: Callable[[], int] | None = None
 
     @property
     def signing(self) -> bool:
@@ -123,6 +151,11 @@ class MavlinkConnection:
         except (OSError, ValueError) as exc:
             raise OSError(f"cannot open MAVLink connection {self.url!r}: {exc}") from None
         conn.mav.robust_parsing = True
+        if isinstance(conn, mavutil.mavudp):
+            # room for a burst while the reader is off the processor (a loaded machine, the
+            # OBSTACLE_DISTANCE process descheduled): the kernel caps it at rmem_max
+            with contextlib.suppress(OSError):
+                conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _RCVBUF_BYTES)
         if self._signing_key is not None:
             conn.setup_signing(
                 self._signing_key.secret,
@@ -176,6 +209,41 @@ class MavlinkConnection:
                 return []
         return [(self._resolved[1], int(port))]
 
+    def forward_from(self, forwarder: Forwarder | None) -> None:
+        """Take the datagrams ``forwarder`` read from this UDP link's socket (None: read the
+        socket again, alone). ``poll()`` parses them in order, as pymavlink's own UDP reader
+        would (a ``udpin`` socket learns its peers from them), before anything it reads
+        from the socket itself, which it does only while ``forwarder.main_reads()``."""
+        conn = self._conn
+        if not isinstance(conn, mavutil.mavudp):
+            raise ValueError(f"only a UDP link's datagrams can be forwarded, not {self.url!r}")
+        self._forwarder = forwarder
+        if forwarder is None:
+            conn.__dict__.pop("recv", None)  # pymavlink's own reader again
+            self._reads_socket = True
+            return
+        own_recv = type(conn).recv.__get__(conn)
+        inbox = self._inbox
+
+        def recv(n=None):
+            if inbox:
+                addr, data = inbox.popleft()
+                if conn.udp_server:
+                    conn.clients.add(addr)
+                    conn.clients_last_alive[addr] = time.time()
+                elif conn.broadcast:
+                    conn.last_address = addr
+                return data
+            return own_recv(n) if self._reads_socket else ""
+
+        conn.recv = recv
+
+    @property
+    def forwarded(self) -> bool:
+        """Whether another process reads the socket now (select on the forwarder, not on
+        :meth:`fileno`)."""
+        return self._forwarder is not None and not self._reads_socket
+
     @property
     def signing_timestamp(self) -> int:
         """The timestamp our next signed frame carries [10 µs since 2015-01-01]; 0 without
@@ -191,6 +259,10 @@ class MavlinkConnection:
         if conn is None:
             return out
         c = self.counters
+        forwarder = self._forwarder
+        if forwarder is not None:
+            self._inbox.extend(forwarder.forwarded())
+            self._reads_socket = forwarder.main_reads()
         for _ in range(max_messages):
             try:
                 msg = conn.recv_msg()
@@ -199,6 +271,8 @@ class MavlinkConnection:
                 _log.debug("MAVLink receive error: %s", exc)
                 break
             if msg is None:
+                if self._inbox:  # a forwarded datagram with no whole frame: the next
+                    continue
                 break
             mtype = msg.get_type()
             if mtype == "BAD_DATA":
@@ -223,6 +297,8 @@ class MavlinkConnection:
         if self._conn is None:
             return False
         try:
+            if self.seq_source is not None:
+                self._conn.mav.seq = self.seq_source()
             self._conn.mav.send(msg)
         except (OSError, mavlink.MAVError) as exc:
             self.counters.send_errors += 1

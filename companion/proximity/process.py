@@ -18,10 +18,30 @@ took 17.7 s to import at load 21), after the sector kernel is loaded.
 inherited through the fork, to the peers the main loop sends to (``udpout``'s destination,
 or every peer a ``udpin`` socket has heard from: :meth:`MavlinkConnection.udp_peers
 <companion.link.connection.MavlinkConnection.udp_peers>`), so the autopilot, a router or a
-serial-to-UDP bridge that answers only one peer sees one: the companion's port. It never
-reads that socket: the main loop does, and two readers would take each other's
-datagrams. Serial ports and TCP streams are not shared (a frame written by one process
-could interleave with the other's): the watchdog thread sends there.
+serial-to-UDP bridge that answers only one peer sees one: the companion's port. Serial
+ports and TCP streams are not shared (a frame written by one process could interleave
+with the other's): the watchdog thread sends there.
+
+**The socket's only reader.** Measured at stop 43: at load 18–24 the main loop stalled for
+~2 s on two 8 m/s approaches; a pose that only the main loop read went stale, the process
+sent every sector unknown, and ArduCopter, with no data, let the pilot fly on. So the
+process reads the socket (two readers would take each other's datagrams: the main loop
+does not): it places the vehicle with the LOCAL_POSITION_NED and ATTITUDE it decodes
+itself as they arrive (:mod:`~companion.proximity.pose_reader`: only those two, found by
+the message id in the header; with a key only correctly signed ones, with its own replay
+state), and forwards every datagram, unchanged and in order, with its source address, to
+the main loop (:mod:`~companion.proximity.forward`: a local stream socket created before
+the fork, 2 MB of buffer and 8 MB of queue in the process, drops counted), which parses
+them exactly as it parsed its own reads
+(:meth:`~companion.link.connection.MavlinkConnection.forward_from`: signing, TIMESYNC,
+peers unchanged) and keeps sending on the socket. Telemetry is never lost to a dead or
+stopped helper: when the process has ended (``waitpid``, or its end of the stream closed)
+or has not run its loop for :data:`FORWARD_STALL_S`, the main loop reads the socket
+itself (:meth:`ProximityProcess.main_reads`, checked every pass; said in the log the
+first time, counted as ``takeovers``), and hands it back when a stopped process runs
+again. At the hand-over a datagram the process had read but not yet forwarded reaches
+the main loop after the ones it reads itself (reordered, not lost), unless the process
+was killed holding it (lost: at most what arrived in its last pass).
 
 What the process has from the main loop (:class:`~companion.proximity.shared.SharedMap`,
 one shared-memory block, a sequence lock per part: the main loop never waits; a copy read
@@ -31,15 +51,19 @@ during a write is discarded and the previous one kept):
   frame;
 * **the pose** the core accepted from LOCAL_POSITION_NED and ATTITUDE (after its range,
   boot-time and ordering checks), with the host time its position was read, written
-  whenever it changed. At each send the position is carried forward by its velocity over
-  its age (:func:`~companion.proximity.sender.pose_age_s`): the host time since the main
-  loop read it × the frame clock's rate, and with frames on the host clock at least the
+  whenever it changed: the fallback, used while the main loop reads the socket itself
+  or before the process has a pose of its own. At each send the position (the process's
+  own or this one) is carried forward by its velocity over its age
+  (:func:`~companion.proximity.sender.pose_age_s`): the host time since it was read × the
+  frame clock's rate, and with frames on the host clock at least the
   time since the autopilot stamped it (TIMESYNC-mapped: it counts the time the message
   waited for a busy main loop). A pose older than
   :data:`~companion.proximity.sender.POSE_STALE_S` (0.5 s) places nothing: every sector
-  goes out unknown (``UINT16_MAX``), never clear, until the main loop reads telemetry
-  again; counted (``stale_pose``);
+  goes out unknown (``UINT16_MAX``), never clear, until telemetry arrives again; counted
+  (``stale_pose``);
 * **the link**: the peers and the main loop's signing timestamp;
+* **the reader hand-over** and **one MAVLink sequence counter** for both senders
+  (:meth:`~companion.proximity.shared.SharedMap.next_seq`);
 * the frame clock's rate and newest stamp (the message's ``time_usec`` before a map).
 
 **Signing.** MAVLink 2 keys the replay check by (system, component, link id): each stream's
@@ -51,52 +75,51 @@ process signs as link id :data:`SIGNING_LINK_ID` (the main loop is link 0): two 
 each strictly increasing. Its timestamp never falls below the main loop's (shared each
 pass), which follows the newest authentic timestamp the autopilot sent: after an
 autopilot reboot (its streams forgotten) the process's stream is within the minute as the
-main loop's is. The companion's sequence numbers are two interleaved counters (one per
-sender): a ground station's loss figure for component 196 counts the interleaving as
-loss (named limitation).
+main loop's is. The sequence number is one counter in the shared block for both
+senders (before issue 34's last step, two interleaved counters made a ground station
+count every interleaving as loss); it is not atomic across processes and is taken just
+before the send, so two sends in the same microseconds may carry one number twice or
+reach the wire in the other order (measured: 689 of 693 steps consecutive over 6 s of
+100 Hz main-loop sends beside the process).
 
 It sends every period (:attr:`ProximityConfig.rate_hz`) the sectors of the newest map;
 the main loop still sends each frame's sectors (its own stream, what a replay
 reproduces). It dies with the companion: ``PR_SET_PDEATHSIG`` and a parent check every
 period; its log lines go to the companion's stderr (the inherited logger) and its figures
-(sends, errors, longest gap, real-time) to the companion's status and exit statistics.
+(sends, errors, longest gap, real-time, datagrams forwarded and dropped, sends placed with
+its own pose, the oldest pose a send used) to the companion's status and exit
+statistics. Its loop is :mod:`companion.proximity.child`.
 """
 
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import logging
-import math
 import os
 import select
 import signal
-import socket
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
-
-from companion.known_space import KnownSpaceConfig
-from companion.link.messages import obstacle_distance_message
-from companion.proximity.sectors import ProximityConfig
-from companion.proximity.sender import ProximitySender, pose_age_s, position_at_send
+from companion.proximity.child import SIGNING_LINK_ID, ProcessSpec, run_child
+from companion.proximity.forward import ForwardReader, forward_pair
+from companion.proximity.sender import ProximitySender
 from companion.proximity.shared import SharedLink, SharedMap, SharedPose
 from companion.proximity.stream import MapSnapshot, VehiclePose, warm_up
-from protocols.signing import signing_timestamp_now
 
 __all__ = [
+    "FORWARD_STALL_S",
     "SIGNING_LINK_ID",
     "ProcessSpec",
     "ProximityProcess",
     "own_process_refusal",
 ]
 
-#: MAVLink 2 signing link id of the process's stream (the main loop signs as link 0).
-SIGNING_LINK_ID = 1
 _READY_TIMEOUT_S = 30.0  # a forked process: seconds only on a starved machine
-_LATE_S = 0.25  # a send this long after the previous one is logged [s host]
-_PR_SET_PDEATHSIG = 1
+#: The process has not run its loop for this long [s host]: the main loop reads the socket
+#: itself until it runs again (the core's telemetry failsafe would count a longer wait as
+#: lost telemetry; three periods of sends).
+FORWARD_STALL_S = 0.3
 _log = logging.getLogger("companion")
 
 
@@ -110,19 +133,6 @@ def own_process_refusal(url: str) -> str | None:
     if not url.startswith(("udpout:", "udpin:", "udp:")):
         return f"the link {url.split(':', 1)[0]!r} is not a UDP socket two processes can share"
     return None
-
-
-@dataclass(frozen=True)
-class ProcessSpec:
-    """What the process needs."""
-
-    proximity: ProximityConfig
-    space: KnownSpaceConfig
-    link_fd: int  # the companion's UDP socket, inherited through the fork
-    system_id: int
-    component_id: int
-    signing_secret: bytes | None
-    parent_pid: int
 
 
 class ProximityProcess:
@@ -145,7 +155,11 @@ class ProximityProcess:
         self._pose: SharedPose | None = None  # as last shared
         self._pose_key: tuple | None = None
         self._proc: _Forked | None = None
-        self._rfd, self._wfd = os.pipe()  # never readable: the service selects on it too
+        self._rfd, self._wfd = os.pipe()  # never readable: selected on with no reader
+        self._reader: ForwardReader | None = None  # the datagrams the process forwards
+        self._main_reads = False  # the main loop reads the socket itself (the process not)
+        self._takeovers = 0  # times the main loop took the socket over
+        self._local_seq = 0  # the sequence number once the shared block is closed
         self._exit_reported = False
         self._final: dict | None = None  # the figures as of close()
         self._ready = False
@@ -159,24 +173,32 @@ class ProximityProcess:
         Raises RuntimeError when it cannot be started."""
         warm_up()  # here: the main loop's sends need the kernel too, and the child has it
         self._shared.write_link(link)
+        self._shared.set_main_reads(False)
+        self._shared.set_alive_ns(time.monotonic_ns())
         ready_r, ready_w = os.pipe()
+        ours, theirs = forward_pair()
         try:
             pid = os.fork()
         except OSError as exc:
-            os.close(ready_r)
-            os.close(ready_w)
+            for fd in (ready_r, ready_w):
+                os.close(fd)
+            ours.close()
+            theirs.close()
             raise RuntimeError(f"OBSTACLE_DISTANCE process did not start: {exc}") from None
         if pid == 0:  # the child: never returns into the companion's code
             code = 1
             try:
                 os.close(ready_r)
-                code = _child(self._spec, self._shared, ready_w)
+                ours.close()
+                code = run_child(self._spec, self._shared, ready_w, theirs)
             except BaseException:
                 with contextlib.suppress(BaseException):
                     _log.exception("OBSTACLE_DISTANCE process failed")
             finally:
                 os._exit(code)
         os.close(ready_w)
+        theirs.close()
+        self._reader = ForwardReader(ours)
         self._proc = _Forked(pid, ready_r)
 
     def wait_ready(self, timeout_s: float = _READY_TIMEOUT_S) -> bool:
@@ -216,16 +238,64 @@ class ProximityProcess:
             if proc.stdout is not None:
                 proc.stdout.close()
             self._proc = None
+        if self._reader is not None:
+            self._reader.close()
+            self._reader = None
+        self._main_reads = True
         self._shared.close()
         for fd in (self._rfd, self._wfd):
             with contextlib.suppress(OSError):
                 os.close(fd)
 
     def fileno(self) -> int:
-        return self._rfd
+        """What the main loop selects on: the forwarded datagrams while the process reads
+        the socket (else a descriptor never readable)."""
+        reader = self._reader
+        return self._rfd if reader is None or reader.closed else reader.fileno()
 
     def take_inbox(self) -> list:
-        return []  # the process never reads the link: the main loop does
+        return []  # what the process reads reaches the main loop through forwarded()
+
+    # ---- the socket's reader (the link's forwarder: MavlinkConnection.forward_from) -----
+    def forwarded(self) -> list[tuple[tuple[str, int], bytes]]:
+        """The datagrams the process read since the last call, in order."""
+        reader = self._reader
+        return [] if reader is None else reader.take()
+
+    def main_reads(self) -> bool:
+        """Whether the main loop must read the socket itself: the process ended, its
+        forwarding stream closed, or it has not run its loop for :data:`FORWARD_STALL_S`
+        (until it runs again). Said in the log the first time; counted each time."""
+        proc, reader = self._proc, self._reader
+        if proc is None or reader is None or proc.poll() is not None:
+            why = "ended"
+        elif reader.closed:
+            why = "stopped forwarding"
+        elif time.monotonic_ns() - self._shared.alive_ns() > FORWARD_STALL_S * 1e9:
+            why = f"has not run for {FORWARD_STALL_S} s"
+        else:
+            why = None
+        if (why is not None) != self._main_reads:
+            self._main_reads = why is not None
+            if self._shared.header is not None:
+                self._shared.set_main_reads(self._main_reads)
+            if self._main_reads:
+                self._takeovers += 1
+                log = _log.warning if self._takeovers == 1 else _log.debug
+                log(
+                    "the OBSTACLE_DISTANCE process %s (it read the companion's socket): the "
+                    "main loop reads it itself%s",
+                    why,
+                    " until the process runs again" if why.startswith("has not") else "",
+                )
+        return self._main_reads
+
+    def next_seq(self) -> int:
+        """The companion's next MAVLink sequence number, shared with the process."""
+        if self._shared.header is None:  # closed
+            self._local_seq = (self._local_seq + 1) % 256
+            return self._local_seq
+        return self._shared.next_seq()
 
     def observe(self, messages, now_ns: int) -> None:
         """Nothing: the pose comes from the core, through :meth:`share`."""
@@ -287,32 +357,14 @@ class ProximityProcess:
             "longest_gap_s": round(sh.counter("longest_us") * 1e-6, 3),
             "main_longest_gap_s": round(self.sender.longest_gap_s, 3),
             "map_overflows": sh.overflows,
+            "forwarded": sh.counter("forwarded"),
+            "forward_dropped": sh.counter("forward_dropped"),
+            "own_pose": sh.counter("own_pose"),
+            "pose_refused": sh.counter("pose_refused"),
+            "pose_age_max_s": round(sh.counter("pose_age_max_us") * 1e-6, 3),
+            "main_reads": self._main_reads,
+            "takeovers": self._takeovers,
         }
-
-
-# ---- the process --------------------------------------------------------------------------
-
-
-def _die_with_parent() -> None:
-    with contextlib.suppress(OSError, AttributeError):
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-
-
-def _realtime(priority: int) -> bool:
-    """``SCHED_FIFO`` at ``priority`` (0: none); False (said once) when not permitted."""
-    if priority <= 0:
-        return False
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (OSError, AttributeError) as exc:
-        _log.info(
-            "OBSTACLE_DISTANCE process: no real-time priority (%s): it runs as a normal task "
-            "and may wait for a processor on a loaded machine",
-            exc,
-        )
-        return False
-    return True
 
 
 class _Forked:
@@ -349,137 +401,6 @@ class _Forked:
         return True
 
 
-def _child(spec: ProcessSpec, shared: SharedMap, ready_fd: int) -> int:
-    """The forked process: ends with the companion, leaves the companion's signal
-    handlers (SIGTERM ends it; SIGINT is the companion's to handle), then sends."""
-    _die_with_parent()
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if os.getppid() != spec.parent_pid:
-        return 0
-    return _run(spec, shared, ready_fd)
-
-
-class _Wire:
-    """The process's writes on the companion's socket: OBSTACLE_DISTANCE, signed as link
-    :data:`SIGNING_LINK_ID` with a timestamp never below the main loop's, to each peer."""
-
-    def __init__(self, spec: ProcessSpec) -> None:
-        # a duplicate of the inherited descriptor: closing it leaves the companion's alone;
-        # its blocking mode (shared with the companion) is not touched
-        self._sock = socket.socket(fileno=os.dup(spec.link_fd))
-        self._mav = mavlink.MAVLink(None, srcSystem=spec.system_id, srcComponent=spec.component_id)
-        self._signing = spec.signing_secret is not None
-        if self._signing:
-            sig = self._mav.signing
-            sig.secret_key = spec.signing_secret
-            sig.link_id = SIGNING_LINK_ID
-            sig.sign_outgoing = True
-            sig.timestamp = signing_timestamp_now()
-
-    def send(self, msg, link: SharedLink) -> tuple[int, int]:
-        """(datagrams sent, failed) to ``link``'s peers."""
-        mav = self._mav
-        if self._signing:
-            mav.signing.timestamp = max(mav.signing.timestamp, link.signing_floor)
-        buf = msg.pack(mav)
-        mav.seq = (mav.seq + 1) % 256
-        sent = failed = 0
-        for addr in link.peers:
-            try:
-                self._sock.sendto(buf, addr)
-                sent += 1
-            except OSError as exc:  # a full buffer (the socket is non-blocking), no route
-                failed += 1
-                _log.debug("OBSTACLE_DISTANCE process: send to %s failed: %s", addr, exc)
-        return sent, failed
-
-    def close(self) -> None:
-        self._sock.close()
-
-
-def _run(spec: ProcessSpec, shared: SharedMap, ready_fd: int) -> int:
-    wire = _Wire(spec)
-    shared.set_counter("realtime", _realtime(spec.proximity.realtime_priority))
-    sender = ProximitySender(spec.proximity)
-    snapshot: MapSnapshot | None = None
-    pose: SharedPose | None = None
-    link = SharedLink((), 0)
-    seen_seq = -1
-    period_s = sender.period_s
-    next_s = time.monotonic()
-    last_s = float("-inf")
-    os.write(ready_fd, b"ready\n")
-    os.close(ready_fd)
-    while os.getppid() == spec.parent_pid:
-        now_s = time.monotonic()
-        if now_s < next_s:
-            time.sleep(next_s - now_s)
-            now_s = time.monotonic()
-        try:
-            seq = shared.sequence()
-            if seq != seen_seq:
-                ok, snap = shared.read()
-                if ok:
-                    snapshot, seen_seq = snap, seq
-            ok, newest = shared.read_pose()
-            if ok:
-                pose = newest
-            ok, newest_link = shared.read_link()
-            if ok and newest_link is not None:
-                link = newest_link
-            _send(wire, link, sender, shared, pose, snapshot, now_s)
-        except Exception:  # counted and logged: the stream must go on
-            shared.count("errors")
-            _log.exception("OBSTACLE_DISTANCE process: a send failed")
-        gap_s = now_s - last_s
-        if math.isfinite(gap_s):
-            shared.set_counter("longest_us", max(shared.counter("longest_us"), int(gap_s * 1e6)))
-            if gap_s > _LATE_S:
-                shared.count("late")
-                _log.warning(
-                    "OBSTACLE_DISTANCE process late: %.3f s since its previous send", gap_s
-                )
-        last_s = now_s
-        next_s = max(next_s + period_s, now_s + 0.5 * period_s)
-    wire.close()  # the shared block is the companion's: it unlinks it
-    return 0
-
-
-def _send(
-    wire: _Wire,
-    link: SharedLink,
-    sender: ProximitySender,
-    shared: SharedMap,
-    pose: SharedPose | None,
-    snapshot: MapSnapshot | None,
-    now_s: float,
-) -> None:
-    rate, stamp_ns = shared.clock()
-    pos = yaw = None
-    if snapshot is None:
-        shared.count("no_map")
-    if pose is not None:
-        age_s = pose_age_s(
-            time.monotonic_ns(), pose.received_ns, pose.frame_ns, rate, pose.host_frame_clock
-        )
-        pos = position_at_send(pose.pos_ned_m, pose.vel_ned_mps, age_s)
-        if pos is None:
-            shared.count("stale_pose")
-        else:
-            yaw = pose.yaw_rad
-    if snapshot is not None and snapshot.capture_ns is not None:
-        stamp_ns = snapshot.capture_ns
-    sectors = sender.on_timer(snapshot, pos, yaw, now_s)
-    sent, failed = wire.send(obstacle_distance_message(max(stamp_ns, 0) // 1000, sectors), link)
-    if sent:
-        shared.count("sent")
-    elif not failed:
-        shared.count("no_peer")  # udpin before any peer wrote to the companion
-    if failed:
-        shared.count("errors", failed)
-
-
 def new_spec(config, sender: ProximitySender, link_fd: int) -> ProcessSpec:
     """The spec of a companion configuration (:class:`~companion.config.CompanionConfig`)
     whose link's socket is ``link_fd``."""
@@ -492,4 +413,5 @@ def new_spec(config, sender: ProximitySender, link_fd: int) -> ProcessSpec:
         component_id=link.component_id,
         signing_secret=None if link.signing_key is None else link.signing_key.secret,
         parent_pid=0,
+        autopilot=(link.target_system, link.target_component),
     )

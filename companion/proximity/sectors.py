@@ -94,7 +94,9 @@ class ProximityConfig:
         With ``thread``: the stream runs in a process of its own
         (:mod:`companion.proximity.process`) that sends every period through the
         companion's own UDP socket (inherited through the fork: the autopilot sees one
-        peer), so it keeps the rate while the companion's interpreter is busy. On by
+        peer) and is that socket's only reader (its own pose from the telemetry as it
+        arrives; every datagram forwarded to the main loop), so it keeps the rate and a
+        fresh pose while the companion's interpreter is busy or stalled. On by
         default on ``udpout``, ``udpin`` and ``udp`` links where the system can fork; the
         watchdog thread elsewhere (serial, TCP), when off, and when the process does not
         come up (each said in the log).
