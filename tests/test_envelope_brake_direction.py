@@ -90,11 +90,14 @@ def test_braking_on_a_slow_staged_climb_states_a_bound_it_flies_within():
 
 
 def test_a_climb_the_statement_does_not_explain_still_reads_as_overspeed():
-    vel = _vel(0.3, 0.45)  # 56° up: nothing was stated that lets it climb so
+    vel = _vel(0.8, 1.2)  # 56° up, 1.44 m/s: nothing was stated that lets it climb so
     out = envelope_step(
         pos_ned_m=np.zeros(3), vel_ned_mps=vel, setpoint_ned_m=np.array([0.0, 3.0, -0.5]),
         free_distance=_free_seen_at_12_deg_north, vehicle_radius_m=0.35,
         max_path_elevation_rad=ELEV_RAD, heading_rad=0.0,
     )  # fmt: skip
-    assert out.free_distance_m == pytest.approx(0.3) and out.speed_limit_mps == 0.0
+    np.testing.assert_allclose(out.path_dir_ned, vel / np.linalg.norm(vel), atol=1e-12)
+    assert out.free_distance_m == pytest.approx(0.3)
+    # its stop (0.73 m) does not fit in the 0.3 m seen free along it: over the bound
+    assert out.speed_limit_mps == pytest.approx(2.0 * (-0.15 + math.sqrt(0.0225 + 0.3)))
     assert out.overspeed

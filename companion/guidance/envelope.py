@@ -46,6 +46,11 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    climb steeper than the path only by the least climb speed the companion states is
    measured at the path's elevation (:func:`~companion.guidance.envelope_direction.
    brake_direction`: the slack's rise over a stop stays inside the section's height).
+   The bound stated while braking keeps no margin: ``margin_m`` is the reserve a brake
+   may use. A drop of ``F_v`` to the body's own bubble (a staged climb entering the voxel
+   layer above, unseen near the vehicle for 3–4 frames, vertical-123 stereo) then states
+   the fastest speed whose stop still ends in space seen free, not 0 m/s at 0.3 m/s;
+   only a stop that no longer fits there (something new nearer) reads as overspeed.
 7. **Vertical moves in stages** (issue 36): a setpoint steeper than
    ``max_path_elevation_rad`` whose horizontal distance is below ``stage_horizontal_m``
    (a goal straight above or below) is climbed to, or descended to, along the vehicle's
@@ -487,7 +492,7 @@ def _brake_steps(
             carrot, limited = brake.copy(), True
         direction = brake_direction(vel, max_elev_rad)
         free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
-        limit = _limit_mps(free, tau, cfg)
+        limit = min(speed_limit_mps(free, tau, cfg.accel_mps2, 0.0), cfg.max_speed_mps)
     elif momentum:
         carrot, limited = pos.copy(), True
     if brake is not None:
