@@ -122,7 +122,10 @@ def test_too_little_room_brakes_at_the_current_position():
     )
     np.testing.assert_array_equal(out.setpoint_ned_m, pos)
     assert out.limited
-    assert out.speed_limit_mps < 0.3  # 2·(−0.15 + √(0.0225 + 0.05)) = 0.24 m/s
+    # braking, the bound keeps no margin: 2·(−0.15 + √(0.0225 + 0.35)) = 0.92 m/s, whose
+    # stop ends at the edge of the 0.35 m seen free; at 0.5 m/s the stop (0.14 m) fits
+    assert out.speed_limit_mps == pytest.approx(2.0 * (-0.15 + math.sqrt(0.0225 + 0.35)))
+    assert not out.overspeed
 
 
 def _free_by_direction(free_of):
@@ -152,7 +155,7 @@ def test_a_turn_at_speed_brakes_first_and_states_the_bound_of_the_way_it_moves()
     np.testing.assert_array_equal(out.setpoint_ned_m, pos)
     np.testing.assert_allclose(out.path_dir_ned, (1.0, 0.0, 0.0))
     assert out.free_distance_m == 8.0
-    v8 = speed_limit_mps(8.0, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+    v8 = speed_limit_mps(8.0, CFG.latency_s, CFG.accel_mps2, 0.0)  # braking: no margin
     assert out.speed_limit_mps == pytest.approx(v8)
     assert out.speed_mps <= out.speed_limit_mps and not out.overspeed
     # slow enough for the new direction: it turns, with that direction's bound
@@ -182,14 +185,15 @@ def test_a_hold_entered_at_speed_states_the_bound_it_brakes_in():
     )
     np.testing.assert_array_equal(out.setpoint_ned_m, pos)
     assert out.speed_limit_mps == pytest.approx(
-        speed_limit_mps(8.0, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+        speed_limit_mps(8.0, CFG.latency_s, CFG.accel_mps2, 0.0)
     )
     assert not out.overspeed
 
 
 def test_space_shrinking_ahead_at_speed_is_reported_as_overspeed():
     """Everything ahead 1 m free at 3 m/s (something new seen): brake, and the stated
-    bound (1.4 m/s) is honest, so the speed is reported over it."""
+    bound (1.72 m/s: the stop in 1 m, the margin being the brake's reserve) is honest, so
+    the speed is reported over it."""
     pos = np.array([0.0, 0.0, -7.0])
     out = envelope_step(
         **SECTION,
@@ -200,9 +204,31 @@ def test_space_shrinking_ahead_at_speed_is_reported_as_overspeed():
     )
     np.testing.assert_array_equal(out.setpoint_ned_m, pos)
     assert out.speed_limit_mps == pytest.approx(
-        speed_limit_mps(1.0, CFG.latency_s, CFG.accel_mps2, CFG.margin_m)
+        speed_limit_mps(1.0, CFG.latency_s, CFG.accel_mps2, 0.0)
     )
     assert out.overspeed
+
+
+@pytest.mark.parametrize("speed_mps", [0.31, 0.5, 0.8])
+def test_a_drop_to_the_body_bubble_while_slow_states_a_stop_that_fits(speed_mps):
+    """Known-free space ahead drops to the body's own 0.3 m (the margin) at a slow speed
+    (a staged climb entering the voxel layer above, vertical-123 stereo): the vehicle
+    brakes, and the bound stated is the fastest speed whose stop ends inside those 0.3 m,
+    0.84 m/s, not 0 m/s; its own stop fits, so it is not reported over it."""
+    pos = np.array([0.0, 0.0, -7.0])
+    out = envelope_step(
+        **SECTION,
+        pos_ned_m=pos,
+        vel_ned_mps=(speed_mps, 0.0, 0.0),
+        setpoint_ned_m=(10.0, 0.0, -7.0),
+        free_distance=_const_free(CFG.margin_m),
+    )
+    np.testing.assert_array_equal(out.setpoint_ned_m, pos)  # it brakes
+    v_fit = speed_limit_mps(CFG.margin_m, CFG.latency_s, CFG.accel_mps2, 0.0)
+    assert out.speed_limit_mps == pytest.approx(v_fit)
+    assert stopping_distance_m(v_fit, CFG.latency_s, CFG.accel_mps2) == pytest.approx(CFG.margin_m)
+    assert stopping_distance_m(speed_mps, CFG.latency_s, CFG.accel_mps2) <= CFG.margin_m
+    assert not out.overspeed
 
 
 @pytest.mark.parametrize("rise_m", [5.0, -4.0])

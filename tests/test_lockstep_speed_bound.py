@@ -10,7 +10,7 @@ from test_lockstep_wall import assert_safe_stop
 
 from companion.guidance.envelope import EnvelopeConfig
 from evaluation.harness import RunConfig, run_scene
-from evaluation.passage_scenes import corridor_scene, gap_scene
+from evaluation.passage_scenes import corridor_scene, gap_scene, passage_scene
 from evaluation.scenes import Scene, mixed_scene, wall_scene
 from plant_sim.profiles import profile
 from plant_sim.world import Box, World
@@ -35,9 +35,9 @@ SCENES = {
 }
 
 
-def _fast_run(scene: Scene):
+def _fast_run(scene: Scene, max_time_s: float = 40.0):
     fast = profile("fast")
-    cfg = RunConfig(vehicle=fast.vehicle, control=fast.control, max_time_s=40.0)
+    cfg = RunConfig(vehicle=fast.vehicle, control=fast.control, max_time_s=max_time_s)
     return run_scene(scene, cfg)
 
 
@@ -52,6 +52,21 @@ def _fast_run(scene: Scene):
 @pytest.mark.parametrize("name", sorted(SCENES))
 def test_speed_never_exceeds_the_stated_limit_at_the_fast_airframe(name):
     _assert_within_the_stated_limit(name, _fast_run(SCENES[name]()))
+
+
+# A staged climb beside a wall (issue 36, the vertical family): the goal 5.5 m straight
+# above, the stages 12° up along the heading. ArduCopter climbs at the least climb speed
+# stated (0.1 m/s) while the stage is flown slowly, steeper than the path and above the
+# camera's view; at the paper airframe the bound stated along that velocity while
+# braking was 0 m/s on 15 frames of this scene (docs/safety-envelope.md). The first 25 s
+# hold the stages, the turns and the brakes between them; at the fast airframe main
+# (dc01db0) flew them within the bound too (worst 0.10 m/s over): a guard, not a
+# reproducer.
+@pytest.mark.slow
+@pytest.mark.own_flight
+def test_speed_never_exceeds_the_stated_limit_on_a_staged_climb_at_the_fast_airframe():
+    result = _fast_run(passage_scene(215, "vertical"), max_time_s=25.0)
+    _assert_within_the_stated_limit("vertical-215", result)
 
 
 @pytest.fixture(scope="module")

@@ -117,6 +117,7 @@ from companion.guidance.modes import Mode, Reason
 from companion.guidance.path_rules import prefer_known_path
 from companion.guidance.planner import choose_aiming_point, overlapping_cluster
 from companion.guidance.progress import Progress, watch_progress
+from companion.guidance.stage_yaw import stage_yaw_rad
 from companion.guidance.step_types import GuidanceOutput, GuidanceState
 from protocols.config import vec3
 
@@ -491,14 +492,25 @@ def _latch_hold(state, f: _Frame, d: _Decision) -> tuple[float, float, float] | 
 
 
 def _yaw(state, f: _Frame, d: _Decision, yaw_rad: float | None, cfg) -> float:
-    """Face the horizontal direction to the setpoint; else hold the previous yaw."""
+    """Face the horizontal direction to the setpoint; else hold the previous yaw, turned
+    off a boundary when a setpoint straight above or below is staged into one
+    (:func:`~companion.guidance.stage_yaw.stage_yaw_rad`)."""
     previous_yaw = state.yaw_rad if state.yaw_rad is not None else yaw_rad
     to_setpoint = d.setpoint - f.pos
     if d.mode is not Mode.HOLD and math.hypot(to_setpoint[0], to_setpoint[1]) >= max(
         cfg.yaw_min_distance_m, 1e-9
     ):
         return math.atan2(float(to_setpoint[1]), float(to_setpoint[0]))
-    return 0.0 if previous_yaw is None else float(previous_yaw)
+    if previous_yaw is None:
+        return 0.0
+    if d.mode is not Mode.HOLD:
+        spheres = [(t.sphere.center_ned_m, t.sphere.radius_m) for t in f.tracks]
+        turned = stage_yaw_rad(
+            f.pos, d.setpoint, float(previous_yaw), spheres, cfg.max_aim_elevation_rad
+        )
+        if turned is not None:
+            return turned
+    return float(previous_yaw)
 
 
 def _outputs(f: _Frame, d: _Decision, memory, hold, yaw: float, progress: Progress):

@@ -42,7 +42,15 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    stated is the one along the *velocity*, the way the vehicle actually moves while it
    brakes: the known-free distance ``F_v`` along ``v/|v|`` and its limit, so the stated
    speed is the flown speed. When ``F_v`` itself shrank below the stopping distance
-   (something new ahead), the limit is below the speed and ``overspeed`` reports it.
+   (something new ahead), the limit is below the speed and ``overspeed`` reports it. A
+   climb steeper than the path only by the least climb speed the companion states is
+   measured at the path's elevation (:func:`~companion.guidance.envelope_direction.
+   brake_direction`: the slack's rise over a stop stays inside the section's height).
+   The bound stated while braking keeps no margin: ``margin_m`` is the reserve a brake
+   may use. A drop of ``F_v`` to the body's own bubble (a staged climb entering the voxel
+   layer above, unseen near the vehicle for 3–4 frames, vertical-123 stereo) then states
+   the fastest speed whose stop still ends in space seen free, not 0 m/s at 0.3 m/s;
+   only a stop that no longer fits there (something new nearer) reads as overspeed.
 7. **Vertical moves in stages** (issue 36): a setpoint steeper than
    ``max_path_elevation_rad`` whose horizontal distance is below ``stage_horizontal_m``
    (a goal straight above or below) is climbed to, or descended to, along the vehicle's
@@ -94,6 +102,7 @@ from typing import Any
 import numpy as np
 
 from companion.guidance.autopilot_path import ReferenceLimits, predict_path, straight_stop_m
+from companion.guidance.envelope_direction import brake_direction, looked_along, path_direction
 from protocols.config import Checked, bounded, dataclass_from_mapping
 
 __all__ = [
@@ -272,28 +281,6 @@ def speed_limit_mps(free_m: float, latency_s: float, accel_mps2: float, margin_m
     return a * (-latency_s + math.sqrt(latency_s * latency_s + 2.0 * room / a))
 
 
-def _path_direction(
-    to_setpoint: np.ndarray, max_elev_rad: float, heading_rad: float | None, stage_m: float
-) -> np.ndarray:
-    """Unit direction to the setpoint with its elevation clamped (module docstring, steps 1
-    and 7): a steep move whose horizontal part is shorter than ``stage_m`` climbs or
-    descends along the vehicle's heading (where the camera looks) when one is given."""
-    dist = math.sqrt(float(to_setpoint @ to_setpoint))
-    u = to_setpoint / dist
-    horiz_m = math.hypot(float(to_setpoint[0]), float(to_setpoint[1]))
-    elev = math.atan2(-float(to_setpoint[2]), horiz_m)  # NED: up is −z
-    if abs(elev) <= max_elev_rad:
-        return u
-    if heading_rad is not None and horiz_m < stage_m:
-        h = (math.cos(heading_rad), math.sin(heading_rad))
-    elif horiz_m < 1e-6 * dist:
-        return u
-    else:
-        h = (float(to_setpoint[0]) / horiz_m, float(to_setpoint[1]) / horiz_m)
-    e = math.copysign(max_elev_rad, elev)
-    return np.array([h[0] * math.cos(e), h[1] * math.cos(e), -math.sin(e)], dtype=float)
-
-
 def _budget_s(cfg: EnvelopeConfig, latency_s: float | None) -> float:
     """The latency budget passed in, never below ``cfg.latency_s`` (nor NaN) [s]."""
     if latency_s is not None and math.isfinite(latency_s) and latency_s > cfg.latency_s:
@@ -309,17 +296,6 @@ def _free_m(
     section = (vehicle_radius_m, cfg.lookahead_m, cfg.vehicle_half_height_m)
     near_field_m = cfg.near_field_m if looked else 0.0
     return float(free_distance(pos, unit, *section, vehicle_radius_m, near_field_m))
-
-
-def _looked_along(unit: np.ndarray, heading_rad: float | None, cfg: EnvelopeConfig) -> bool:
-    """Step 2: the camera looks along ``unit`` (its horizontal bearing within
-    ``look_half_angle_deg`` of the heading). True without a heading (the caller states
-    none) and for a path with no horizontal part (nothing to turn toward)."""
-    horiz_m = math.hypot(float(unit[0]), float(unit[1]))
-    if heading_rad is None or horiz_m < 1e-6:
-        return True
-    cos_off = float(unit[0]) * math.cos(heading_rad) + float(unit[1]) * math.sin(heading_rad)
-    return cos_off >= horiz_m * math.cos(math.radians(cfg.look_half_angle_deg))
 
 
 def _carrot(pos, target, direction, room_m: float, cfg) -> tuple[np.ndarray, bool]:
@@ -346,8 +322,8 @@ def _path_and_carrot(pos, target, d_stop, free_distance, radius_m, max_elev_rad,
     to_setpoint = target - pos
     if float(to_setpoint @ to_setpoint) < 1e-12:
         return np.zeros(3), 0.0, target.copy(), False
-    direction = _path_direction(to_setpoint, max_elev_rad, heading, cfg.stage_horizontal_m)
-    looked = _looked_along(direction, heading, cfg)
+    direction = path_direction(to_setpoint, max_elev_rad, heading, cfg.stage_horizontal_m)
+    looked = looked_along(direction, heading, cfg.look_half_angle_deg)
     free = _free_m(free_distance, pos, direction, radius_m, cfg, looked)
     carrot, limited = _carrot(pos, target, direction, free - d_stop - cfg.margin_m, cfg)
     return direction, free, carrot, limited
@@ -482,7 +458,9 @@ def _excess_m(path, pos, free_distance, vehicle_radius_m, cfg) -> float:
     return worst
 
 
-def _brake_steps(pos, vel, chosen, free_distance, tau, cfg, vehicle_radius_m, accel, held_brake):
+def _brake_steps(
+    pos, vel, chosen, free_distance, tau, cfg, vehicle_radius_m, accel, held_brake, max_elev_rad
+):
     """Steps 5 and 8 on ``chosen`` = (carrot, limited, direction, free, limit): brake when
     too fast for the path's free space (5) or when the autopilot's way to the carrot is
     not seen free (8). Returns them as sent, whether step 8 braked, and the brake target
@@ -512,9 +490,9 @@ def _brake_steps(pos, vel, chosen, free_distance, tau, cfg, vehicle_radius_m, ac
         if momentum or held is not None:
             brake = brake_target()
             carrot, limited = brake.copy(), True
-        direction = vel / speed
+        direction = brake_direction(vel, max_elev_rad)
         free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
-        limit = _limit_mps(free, tau, cfg)
+        limit = min(speed_limit_mps(free, tau, cfg.accel_mps2, 0.0), cfg.max_speed_mps)
     elif momentum:
         carrot, limited = pos.copy(), True
     if brake is not None:
@@ -582,7 +560,7 @@ def envelope_step(
     limit = _limit_mps(free, tau, cfg)
     carrot, limited, direction, free, limit, momentum, brake = _brake_steps(
         pos, vel, (carrot, limited, direction, free, limit), free_distance, tau, cfg,
-        vehicle_radius_m, accel_ned_mps2, held_brake_ned_m)  # fmt: skip
+        vehicle_radius_m, accel_ned_mps2, held_brake_ned_m, max_path_elevation_rad)  # fmt: skip
     carrot.setflags(write=False)
     direction.setflags(write=False)
     return EnvelopeOutput(
