@@ -47,6 +47,7 @@ def test_every_module_that_reads_a_session_flight_states_it_shares_it():
 
 def test_own_flight_marks_are_read_from_the_source():
     assert own_flight_functions(TESTS / "test_lockstep_speed_bound.py") == {
-        "test_speed_never_exceeds_the_stated_limit_at_the_fast_airframe"
+        "test_speed_never_exceeds_the_stated_limit_at_the_fast_airframe",
+        "test_speed_never_exceeds_the_stated_limit_on_a_staged_climb_at_the_fast_airframe",
     }
     assert own_flight_functions(TESTS / "test_lq.py") == frozenset()
