@@ -57,7 +57,7 @@ block is matched):
   lies outside the matcher's blind band and whose ray points no lower than
   ``sky_min_elevation_deg`` below the horizon, is taken as open sky: FREE up to
   ``max_range_m`` and no farther out (horizontally) than the point of the column's
-  topmost matched pixel, but only where still UNKNOWN (it never clears OCCUPIED). Without
+  topmost matched pixel, where still UNKNOWN or TENTATIVE (it never clears OCCUPIED). Without
   this a stereo camera could never certify the space at its own altitude (the sky above
   the horizon is textureless and never matches), and the vehicle could not fly level.
   The column rule keeps the exception away from textureless obstacles in front of the
@@ -68,6 +68,14 @@ block is matched):
   is free only up to there, and a column with no matched pixel at all (the wall fills
   it) has no sky. Named limitation: a textureless obstacle hanging in front of far,
   matched ground, with no matched edge, is mistaken for sky.
+  A TENTATIVE voxel (hit in one frame only) is seen free by open sky as by a matched ray:
+  a sky ray through its core (``clear_core_m``) whose free segment reaches past its
+  centre. Issue 36, facing_away-304: two voxels a one-frame false match made on the
+  path's centre line, 0.5-0.8 m ahead at the camera's height, lay in open sky nearer than
+  the matcher reaches; only sky rays crossed them, and the rule that freed only UNKNOWN
+  kept them in the way for 40 s. What was hit in two frames (OCCUPIED) stays; the blind
+  band is never sky, so a pole hit once and then in the band stays TENTATIVE; the reach
+  rule stops the sky short of a textureless obstacle standing on matched ground.
 * **The vehicle itself**: OCCUPIED voxels centred within ``ego_clear_radius_m`` of the
   vehicle become FREE (the vehicle is there). UNKNOWN is never made FREE around the
   vehicle: a bubble that moved with it would let it creep into unseen space, one bubble
@@ -177,11 +185,15 @@ def _cell(grid, origin, inv_voxel, x, y, z):
 
 
 @numba.njit(cache=True)
-def _mark_ray(grid, near, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m, free_core_m):
+def _mark_ray(
+    grid, near, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m, free_core_m, sky_core_m
+):
     """FREE in every UNKNOWN voxel whose centre the segment from (ox, oy, oz) over
     ``length`` [m] passes within ``free_core_m`` [m] of, and in every OCCUPIED or
-    TENTATIVE one whose centre it passes within ``core_m`` [m] of (0: never). A voxel
-    made FREE forgets that it was hit from near (``near``).
+    TENTATIVE one whose centre it passes within ``core_m`` [m] of (0: never); an open-sky
+    segment (``core_m`` 0) frees a TENTATIVE voxel whose centre lies on it, within
+    ``sky_core_m`` [m] of it (0: never). A voxel made FREE forgets that it was hit from
+    near (``near``).
 
     Amanatides–Woo traversal: each voxel is visited once, in order along the ray; the
     walk stops at the grid's edge. ``(dx, dy, dz)`` is a unit direction.
@@ -225,7 +237,8 @@ def _mark_ray(grid, near, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m,
         if i < 0 or j < 0 or k < 0 or i >= ni or j >= nj or k >= nk:
             return
         cur = grid[i, j, k]
-        if cur == 0 or (core_m > 0.0 and (cur == 2 or cur == 3)):
+        sky_tentative = core_m == 0.0 and sky_core_m > 0.0 and cur == 3
+        if cur == 0 or (core_m > 0.0 and (cur == 2 or cur == 3)) or sky_tentative:
             # only a ray through the voxel's core sees it free: one that crosses a corner
             # saw that corner free, not the rest of the voxel (the inside of an obstacle
             # whose limb it grazed; the surface point that made the voxel occupied). A
@@ -235,8 +248,9 @@ def _mark_ray(grid, near, origin, voxel, ox, oy, oz, dx, dy, dz, length, core_m,
             qz = (k + origin[2] + 0.5) * voxel - oz
             along = qx * dx + qy * dy + qz * dz
             off2 = qx * qx + qy * qy + qz * qz - along * along
-            core = free_core_m if cur == 0 else core_m
-            if off2 <= core * core:
+            core = free_core_m if cur == 0 else (sky_core_m if sky_tentative else core_m)
+            # open sky frees a voxel hit once only up to its reach, not past its end
+            if off2 <= core * core and (not sky_tentative or along <= length):
                 grid[i, j, k] = 1
                 near[i, j, k] = 0
         if tx <= ty and tx <= tz:
@@ -406,7 +420,7 @@ def _integrate_depth(
     for s in range(n_seg):
         _mark_ray(grid, near, origin, voxel, cam_ned[0], cam_ned[1], cam_ned[2],
                   segments[s, 0], segments[s, 1], segments[s, 2], segments[s, 3],
-                  segments[s, 4], free_core)  # fmt: skip
+                  segments[s, 4], free_core, clear_core)  # fmt: skip
     for h in range(n_new):  # this frame's hits: tentative on a first hit, else occupied
         i, j, k = new_hits[h, 0], new_hits[h, 1], new_hits[h, 2]
         if grid[i, j, k] == _NEW_HIT_AGAIN:
