@@ -59,6 +59,7 @@ from companion.health import HealthFile, HealthInputs
 from companion.intake import FrameIntake
 from companion.link.connection import MavlinkConnection
 from companion.observe import CompanionObserver, Observers
+from companion.phase_times import Phase, PhaseClocks
 from companion.proximity.process import ProximityProcess, new_spec, own_process_refusal
 from companion.proximity.sender import ProximitySender
 from companion.proximity.shared import SharedLink, SharedPose
@@ -103,6 +104,7 @@ class CompanionService:
             config,
             random.SystemRandom().getrandbits(32),
             report_pipeline=self.observers.wants_pipeline,
+            phase_clocks=PhaseClocks(time.perf_counter_ns, time.thread_time_ns),
         )
         self.frame_key = stereo_key(config.vehicle_id)
         self.status_key = companion_status_key(config.vehicle_id)
@@ -236,15 +238,20 @@ class CompanionService:
                 select.select(fds, [], [], timeout)
             except InterruptedError:
                 continue
-            for msg in self._received():
-                self._step(MavlinkReceived(msg, time.monotonic_ns()))
+            phases = self.core.phases
+            with phases.timed(Phase.MAVLINK):
+                for msg in self._received():
+                    self._step(MavlinkReceived(msg, time.monotonic_ns()))
             self._share_with_process()
-            self._step(Tick(time.monotonic_ns()))
+            with phases.timed(Phase.TICK):
+                self._step(Tick(time.monotonic_ns()))
             frame = self.slot.take()
             if frame is not None:
                 now_ns = time.monotonic_ns()
-                self._step(FrameReceived(frame, now_ns, now_ns))
-                self._snapshot_map(frame.capture_ns)
+                with phases.timed(Phase.FRAME):
+                    self._step(FrameReceived(frame, now_ns, now_ns))
+                with phases.timed(Phase.SNAPSHOT):
+                    self._snapshot_map(frame.capture_ns)
                 # at once: the core takes the frame's data age (capture → its setpoint on
                 # the wire) from the next input's clock (companion.guidance.latency)
                 self._step(Tick(time.monotonic_ns()))
@@ -365,12 +372,13 @@ class CompanionService:
             self._next_progress_s = now_s + self.config.status_log_period_s
             f = self.slot.counters
             _log.info(
-                "%s; frames received %d (malformed %d, superseded %d)%s",
+                "%s; frames received %d (malformed %d, superseded %d)%s; work per run: %s",
                 self.core.progress_text(),
                 f.received,
                 f.malformed,
                 f.superseded,
                 self._stream_text(),
+                self.core.phases.text(),
             )
 
     def _stream_text(self) -> str:
