@@ -38,7 +38,7 @@ center_ned_m = [10.0, 0.0, -7.0]
 radius_m = 1.5
 """
 _GUIDANCE_COST_S = 0.2
-_SIM_S = 8.0
+_SIM_S = 6.0
 
 
 def test_reporting_companion_processes_most_frames_however_slow_guidance_is(tmp_path):
