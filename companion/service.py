@@ -71,6 +71,7 @@ from protocols.zenoh_session import zenoh_config
 __all__ = ["CompanionService"]
 
 _log = logging.getLogger("companion")
+_PHASES_EVERY = 10  # progress lines between two lines of the phases' figures
 
 
 class CompanionService:
@@ -125,6 +126,7 @@ class CompanionService:
         self.health: HealthFile | None = None  # --health-file: rewritten once a second
         self._next_report_s = 0.0
         self._next_progress_s = 0.0
+        self._progress_lines = 0
         self._refusals_reported = 0
 
     @property
@@ -372,14 +374,16 @@ class CompanionService:
             self._next_progress_s = now_s + self.config.status_log_period_s
             f = self.slot.counters
             _log.info(
-                "%s; frames received %d (malformed %d, superseded %d)%s; work per run: %s",
+                "%s; frames received %d (malformed %d, superseded %d)%s",
                 self.core.progress_text(),
                 f.received,
                 f.malformed,
                 f.superseded,
                 self._stream_text(),
-                self.core.phases.text(),
             )
+            self._progress_lines += 1
+            if self._progress_lines % _PHASES_EVERY == 0:  # where the work went, CPU
+                _log.info("work per run (CPU): %s", self.core.phases.text())
 
     def _stream_text(self) -> str:
         """The OBSTACLE_DISTANCE process's or watchdog thread's figures, for the progress
