@@ -145,3 +145,34 @@ def test_phase_times_count_without_clocks_and_time_with_them():
     assert figure["mean_cpu_ms"] == pytest.approx(2.0)
     assert figure["max_wall_ms"] == pytest.approx(2.0)
     assert "known_space 3x2.0ms" in timed.text()
+
+
+def test_the_frame_path_takes_the_newest_frame_and_never_an_older_one():
+    """Three frames arrive while the main loop is busy: it takes the newest, the two older
+    are counted superseded; a frame older than the last processed one is refused
+    (``frames_stale``), never processed after a newer one."""
+    from companion.core import FrameReceived
+    from companion.frames_sub import LatestFrameSlot
+
+    rig = _reporting_rig()
+    rig.run(2.0)
+    slot = LatestFrameSlot()
+    flat = np.full((rig.camera.height_px, rig.camera.width_px), 128, dtype=np.uint8)
+    now_ms = rig.boot_ms
+    frames = [
+        StereoFrame(1000 + i, (now_ms - 30 + 10 * i) * 1_000_000, rig.camera.intrinsics, flat, flat)
+        for i in range(3)
+    ]
+    for frame in frames:
+        slot.put(frame)
+    taken = slot.take()
+    assert taken is frames[-1] and slot.take() is None
+    assert slot.counters.superseded == 2 and slot.counters.taken == 1
+    processed = rig.core.counters.frames_processed
+    rig.feed(FrameReceived(taken, rig.now_ns, rig.now_ns))
+    assert rig.core.counters.frames_processed == processed + 1
+    stale = rig.core.counters.frames_stale
+    rig.feed(FrameReceived(frames[0], rig.now_ns, rig.now_ns))  # older, arriving late
+    assert rig.core.counters.frames_processed == processed + 1
+    assert rig.core.counters.frames_stale == stale + 1
+    slot.close()
