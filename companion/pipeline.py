@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.depth_source import DepthSource
-from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput, Mode
+from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput, Mode, Reason
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
 from companion.guidance.hold import (
     HoldPlacement,
@@ -41,11 +41,12 @@ from companion.guidance.map_boundaries import (
 from companion.guidance.path_rules import follow_known_path, warm_up, way_blocked
 from companion.known_space import KnownSpace, KnownSpaceConfig
 from companion.perception import PerceptionConfig, PerceptionResult, StereoPerception
+from companion.phase_times import Phase, PhaseTimes
 from companion.position_uncertainty import NO_WIDENING, Widening, widening
 from protocols.config import vec3
 from protocols.stereo_frame import StereoFrame
 
-__all__ = ["AvoidancePipeline", "PipelineOutput", "PoseAtCapture"]
+__all__ = ["AvoidancePipeline", "PipelineOutput", "PoseAtCapture", "not_guided"]
 
 _RETRY_FRAMES = 2  # a search that found no path is not repeated on the next frame
 _ACCEL_WINDOW_NS = 250_000_000  # velocities further apart give no acceleration (a frame was lost)
@@ -96,6 +97,10 @@ class PipelineOutput:
     # how much wider the vehicle counted for the position estimate's uncertainty, and
     # whether the margins covered it (companion.position_uncertainty)
     widening: Widening = NO_WIDENING
+    # guidance, the envelope and the hold's way out ran; False: the companion was not in
+    # control (a pilot's mode), only the map and its boundaries were made, ``guidance``
+    # and ``envelope`` stand still at the vehicle (:func:`not_guided`) and are never flown
+    guided: bool = True
 
     @property
     def obstacles(self) -> tuple[MapBoundary, ...]:
@@ -149,6 +154,8 @@ class AvoidancePipeline:
         self._last_path = None  # (map frame, goal, KnownPath or None) of the last search
         self._last_vel = None  # (capture_ns, vel_ned_mps) of the last frame: acceleration
         self._brake_ned_m = None  # the envelope's held brake target (step 8), or None
+        # runs and skips of each phase (timed when the service injects clocks)
+        self.phases = PhaseTimes()
         self._widen(self.perception.config.position_uncertainty_m)
         warm_up()
 
@@ -187,17 +194,47 @@ class AvoidancePipeline:
         *,
         steering: bool = True,
         latency_s: float | None = None,
+        guide: bool = True,
     ) -> PipelineOutput:
         """Run one frame; ``pose`` must be the vehicle's at ``frame.capture_ns``;
         ``steering``: whether the vehicle flies the output (guidance's stall count);
         ``latency_s``: the measured latency budget [s] for the stopping rule (None: the
-        envelope's configured ``latency_s``; :mod:`companion.guidance.latency`)."""
+        envelope's configured ``latency_s``; :mod:`companion.guidance.latency`);
+        ``guide``: run guidance, the envelope and the hold's way out (False: the
+        companion is not in control, issue 34: the frame only feeds the map, whose
+        OBSTACLE_DISTANCE the autopilot flies on, and the report; guidance's state
+        stands as over a gap without frames, the phases are counted as skipped)."""
         widened = self._widened(pose.h_acc_m)
+        phases = self.phases
         seen = self._see(frame, pose)
-        boundaries = map_boundaries(
-            self.known_space, pose.pos_ned_m, self.goal_ned_m, self.boundary_config
+        with phases.timed(Phase.BOUNDARIES):
+            boundaries = map_boundaries(
+                self.known_space, pose.pos_ned_m, self.goal_ned_m, self.boundary_config
+            )
+        if not guide:
+            phases.skip(Phase.GUIDANCE, Phase.PLANNING, Phase.ENVELOPE, Phase.HOLD)
+            self._brake_ned_m = None  # as when not steering: a brake is held only when flown
+            return not_guided(frame, pose, seen, boundaries, widened)
+        with phases.timed(Phase.GUIDANCE):
+            decision = self._guide(frame, pose, boundaries, steering)
+        with phases.timed(Phase.ENVELOPE):
+            bounded = self._bound(frame, pose, boundaries, decision, steering, latency_s)
+        with phases.timed(Phase.HOLD):
+            bounded, escape, kept_out, moved = self._keep_out(pose, boundaries, decision, bounded)
+        return PipelineOutput(
+            perception=seen,
+            guidance=decision,
+            envelope=bounded,
+            boundaries=boundaries,
+            hold_escape=escape is not None and kept_out is None,
+            target_kept_out=None if kept_out is None else kept_out.placement,
+            look_yaw_rad=None if moved is None else moved.look_yaw_rad,
+            widening=widened,
         )
-        decision = self.guidance.step(
+
+    def _guide(self, frame: StereoFrame, pose: PoseAtCapture, boundaries, steering: bool):
+        """Guidance's decision on this frame (Fig. 5), with the map's path search."""
+        return self.guidance.step(
             time_s=frame.capture_ns * 1e-9,
             pos_ned_m=pose.pos_ned_m,
             vel_ned_mps=pose.vel_ned_mps,
@@ -209,6 +246,9 @@ class AvoidancePipeline:
             known_path=self._known_path,
             way_blocked=self._way_blocked,
         )
+
+    def _bound(self, frame, pose, boundaries, decision, steering: bool, latency_s):
+        """The safety envelope's carrot and speed bound for guidance's ``decision``."""
         free_distance = functools.partial(
             self.known_space.free_distance_m, solid_ned_m=solid_extent(boundaries)
         )
@@ -226,6 +266,12 @@ class AvoidancePipeline:
             held_brake_ned_m=self._brake_ned_m if steering else None,
         )
         self._brake_ned_m = bounded.brake_target_ned_m if steering else None
+        return bounded
+
+    def _keep_out(self, pose, boundaries, decision, bounded):
+        """Invariant 3: a hold target, or the carrot, moved out of a boundary through
+        space seen free; returns (the envelope's output with the target sent, the escape
+        target or None, the carrot's placement or None, the hold point or None)."""
         escape, kept_out, moved = None, None, None
         way_check = self.way_check(boundaries, pose.yaw_rad)
         if decision.mode is Mode.HOLD:
@@ -250,16 +296,7 @@ class AvoidancePipeline:
             # boundary is not held (the next frame takes a new stopping point)
             self._brake_ned_m = None
             bounded = dataclasses.replace(bounded, setpoint_ned_m=escape, brake_target_ned_m=None)
-        return PipelineOutput(
-            perception=seen,
-            guidance=decision,
-            envelope=bounded,
-            boundaries=boundaries,
-            hold_escape=escape is not None and kept_out is None,
-            target_kept_out=None if kept_out is None else kept_out.placement,
-            look_yaw_rad=None if moved is None else moved.look_yaw_rad,
-            widening=widened,
-        )
+        return bounded, escape, kept_out, moved
 
     def way_check(self, boundaries, heading_rad: float | None) -> WayCheck:
         """The map's question for a way back out of ``boundaries`` (invariants 1 and 3,
@@ -304,7 +341,14 @@ class AvoidancePipeline:
     def _see(self, frame: StereoFrame, pose: PoseAtCapture):
         """Perception of ``frame`` and its depth into the known-space map (no depth: the
         vehicle's own cell is marked)."""
-        seen = self.perception.process(frame, pose.pos_ned_m, pose.R_ned_from_frd)
+        with self.phases.timed(Phase.PERCEPTION):
+            seen = self.perception.process(frame, pose.pos_ned_m, pose.R_ned_from_frd)
+        with self.phases.timed(Phase.KNOWN_SPACE):
+            self._fold_in(seen, frame, pose)
+        return seen
+
+    def _fold_in(self, seen, frame: StereoFrame, pose: PoseAtCapture) -> None:
+        """The frame's depth into the known-space map (no depth: the vehicle's own cell)."""
         if seen.depth_m is not None:
             self.known_space.integrate(
                 seen.depth_m,
@@ -316,7 +360,6 @@ class AvoidancePipeline:
             )
         else:
             self.known_space.mark_vehicle(pose.pos_ned_m)
-        return seen
 
     def _known_path(self, pos_ned_m, goal_ned_m, spheres) -> KnownPath | None:
         """Guidance's search of the known-space map (:mod:`companion.guidance.known_path`),
@@ -325,6 +368,10 @@ class AvoidancePipeline:
         (:func:`~companion.guidance.path_rules.follow_known_path`: a check of its voxels,
         a fraction of a search); a search that found none is not repeated on the next
         frame (``benchmarks/bench_guidance_path.py`` prints the costs)."""
+        with self.phases.timed(Phase.PLANNING):
+            return self._search_or_follow(pos_ned_m, goal_ned_m, spheres)
+
+    def _search_or_follow(self, pos_ned_m, goal_ned_m, spheres) -> KnownPath | None:
         ks = self.known_space
         last = self._last_path
         if last is not None and np.array_equal(last[1], goal_ned_m):
@@ -375,6 +422,46 @@ class AvoidancePipeline:
             clearance_m=self.guidance.config.escape_clearance_m,
             way_check=way_check,
         )
+
+
+def not_guided(
+    frame: StereoFrame, pose: PoseAtCapture, seen, boundaries, widened: Widening
+) -> PipelineOutput:
+    """A frame's output when guidance did not run (the companion not in control): its
+    perception and the map's boundaries; guidance navigating with no threat and the
+    envelope standing still, both at the vehicle's position and yaw (no setpoint of
+    them is ever sent: the core sends only while it steers), the speed measured, no
+    speed bound stated (0 m/s, never flown)."""
+    here = _read_only(pose.pos_ned_m)
+    decision = GuidanceOutput(
+        time_s=frame.capture_ns * 1e-9,
+        mode=Mode.NAVIGATE,
+        reason=Reason.NO_THREAT,
+        avoidance_flag=False,
+        setpoint_ned_m=here,
+        yaw_rad=pose.yaw_rad,
+        active_obstacle=None,
+        aiming_point_ned_m=None,
+        tracks=(),
+    )
+    still = EnvelopeOutput(
+        setpoint_ned_m=here,
+        path_dir_ned=np.zeros(3),
+        free_distance_m=0.0,
+        stopping_distance_m=0.0,
+        speed_limit_mps=0.0,
+        speed_mps=float(np.linalg.norm(pose.vel_ned_mps)),
+        limited=False,
+        overspeed=False,
+    )
+    return PipelineOutput(
+        perception=seen,
+        guidance=decision,
+        envelope=still,
+        boundaries=boundaries,
+        widening=widened,
+        guided=False,
+    )
 
 
 def _read_only(point) -> np.ndarray:

@@ -59,6 +59,7 @@ from companion.health import HealthFile, HealthInputs
 from companion.intake import FrameIntake
 from companion.link.connection import MavlinkConnection
 from companion.observe import CompanionObserver, Observers
+from companion.phase_times import Phase, PhaseClocks
 from companion.proximity.process import ProximityProcess, new_spec, own_process_refusal
 from companion.proximity.sender import ProximitySender
 from companion.proximity.shared import SharedLink, SharedPose
@@ -70,6 +71,7 @@ from protocols.zenoh_session import zenoh_config
 __all__ = ["CompanionService"]
 
 _log = logging.getLogger("companion")
+_PHASES_EVERY = 10  # progress lines between two lines of the phases' figures
 
 
 class CompanionService:
@@ -103,6 +105,7 @@ class CompanionService:
             config,
             random.SystemRandom().getrandbits(32),
             report_pipeline=self.observers.wants_pipeline,
+            phase_clocks=PhaseClocks(time.perf_counter_ns, time.thread_time_ns),
         )
         self.frame_key = stereo_key(config.vehicle_id)
         self.status_key = companion_status_key(config.vehicle_id)
@@ -123,6 +126,7 @@ class CompanionService:
         self.health: HealthFile | None = None  # --health-file: rewritten once a second
         self._next_report_s = 0.0
         self._next_progress_s = 0.0
+        self._progress_lines = 0
         self._refusals_reported = 0
 
     @property
@@ -236,15 +240,20 @@ class CompanionService:
                 select.select(fds, [], [], timeout)
             except InterruptedError:
                 continue
-            for msg in self._received():
-                self._step(MavlinkReceived(msg, time.monotonic_ns()))
+            phases = self.core.phases
+            with phases.timed(Phase.MAVLINK):
+                for msg in self._received():
+                    self._step(MavlinkReceived(msg, time.monotonic_ns()))
             self._share_with_process()
-            self._step(Tick(time.monotonic_ns()))
+            with phases.timed(Phase.TICK):
+                self._step(Tick(time.monotonic_ns()))
             frame = self.slot.take()
             if frame is not None:
                 now_ns = time.monotonic_ns()
-                self._step(FrameReceived(frame, now_ns, now_ns))
-                self._snapshot_map(frame.capture_ns)
+                with phases.timed(Phase.FRAME):
+                    self._step(FrameReceived(frame, now_ns, now_ns))
+                with phases.timed(Phase.SNAPSHOT):
+                    self._snapshot_map(frame.capture_ns)
                 # at once: the core takes the frame's data age (capture → its setpoint on
                 # the wire) from the next input's clock (companion.guidance.latency)
                 self._step(Tick(time.monotonic_ns()))
@@ -372,6 +381,9 @@ class CompanionService:
                 f.superseded,
                 self._stream_text(),
             )
+            self._progress_lines += 1
+            if self._progress_lines % _PHASES_EVERY == 0:  # where the work went, CPU
+                _log.info("work per run (CPU): %s", self.core.phases.text())
 
     def _stream_text(self) -> str:
         """The OBSTACLE_DISTANCE process's or watchdog thread's figures, for the progress

@@ -483,6 +483,7 @@ def test_a_commands_data_age_is_its_age_at_the_step_plus_the_compute_time_on_the
     class _Output:
         envelope = _Envelope()
         boundaries = ("b",)
+        guided = True  # guidance ran (a reporting-only frame states no speed limit)
 
     class _Result:
         output = _Output()

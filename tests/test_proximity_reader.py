@@ -282,8 +282,8 @@ def test_a_flight_goes_on_when_the_process_is_killed(tmp_path):
         rig.wait_event(companion, "steering", 30)
         os.kill(int(found.group(1)), signal.SIGKILL)
         rig.wait_event(companion, "goal_reached", 120)
-        logs = companion.logs()
-        assert logs.count("the main loop reads it itself") == 1, logs
+        logs = companion.stderr_text()  # all of it: logs() keeps only the tail
+        assert logs.count("the main loop reads it itself") == 1, companion.logs()
         holds = [f for _, f in companion.events("hold")]
         assert not any("telemetry" in str(f.get("reason")) for f in holds), holds
         truth = _read_truth(rig.tmp / "run0" / "truth.csv")

@@ -72,6 +72,7 @@ from companion.link.flavour import (
 from companion.link.messages import CompanionState, mav_state
 from companion.link.mode_watch import ControlPhase
 from companion.link.setpoints import PositionTarget
+from companion.phase_times import Phase, PhaseClocks, PhaseTimes
 from companion.pose_history import PoseHistory, PoseLookup
 from companion.proximity.sender import ProximitySender
 from companion.takeover import SETPOINT_MESSAGES
@@ -111,12 +112,20 @@ class CompanionCore:
     report_pipeline : bool
         Also return a :class:`~companion.core.events.FrameProcessed` per processed frame
         (a viewer is attached); off: nothing is built for it.
+    phase_clocks : PhaseClocks, optional
+        The service's clocks to time each phase with (None: counted only).
     """
 
     def __init__(
-        self, config: CompanionConfig, instance_id: int, *, report_pipeline: bool = False
+        self,
+        config: CompanionConfig,
+        instance_id: int,
+        *,
+        report_pipeline: bool = False,
+        phase_clocks: PhaseClocks | None = None,
     ) -> None:
         self.config = config
+        self.phases = PhaseTimes(phase_clocks)  # where the work goes (companion.phase_times)
         self.report_pipeline = report_pipeline
         self.instance_id = instance_id
         self.counters = CoreCounters()
@@ -124,19 +133,16 @@ class CompanionCore:
         self._now_ns = 0
         self._now_s = 0.0
         link, fs = config.link, config.failsafe
-        # link
         self.link = LinkJob(link, fs, instance_id, self.out, self.counters)  # a component
         # telemetry (poses, frame clock), streams and TIMESYNC
         self.telemetry = TelemetryJob(link, fs, self.out, self.counters)  # a component
-        self.frames = FrameJob(config, self.out, self.counters)  # a component
+        self.frames = FrameJob(config, self.out, self.counters, self.phases)  # a component
         self.streams = StreamsJob(link, self.out, self.counters)  # a component
         self.params = ParamJob(link, self.out)  # a component: WPNAV_SPEED
         # modes and takeover
         self.modes = ModesJob(link, instance_id, self.out, self.counters)  # a component
         self.failsafe = FailsafeJob(config, self.out, self.counters)  # a component
-        # takeoff: a component of its own (its state, typed decisions out)
         self.takeoff_job = TakeoffJob(link, self.out)
-        # setpoints and speed
         self.setpoints = SetpointJob(link, self.out, self.counters)  # a component
         # OBSTACLE_DISTANCE from start-up, whatever the link, mode or phase
         self.proximity = ProximitySender(config.proximity) if config.proximity.enabled else None
@@ -155,8 +161,8 @@ class CompanionCore:
 
     # ---- what the adapters read ----------------------------------------------------
     def stats(self) -> dict[str, Any]:
-        """Counters and state for the exit statistics."""
-        return self.status.stats()
+        """Counters and state for the exit statistics; ``phases``: where the work went."""
+        return {**self.status.stats(), "phases": self.phases.as_dict()}
 
     def progress_text(self) -> str:
         """One line for the periodic progress log (time, position, phase, mode, health)."""
@@ -338,15 +344,15 @@ class CompanionCore:
         ):
             self._send_target(target, self._now_s, None)
 
+    def _in_control(self, now_s: float) -> bool:
+        """The autopilot is in our control mode and we may steer: guidance runs (healthy
+        or in the failsafe's position hold); else (a pilot's mode) a frame feeds only
+        the map and the report (issue 34)."""
+        return self.modes.steering and self.setpoints.policy is not None and self._may_steer(now_s)
+
     def _steering(self, now_s: float) -> bool:
-        """Our setpoints are flown now: the autopilot in a mode we steer, healthy inputs,
-        and alone on the link."""
-        return (
-            self.modes.steering
-            and self.failsafe.status.health.ok
-            and self.setpoints.policy is not None
-            and self._may_steer(now_s)
-        )
+        """Our setpoints are flown now: in control, with healthy inputs."""
+        return self._in_control(now_s) and self.failsafe.status.health.ok
 
     # ---- setpoints: which target when (the setpoint job carries it out) ------------
     def _send_target(self, target: PositionTarget, now_s: float, frame_ns: int | None) -> None:
@@ -519,7 +525,9 @@ class CompanionCore:
         # count as its own lack of progress.
         now_frame = self.telemetry.now_frame_ns(self._now_ns)
         age_s = None if now_frame is None else (now_frame - frame.capture_ns) * 1e-9
-        result = self.frames.step(frame, pose, self._steering(self._now_s), age_s)
+        result = self.frames.step(
+            frame, pose, self._steering(self._now_s), age_s, self._in_control(self._now_s)
+        )
         if result is None:
             return
         out = result.output
@@ -528,7 +536,7 @@ class CompanionCore:
         self._check_failsafe(self._now_s)
         sent = False
         target = PositionTarget(tuple(float(x) for x in out.setpoint_ned_m), float(out.yaw_rad))
-        if self._steering(self._now_s):
+        if out.guided and self._steering(self._now_s):  # never a frame guidance skipped
             policy = self.setpoints.policy
             assert policy is not None
             if policy.on_new_target(target, self._now_s):
@@ -539,13 +547,16 @@ class CompanionCore:
         self.frames.report(result)
         if self.proximity is not None:
             fallback = pose if self.telemetry.position_host_ns is None else None
-            space = self.mission.pipeline.known_space
-            pose_now = self._proximity_pose()
-            self.proximity_job.on_frame(frame.capture_ns, space, pose_now, fallback, self._now_s)
+            space, pose_now = self.mission.pipeline.known_space, self._proximity_pose()
+            with self.phases.timed(Phase.SECTORS):
+                self.proximity_job.on_frame(
+                    frame.capture_ns, space, pose_now, fallback, self._now_s
+                )
         host_capture = frame.capture_ns if self.clock.frame_clock is FrameClock.HOST else None
-        document = self.status.frame_status(
-            result, lookup.status, pose, sent, self._state(), self._now_s
-        )
+        with self.phases.timed(Phase.STATUS):
+            document = self.status.frame_status(
+                result, lookup.status, pose, sent, self._state(), self._now_s
+            )
         self.out.append(Status(document, recv_ns, self._now_ns, host_capture))
         if self.report_pipeline:  # a viewer is attached (companion.viz)
             pipeline = self.mission.pipeline

@@ -19,6 +19,7 @@ from companion.core.counters import CoreCounters
 from companion.core.mission import Mission, MissionStep
 from companion.core.outbox import SEV_INFO, SEV_WARNING, Outbox
 from companion.guidance.latency import DataAgeWindow
+from companion.phase_times import PhaseTimes
 from companion.pipeline import PoseAtCapture
 from companion.pose_history import PoseLookup, PoseStatus
 from protocols.stereo_frame import StereoFrame
@@ -37,12 +38,21 @@ class FrameJob:
         Where the mission's notices and events go (the core's, per step).
     counters : CoreCounters
         ``frames_*``, ``pose_*``, ``pipeline_errors``, ``targets_kept_out``.
+    phases : PhaseTimes, optional
+        Where every mission's pipeline counts (and times) its phases; kept across resets.
     """
 
-    def __init__(self, config: CompanionConfig, out: Outbox, counters: CoreCounters) -> None:
+    def __init__(
+        self,
+        config: CompanionConfig,
+        out: Outbox,
+        counters: CoreCounters,
+        phases: PhaseTimes | None = None,
+    ) -> None:
         self._config = config
         self._out = out
         self._counters = counters
+        self.phases = PhaseTimes() if phases is None else phases
         self.reset()
 
     def reset(self) -> None:
@@ -56,6 +66,7 @@ class FrameJob:
             cfg.known_space,
             cfg.envelope,
         )
+        self.mission.pipeline.phases = self.phases
         self.boundaries: tuple = ()  # the last processed frame's boundaries
         self.newest_frame_ns: int | None = None  # processed (or proving the camera)
         self.last_capture_ns: int | None = None  # admitted
@@ -96,13 +107,23 @@ class FrameJob:
             self.newest_frame_ns = capture_ns  # the camera works: health
 
     def step(
-        self, frame: StereoFrame, pose: PoseAtCapture, steering: bool, age_s: float | None
+        self,
+        frame: StereoFrame,
+        pose: PoseAtCapture,
+        steering: bool,
+        age_s: float | None,
+        guide: bool = True,
     ) -> MissionStep | None:
-        """The mission on this frame (``age_s``: its data age now, None: no clock yet);
-        None when the pipeline failed (counted: a bad frame never stops the companion)."""
+        """The mission on this frame (``age_s``: its data age now, None: no clock yet;
+        ``guide`` False: the companion is not in control, guidance does not run); None
+        when the pipeline failed (counted: a bad frame never stops the companion)."""
         try:
             return self.mission.step(
-                frame, pose, steering=steering, latency_s=self.data_age.budget_s(age_s)
+                frame,
+                pose,
+                steering=steering,
+                latency_s=self.data_age.budget_s(age_s),
+                guide=guide,
             )
         except Exception as exc:  # cv2.error too
             self._counters.pipeline_errors += 1
@@ -116,7 +137,8 @@ class FrameJob:
         self._counters.frames_processed += 1
         self.newest_frame_ns = capture_ns
         self._age_pending = (capture_ns, now_ns, 0.0 if age_s is None else age_s)
-        self.speed_limit_mps = float(out.envelope.speed_limit_mps)
+        # not guided: no bound was stated (the status says "-")
+        self.speed_limit_mps = float(out.envelope.speed_limit_mps) if out.guided else None
         self.boundaries = tuple(out.boundaries)
 
     def report(self, result: MissionStep) -> None:

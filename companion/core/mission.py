@@ -96,12 +96,15 @@ class Mission:
         *,
         steering: bool = True,
         latency_s: float | None = None,
+        guide: bool = True,
     ) -> MissionStep:
         """Run one frame; ``pose`` is the vehicle's at ``frame.capture_ns``; ``steering``
         says whether the vehicle flies the output (:meth:`Pipeline.process`); ``latency_s``
         is the latency budget [s] the caller measured (the data age of recent commands,
         :class:`~companion.guidance.latency.DataAgeWindow`; None: the configured floor, as
-        in lockstep, where a frame's setpoint acts at its capture time).
+        in lockstep, where a frame's setpoint acts at its capture time); ``guide`` False:
+        the companion is not in control, guidance does not run
+        (:meth:`AvoidancePipeline.process`) and its changes are not reported.
 
         Raises whatever the pipeline raises on a bad frame (the caller counts and drops
         it); the mission's state is unchanged by a frame that raised, except for a
@@ -110,9 +113,12 @@ class Mission:
         notices: list[Notice] = []
         events: list[Event] = []
         self._advance_waypoint(pose.pos_ned_m, notices)
-        out = self.pipeline.process(frame, pose, steering=steering, latency_s=latency_s)
+        out = self.pipeline.process(
+            frame, pose, steering=steering, latency_s=latency_s, guide=guide
+        )
         self._check_goal(pose.pos_ned_m, frame.capture_ns, notices, events)
-        self._report_changes(out, frame.capture_ns, notices, events)
+        if out.guided:
+            self._report_changes(out, frame.capture_ns, notices, events)
         self._check_tracking(pose, frame.capture_ns, notices, events)
         self._report_kept_out(out, frame.capture_ns, notices, events)
         self._report_momentum(out, frame.capture_ns, notices, events)

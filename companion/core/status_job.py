@@ -191,6 +191,7 @@ class StatusJob:
             pipeline=self.pipeline_figures(out.envelope.latency_s),
             mode_requests=self.counters.mode_requests,
             proximity=None if self.proximity is None else self.proximity.figures(now_s),
+            guided=out.guided,  # False: not in control, guidance and the envelope skipped
         )
 
     def pipeline_figures(self, latency_s: float | None = None) -> dict[str, Any]:
