@@ -16,7 +16,8 @@ import pytest
 from companion.guidance.avoidance import Guidance
 from companion.guidance.cone import BoundarySphere
 from companion.guidance.config import GuidanceConfig
-from companion.guidance.stage_yaw import STAGE_REACH_M, stage_yaw_rad
+from companion.guidance.modes import Mode, Reason
+from companion.guidance.stage_yaw import STAGE_REACH_M, stage_yaw_rad, staged_move
 
 ELEV_RAD = GuidanceConfig().max_aim_elevation_rad  # 12°
 POS = np.array([0.0, 0.0, -6.0])
@@ -109,3 +110,57 @@ def test_guidance_turns_the_yaw_it_holds_for_a_goal_straight_above():
         yaws.append(out.yaw_rad)
     assert all(_stage_clear(POS, y, [(wall.center_ned_m, wall.radius_m)]) for y in yaws[1:])
     assert len({round(y, 9) for y in yaws[1:]}) == 1  # held once turned
+
+
+# vertical-7 (stereo, traced per frame at 6.7 s): 1.1 m off the column, the goal 4.2 m
+# below, a stage's swing at 0.22 m/s toward a wall piece whose surface is 1.4 m away
+_STAGE_POS = np.array([0.0, 0.0, -9.3])
+_STAGE_VEL = np.array([0.21, 0.06, 0.04])
+_WALL_PIECE = BoundarySphere((3.0, 0.0, -9.3), 1.6)
+
+
+def _mode_after(goal, detections, vel=_STAGE_VEL, frames=4):
+    g = Guidance(GuidanceConfig())
+    for k in range(frames):  # past the memory's confirmation (2 of 3 frames)
+        out = g.step(
+            time_s=0.1 * k, pos_ned_m=_STAGE_POS, vel_ned_mps=vel, goal_ned_m=goal,
+            detections=detections, yaw_rad=math.radians(40.6),
+        )  # fmt: skip
+    return out.mode, out.reason
+
+
+def test_a_stage_swing_toward_a_wall_beside_the_column_is_not_a_threat():
+    """Issue 36, vertical-7 and vertical-19: the velocity of a staged descent is the stages'
+    swing about the column; the goal straight below is clear of the wall piece, so guidance
+    navigates (the cone test on the velocity made it CRITICAL, and the detour round the
+    wall's end lost both flights to ``NO_PROGRESS``)."""
+    below = _STAGE_POS + np.array([-0.84, -0.76, 4.2])
+    assert staged_move(_STAGE_POS, below, ELEV_RAD)
+    assert _mode_after(below, [_WALL_PIECE]) == (Mode.NAVIGATE, Reason.NO_THREAT)
+
+
+def test_the_velocity_stays_the_reference_off_the_column():
+    """A goal as far below but 3 m off the column is no staged move: the paper's rule
+    (the velocity inside the piece's cone, its surface nearer than the goal) stands."""
+    off = _STAGE_POS + np.array([-3.0, 0.0, 4.2])
+    assert not staged_move(_STAGE_POS, off, ELEV_RAD)
+    assert _mode_after(off, [_WALL_PIECE]) == (Mode.AVOID, Reason.CRITICAL)
+
+
+def test_an_obstacle_in_the_column_stays_a_threat_whatever_the_swing():
+    """The direction to the goal is the reference: an obstacle under the vehicle in the
+    column is a threat although the swing points away from it (the velocity missed it);
+    no 12° aim passes it, so guidance holds."""
+    below = _STAGE_POS + np.array([0.05, 0.0, 4.2])
+    under = BoundarySphere((0.0, 0.0, -7.3), 0.9)
+    held = _mode_after(below, [under], vel=np.array([-0.2, 0.0, 0.04]))
+    assert held == (Mode.HOLD, Reason.NO_FREE_DIRECTION)
+
+
+@pytest.mark.parametrize("dz_m, horiz_m, staged", [
+    (4.0, 0.0, True), (-4.0, 1.4, True), (4.0, 1.6, False), (0.4, 0.0, False),
+    (0.25, 1.0, False),
+])  # fmt: skip
+def test_staged_move_is_steep_near_the_column_and_half_a_metre_up_or_down(dz_m, horiz_m, staged):
+    goal = _STAGE_POS + np.array([horiz_m, 0.0, dz_m])
+    assert staged_move(_STAGE_POS, goal, ELEV_RAD) is staged

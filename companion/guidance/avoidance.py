@@ -8,8 +8,8 @@ simulation time [s], there is no clock here.
 Each step
 ---------
 1. Merge the detections into the obstacle memory (:mod:`companion.guidance.memory`).
-2. Reference direction: the velocity; below ``min_speed_mps`` the direction to the goal
-   (so a hovering vehicle does not start into an obstacle); zero at the goal.
+2. Reference: the velocity; the direction to the goal below ``min_speed_mps`` (so a hovering
+   vehicle does not start into an obstacle) or when staged (``stage_yaw.staged_move``).
 3. On or inside a boundary sphere → AVOID (``INSIDE_BOUNDARY``): setpoint radially out of
    the deepest one, ``escape_clearance_m`` beyond its surface, slid by
    ``min_setpoint_distance_m`` along the direction of travel (the previous aiming
@@ -117,7 +117,7 @@ from companion.guidance.modes import Mode, Reason
 from companion.guidance.path_rules import prefer_known_path
 from companion.guidance.planner import choose_aiming_point, overlapping_cluster
 from companion.guidance.progress import Progress, watch_progress
-from companion.guidance.stage_yaw import stage_yaw_rad
+from companion.guidance.stage_yaw import stage_yaw_rad, staged_move
 from companion.guidance.step_types import GuidanceOutput, GuidanceState
 from protocols.config import vec3
 
@@ -288,10 +288,10 @@ class _Decision:
 
 
 def _reference(pos, vel, goal, cfg: GuidanceConfig) -> np.ndarray:
-    """Step 2: the velocity; below ``min_speed_mps`` the direction to the goal; else zero."""
+    """Step 2: the velocity; the direction to the goal below ``min_speed_mps`` or staged."""
     to_goal = goal - pos
-    speed = norm3(vel)
-    if speed >= cfg.min_speed_mps and speed > 0.0:
+    moving = 0.0 < norm3(vel) >= cfg.min_speed_mps
+    if moving and not staged_move(pos, goal, cfg.max_aim_elevation_rad):
         return vel
     if norm3(to_goal) > 1e-9:
         return to_goal

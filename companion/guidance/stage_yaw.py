@@ -23,7 +23,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["STAGE_REACH_M", "stage_yaw_rad"]
+__all__ = ["STAGE_REACH_M", "stage_yaw_rad", "staged_move"]
 
 _BEARINGS = 16  # candidate bearings, 22.5° apart, tried nearest "away" first
 # the stage's length checked [m]: the envelope's near field (1.05 m: a climb above the
@@ -32,6 +32,28 @@ STAGE_REACH_M = 1.5
 # a setpoint nearer than this above or below is not staged for [m]: the goal's arrival
 # tolerance (a goal beside a wall, arrived at, keeps facing it)
 _MIN_RISE_M = 0.5
+
+
+def staged_move(
+    pos_ned_m, goal_ned_m, elevation_rad: float, reach_m: float = STAGE_REACH_M
+) -> bool:
+    """Whether the move to ``goal_ned_m`` is a staged vertical one: the goal at least
+    0.5 m above or below, steeper than ``elevation_rad``, and within ``reach_m``
+    horizontally (a stage's reach: the stages swing the vehicle up to about the envelope's
+    ``stage_horizontal_m`` off the column, and back).
+
+    Such a move's velocity is the stages' swing, not a way to the goal: guidance takes
+    the direction to the goal as its threat reference there (issue 36, passage scenes
+    vertical-7 and vertical-19, stereo, traced per frame: a 0.2 m/s swing toward a wall
+    2 m beside the column, nearer than a goal 4 m below, made it a threat; the avoidance
+    led round the wall's end and back for 40-50 s until ``NO_PROGRESS``). The envelope
+    still certifies each stage (known free, its speed bound) and step 3 still escapes a
+    boundary entered.
+    """
+    to_goal = np.asarray(goal_ned_m, dtype=float) - np.asarray(pos_ned_m, dtype=float)
+    dz = abs(float(to_goal[2]))
+    horiz_m = math.hypot(float(to_goal[0]), float(to_goal[1]))
+    return dz >= _MIN_RISE_M and horiz_m <= reach_m and dz > horiz_m * math.tan(elevation_rad)
 
 
 def _stage_blocked(pos: np.ndarray, unit: np.ndarray, reach_m: float, spheres) -> int | None:
