@@ -222,8 +222,11 @@ def _boundaries_of(
         gap = max(float(pieces.nearest_to_point_m[m]) - half_voxel, 0.0)
         trimmed = False
         to_goal = float(np.linalg.norm(goal - centre))
-        shadowed = in_shadow(pos, goal, c, r)
-        if level >= 1 and to_goal < radius and not _blocks(gap, goal_free, shadowed, config, space):
+        if (
+            level >= 1
+            and to_goal < radius
+            and not _blocks(gap, goal_free, in_shadow(pos, goal, c, r), config, space)
+        ):
             d = float(np.linalg.norm(goal - c))
             if d - _TRIM_EPS_M >= r:  # the trimmed sphere still encloses the voxels
                 centre, radius, e, trimmed = c.copy(), d - _TRIM_EPS_M, 0.0, True
@@ -326,8 +329,8 @@ def map_boundaries(
     split = {
         b.track_key
         for b in boundaries
-        if not _blocks(b.goal_gap_m, goal_free, _shadows_goal(b, pos, goal), cfg, space)
-        and float(np.linalg.norm(goal - np.asarray(b.center_ned_m))) < b.radius_m
+        if float(np.linalg.norm(goal - np.asarray(b.center_ned_m))) < b.radius_m
+        and not _blocks(b.goal_gap_m, goal_free, _shadows_goal(b, pos, goal), cfg, space)
     }
     if split:
         # every sub-piece of a split piece: reach out by the piece's diagonal
