@@ -14,6 +14,7 @@ from companion.guidance.known_path import plan_known_path
 from companion.guidance.map_boundaries import (
     MapBoundaryConfig,
     goal_surely_blocked,
+    in_shadow,
     map_boundaries,
     solid_extent,
     track_key,
@@ -358,3 +359,39 @@ def test_an_opening_not_seen_free_or_not_clear_is_not_opened(seen, pole):
 
 def _decode_level(key: int) -> int:
     return (key >> 60) & 3
+
+
+def test_an_unseen_goal_in_front_of_a_seen_surface_is_not_in_its_blind_spot():
+    """Issue 36, vertical-123: the goal 1.65 m in front of a wall (beyond vehicle +
+    margin from its seen surface) and above the camera's view, so never seen: it was
+    counted in the wall's blind spot (within blind depth + inflation, not FREE), held
+    inside a full sphere, and guidance stopped short of it as unreachable. Only a goal
+    behind the surface as the vehicle looks at it (its line of sight through a piece)
+    can be in the blind spot; one in front is reached once seen free."""
+    space = _space_with_wall(north_m=3.1)  # the face at 3.0; nothing but the vehicle seen
+    above_front = np.array([3.0 - 1.3 + 0.05, 0.1, -9.1])  # 1.25 m before it, 2 m up
+
+    def holding(goal):
+        return [
+            s
+            for s in map_boundaries(space, POS, goal)
+            if np.linalg.norm(goal - np.asarray(s.center_ned_m)) < s.radius_m
+        ]
+
+    untrimmed = map_boundaries(space, POS, np.array([0.1, 0.1, -20.0]))
+    assert any(np.linalg.norm(above_front - s.center_ned_m) < s.radius_m for s in untrimmed)
+    assert space.state_at(above_front) != int(FREE)
+    assert not holding(above_front)
+    # behind the wall in line of sight, as unseen and as far from the surface: held
+    behind = np.array([3.2 + 1.2 + 0.05, 0.1, -7.1])
+    assert holding(behind) and not goal_surely_blocked(map_boundaries(space, POS, behind), behind)
+
+
+def test_in_shadow_is_the_line_of_sight_through_the_piece():
+    pos = np.zeros(3)
+    piece = np.array([3.0, 0.0, 0.0])
+    assert in_shadow(pos, [5.0, 0.5, 0.0], piece, 1.0)  # behind it, sight passes 0.3 m off
+    assert not in_shadow(pos, [5.0, 2.5, 0.0], piece, 1.0)  # sight passes 1.5 m off
+    assert not in_shadow(pos, [2.0, 0.0, 0.0], piece, 1.0)  # in front of the piece
+    assert not in_shadow(pos, [-5.0, 0.0, 0.0], piece, 1.0)  # the other way
+    assert not in_shadow(pos, pos, piece, 1.0)

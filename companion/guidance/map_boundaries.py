@@ -30,8 +30,10 @@ The goal and the real surface
 An inflated sphere can hold a goal that is in fact clear of the obstacle (a goal 1 m in
 front of a wall). The goal's clearance is therefore measured from the real surface, the
 OCCUPIED voxels: the goal is *blocked* by a piece when it lies within ``inflate_m`` of the
-piece's nearest voxel surface, or, when its own voxel is not FREE, within ``inflate_m +
-blind_depth_m`` (it may lie in the blind spot, inside the obstacle). A piece whose sphere
+piece's nearest voxel surface, or, when its own voxel is not FREE and the piece hides it
+from the vehicle (:func:`in_shadow`: the line of sight passes the piece before the goal),
+within ``inflate_m + blind_depth_m`` (it may lie in the blind spot, inside the obstacle).
+An unseen goal beside or in front of a seen surface is not in its blind spot. A piece whose sphere
 holds a goal that is not blocked is replaced by its eight sub-pieces (cubes of half the
 edge, at most 0.52 m radius); a sub-piece sphere holding the goal is trimmed to end just
 short of it (its blind spot dropped and its inflation reduced: the goal's clearance from
@@ -109,6 +111,7 @@ __all__ = [
     "MapBoundary",
     "MapBoundaryConfig",
     "goal_surely_blocked",
+    "in_shadow",
     "map_boundaries",
     "solid_extent",
     "track_key",
@@ -219,7 +222,11 @@ def _boundaries_of(
         gap = max(float(pieces.nearest_to_point_m[m]) - half_voxel, 0.0)
         trimmed = False
         to_goal = float(np.linalg.norm(goal - centre))
-        if level >= 1 and to_goal < radius and not _blocks(gap, goal_free, space, config):
+        if (
+            level >= 1
+            and to_goal < radius
+            and not _blocks(gap, goal_free, in_shadow(pos, goal, c, r), config, space)
+        ):
             d = float(np.linalg.norm(goal - c))
             if d - _TRIM_EPS_M >= r:  # the trimmed sphere still encloses the voxels
                 centre, radius, e, trimmed = c.copy(), d - _TRIM_EPS_M, 0.0, True
@@ -322,8 +329,8 @@ def map_boundaries(
     split = {
         b.track_key
         for b in boundaries
-        if not _blocks(b.goal_gap_m, goal_free, space, cfg)
-        and float(np.linalg.norm(goal - np.asarray(b.center_ned_m))) < b.radius_m
+        if float(np.linalg.norm(goal - np.asarray(b.center_ned_m))) < b.radius_m
+        and not _blocks(b.goal_gap_m, goal_free, _shadows_goal(b, pos, goal), cfg, space)
     }
     if split:
         # every sub-piece of a split piece: reach out by the piece's diagonal
@@ -453,12 +460,46 @@ def _keep_open(
     return out
 
 
-def _blocks(gap_m: float, goal_free: bool, space: KnownSpace, config: MapBoundaryConfig) -> bool:
-    """Does a piece whose nearest voxel surface is ``gap_m`` from the goal block it?"""
+def _blocks(
+    gap_m: float, goal_free: bool, shadowed: bool, config: MapBoundaryConfig, space: KnownSpace
+) -> bool:
+    """Does a piece whose nearest voxel surface is ``gap_m`` from the goal block it?
+
+    Within ``inflate_m`` of the seen surface: always. Farther, within the blind spot's
+    depth: when the goal is unseen (not FREE) *and* lies behind the piece as the vehicle
+    looks at it (``shadowed``, :func:`in_shadow`), since only there can it be inside the
+    obstacle (Fig. 4). An unseen goal beside or in front of the seen surface is not in
+    its blind spot: it is reached once seen free, the safety envelope keeping every
+    setpoint in space seen free on the way (issue 36, vertical-123: a goal 1.65 m in
+    front of a wall, above the camera's view, was held as "unreachable")."""
     if gap_m < config.inflate_m:
         return True  # too near the real surface
-    # an unseen goal within the blind spot's depth of the surface may be inside the obstacle
-    return not goal_free and gap_m < config.inflate_m + space.config.blind_depth_m
+    # an unseen goal behind the surface, within the blind spot's depth, may be inside it
+    return not goal_free and shadowed and gap_m < config.inflate_m + space.config.blind_depth_m
+
+
+def in_shadow(pos_ned_m, goal_ned_m, centroid_ned_m, piece_radius_m: float) -> bool:
+    """Whether a piece (voxels within ``piece_radius_m`` of ``centroid_ned_m``) hides
+    the goal from the vehicle: the straight line of sight from ``pos_ned_m`` to
+    ``goal_ned_m`` passes within ``piece_radius_m`` of the centroid, and the centroid lies
+    before the goal along it (in front of the vehicle). The blind spot of Fig. 4 is
+    behind a surface as seen; a goal out of every such shadow is not in one."""
+    pos = np.asarray(pos_ned_m, dtype=float)
+    sight = np.asarray(goal_ned_m, dtype=float) - pos
+    length = math.sqrt(float(sight @ sight))
+    to_c = np.asarray(centroid_ned_m, dtype=float) - pos
+    if length < 1e-9:
+        return False
+    along = float(to_c @ sight) / length
+    if not 0.0 < along < length:
+        return False
+    off2 = float(to_c @ to_c) - along * along
+    return off2 < float(piece_radius_m) ** 2
+
+
+def _shadows_goal(b: MapBoundary, pos: np.ndarray, goal: np.ndarray) -> bool:
+    centre = b.piece_center_ned_m or b.center_ned_m
+    return in_shadow(pos, goal, centre, b.piece_radius_m)
 
 
 def _fields(p: Pieces) -> tuple[np.ndarray, ...]:
