@@ -89,6 +89,11 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    and ``momentum_brake`` reports it (the core counts it and tells the operator). When
    braking would carry it farther out (a velocity toward less free space than the
    turn), the carrot stands. The cases that found it: docs/safety-envelope.md.
+9. **The room along the velocity** (issue 36 item 5): moving at ≥ 0.1 m/s, the stop must
+   also fit the known-free distance ``F_v`` along the velocity. When steps 5 and 8 did
+   not brake and ``d_stop + margin > F_v`` (a velocity swung off the path toward space
+   little seen free), the frame brakes as step 5 does: the carrot at the vehicle, the
+   bound along ``v`` without margin (:mod:`companion.guidance.velocity_bound`).
 """
 
 from __future__ import annotations
@@ -103,6 +108,7 @@ import numpy as np
 
 from companion.guidance.autopilot_path import ReferenceLimits, predict_path, straight_stop_m
 from companion.guidance.envelope_direction import brake_direction, looked_along, path_direction
+from companion.guidance.velocity_bound import stop_fits, velocity_room_m
 from protocols.config import Checked, bounded, dataclass_from_mapping
 
 __all__ = [
@@ -247,6 +253,8 @@ class EnvelopeOutput:
         While step 8's brake holds (at speed): the stopping point sent [m, NED],
         read-only, to be passed back as ``held_brake_ned_m`` with the next frame; None
         otherwise.
+    velocity_free_m : float
+        Step 9: the known-free distance along the velocity [m]; ``inf`` below 0.1 m/s.
     """
 
     setpoint_ned_m: np.ndarray
@@ -260,6 +268,7 @@ class EnvelopeOutput:
     latency_s: float = 0.15
     momentum_brake: bool = False
     brake_target_ned_m: np.ndarray | None = None
+    velocity_free_m: float = math.inf
 
 
 def stopping_distance_m(speed_mps: float, latency_s: float, accel_mps2: float) -> float:
@@ -537,9 +546,8 @@ def envelope_step(
         (``GuidanceConfig.max_aim_elevation_rad``, inside the camera's vertical view).
     config : EnvelopeConfig, optional
     latency_s : float, optional
-        The latency budget ``τ`` to use [s] (:meth:`~companion.guidance.latency.
-        DataAgeWindow.budget_s`); never below ``config.latency_s``, which is used when it
-        is None or not a finite number.
+        The latency budget ``τ`` [s] (:meth:`~companion.guidance.latency.DataAgeWindow.
+        budget_s`); never below ``config.latency_s`` (used when None or not finite).
     heading_rad : float, optional
         The vehicle's heading [rad] (step 7's stages climb along it).
     accel_ned_mps2 : array_like, shape (3,), optional
@@ -554,13 +562,21 @@ def envelope_step(
     speed = math.sqrt(float(vel @ vel))
     tau = _budget_s(cfg, latency_s)
     d_stop = stopping_distance_m(speed, tau, cfg.accel_mps2)
+    free_v = velocity_room_m(
+        vel, max_path_elevation_rad,
+        lambda unit: _free_m(free_distance, pos, unit, vehicle_radius_m, cfg))  # fmt: skip
     direction, free, carrot, limited = _path_and_carrot(
         pos, target, d_stop, free_distance, vehicle_radius_m, max_path_elevation_rad,
         heading_rad, cfg)  # fmt: skip
     limit = _limit_mps(free, tau, cfg)
+    braked = speed > limit
     carrot, limited, direction, free, limit, momentum, brake = _brake_steps(
         pos, vel, (carrot, limited, direction, free, limit), free_distance, tau, cfg,
         vehicle_radius_m, accel_ned_mps2, held_brake_ned_m, max_path_elevation_rad)  # fmt: skip
+    if not (braked or momentum) and not stop_fits(d_stop, cfg.margin_m, free_v):  # step 9
+        carrot, limited, free = pos.copy(), True, free_v
+        direction = brake_direction(vel, max_path_elevation_rad)
+        limit = min(speed_limit_mps(free_v, tau, cfg.accel_mps2, 0.0), cfg.max_speed_mps)
     carrot.setflags(write=False)
     direction.setflags(write=False)
     return EnvelopeOutput(
@@ -575,4 +591,5 @@ def envelope_step(
         latency_s=tau,
         momentum_brake=momentum,
         brake_target_ned_m=brake,
+        velocity_free_m=free_v,
     )
