@@ -46,11 +46,10 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    climb steeper than the path only by the least climb speed the companion states is
    measured at the path's elevation (:func:`~companion.guidance.envelope_direction.
    brake_direction`: the slack's rise over a stop stays inside the section's height).
-   The bound stated while braking keeps no margin: ``margin_m`` is the reserve a brake
-   may use. A drop of ``F_v`` to the body's own bubble (a staged climb entering the voxel
-   layer above, unseen near the vehicle for 3–4 frames, vertical-123 stereo) then states
-   the fastest speed whose stop still ends in space seen free, not 0 m/s at 0.3 m/s;
-   only a stop that no longer fits there (something new nearer) reads as overspeed.
+   The bound stated while braking keeps no margin (the brake's reserve): a drop of ``F_v``
+   to the body's own bubble (a staged climb entering the unseen voxel layer above,
+   vertical-123) states the fastest speed whose stop still ends in space seen free; only
+   a stop that no longer fits there (something new nearer) reads as overspeed.
 7. **Vertical moves in stages** (issue 36): a setpoint steeper than
    ``max_path_elevation_rad`` whose horizontal distance is below ``stage_horizontal_m``
    (a goal straight above or below) is climbed to, or descended to, along the vehicle's
@@ -90,10 +89,9 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    braking would carry it farther out (a velocity toward less free space than the
    turn), the carrot stands. The cases that found it: docs/safety-envelope.md.
 9. **The room along the velocity** (issue 36 item 5): moving at ≥ 0.1 m/s, the stop must
-   also fit the known-free distance ``F_v`` along the velocity. When steps 5 and 8 did
-   not brake and ``d_stop + margin > F_v`` (a velocity swung off the path toward space
-   little seen free), the frame brakes as step 5 does: the carrot at the vehicle, the
-   bound along ``v`` without margin (:mod:`companion.guidance.velocity_bound`).
+   also fit ``F_v``. When steps 5 and 8 did not brake and ``d_stop + margin > F_v`` (a
+   velocity swung off the path toward space little seen free), the frame brakes as step
+   5 does (:mod:`companion.guidance.velocity_bound`); ``F_v`` is measured once a frame.
 """
 
 from __future__ import annotations
@@ -108,7 +106,7 @@ import numpy as np
 
 from companion.guidance.autopilot_path import ReferenceLimits, predict_path, straight_stop_m
 from companion.guidance.envelope_direction import brake_direction, looked_along, path_direction
-from companion.guidance.velocity_bound import stop_fits, velocity_room_m
+from companion.guidance.velocity_bound import MIN_SPEED_MPS, stop_fits, velocity_room_m
 from protocols.config import Checked, bounded, dataclass_from_mapping
 
 __all__ = [
@@ -125,7 +123,7 @@ FreeDistanceFn = Callable[..., float]
 pipeline's obstacle extents bound: :func:`companion.guidance.map_boundaries.solid_extent`)."""
 
 
-_BRAKE_MIN_SPEED_MPS = 0.1  # below this the vehicle has no direction of motion to state a bound for
+_BRAKE_MIN_SPEED_MPS = MIN_SPEED_MPS  # below: no direction of motion to state a bound for
 # Step 8 (momentum): a carrot more than this angle off the velocity (at or above this
 # speed) or off the acceleration (at or above this acceleration) is certified along the
 # path the autopilot flies to it, not only along the straight line.
@@ -325,6 +323,11 @@ def _limit_mps(free_m: float, tau_s: float, cfg: EnvelopeConfig) -> float:
     return min(speed_limit_mps(free_m, tau_s, cfg.accel_mps2, cfg.margin_m), cfg.max_speed_mps)
 
 
+def _brake_limit_mps(free_m: float, tau_s: float, cfg: EnvelopeConfig) -> float:
+    """The bound stated while braking (steps 5, 8, 9): no margin (the brake's reserve) [m/s]."""
+    return min(speed_limit_mps(free_m, tau_s, cfg.accel_mps2, 0.0), cfg.max_speed_mps)
+
+
 def _path_and_carrot(pos, target, d_stop, free_distance, radius_m, max_elev_rad, heading, cfg):
     """Steps 1, 2, 4 and 7: the path direction, its known-free distance, the carrot and
     whether it falls short of ``target``."""
@@ -468,12 +471,13 @@ def _excess_m(path, pos, free_distance, vehicle_radius_m, cfg) -> float:
 
 
 def _brake_steps(
-    pos, vel, chosen, free_distance, tau, cfg, vehicle_radius_m, accel, held_brake, max_elev_rad
+    pos, vel, chosen, free_distance, tau, cfg, vehicle_radius_m, accel, held_brake, along_v
 ):
     """Steps 5 and 8 on ``chosen`` = (carrot, limited, direction, free, limit): brake when
     too fast for the path's free space (5) or when the autopilot's way to the carrot is
-    not seen free (8). Returns them as sent, whether step 8 braked, and the brake target
-    to hold next frame (None when there is none, or it is at the vehicle)."""
+    not seen free (8); ``along_v`` = (path elevation limit, ``F_v`` measured along
+    :func:`brake_direction`). Returns them as sent, whether step 8 braked, and the brake
+    target to hold next frame (None when there is none, or it is at the vehicle)."""
     carrot, limited, direction, free, limit = chosen
     speed = math.sqrt(float(vel @ vel))
     acc = _measured_accel(accel)
@@ -499,9 +503,9 @@ def _brake_steps(
         if momentum or held is not None:
             brake = brake_target()
             carrot, limited = brake.copy(), True
+        max_elev_rad, free = along_v  # F_v: measured along brake_direction at this speed
         direction = brake_direction(vel, max_elev_rad)
-        free = _free_m(free_distance, pos, direction, vehicle_radius_m, cfg)
-        limit = min(speed_limit_mps(free, tau, cfg.accel_mps2, 0.0), cfg.max_speed_mps)
+        limit = _brake_limit_mps(free, tau, cfg)
     elif momentum:
         carrot, limited = pos.copy(), True
     if brake is not None:
@@ -539,8 +543,7 @@ def envelope_step(
         ``(pos, unit_dir, radius_m, limit_m) -> metres`` of known-free travel, e.g.
         :meth:`companion.known_space.KnownSpace.free_distance_m`.
     vehicle_radius_m : float
-        Half-width of the section swept through known-free space [m]: the vehicle's
-        radius, the one perception inflates its boundaries by (``PerceptionConfig``).
+        Half-width of the section swept through known-free space [m] (``PerceptionConfig``'s).
     max_path_elevation_rad : float
         Steepest climb or descent of the path [rad]: guidance's aiming-elevation limit
         (``GuidanceConfig.max_aim_elevation_rad``, inside the camera's vertical view).
@@ -572,11 +575,12 @@ def envelope_step(
     braked = speed > limit
     carrot, limited, direction, free, limit, momentum, brake = _brake_steps(
         pos, vel, (carrot, limited, direction, free, limit), free_distance, tau, cfg,
-        vehicle_radius_m, accel_ned_mps2, held_brake_ned_m, max_path_elevation_rad)  # fmt: skip
+        vehicle_radius_m, accel_ned_mps2, held_brake_ned_m,
+        (max_path_elevation_rad, free_v))  # fmt: skip
     if not (braked or momentum) and not stop_fits(d_stop, cfg.margin_m, free_v):  # step 9
         carrot, limited, free = pos.copy(), True, free_v
         direction = brake_direction(vel, max_path_elevation_rad)
-        limit = min(speed_limit_mps(free_v, tau, cfg.accel_mps2, 0.0), cfg.max_speed_mps)
+        limit = _brake_limit_mps(free_v, tau, cfg)
     carrot.setflags(write=False)
     direction.setflags(write=False)
     return EnvelopeOutput(
