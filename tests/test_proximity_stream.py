@@ -17,8 +17,13 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.known_space import FREE, OCCUPIED, KnownSpace, KnownSpaceConfig
 from companion.proximity.sectors import UINT16_MAX, ProximityConfig, sectors_from_map
-from companion.proximity.sender import ProximitySender
-from companion.proximity.stream import SLAB_MARGIN_M, ProximityStream, snapshot_map
+from companion.proximity.sender import POSE_STALE_S, ProximitySender
+from companion.proximity.stream import (
+    GAP_PERIODS,
+    SLAB_MARGIN_M,
+    ProximityStream,
+    snapshot_map,
+)
 
 pytestmark = pytest.mark.unit
 
@@ -81,6 +86,7 @@ class _Link:
         self.sent: list[tuple[float, object]] = []
         self.positions = True
         self.polled = 0
+        self.polled_at: list[float] = []  # when each position was read [s monotonic]
 
     def _decoded(self, msg):
         return self.mav.decode(bytearray(msg.pack(self.mav)))
@@ -89,7 +95,9 @@ class _Link:
         if not self.positions:
             return []
         self.polled += 1
-        north = POS[0] + self.vel_n_mps * (time.monotonic() - self.t0)
+        now_s = time.monotonic()
+        self.polled_at.append(now_s)
+        north = POS[0] + self.vel_n_mps * (now_s - self.t0)
         pos = mavlink.MAVLink_local_position_ned_message(
             0, north, POS[1], POS[2], self.vel_n_mps, 0.0, 0.0
         )
@@ -113,20 +121,26 @@ def test_the_stream_keeps_its_rate_while_the_main_thread_matches_frames():
     send of the main loop's: the thread sends every 1.5 periods (75 ms; the median gap,
     as a machine loaded 10× over its cores starves the whole process now and then), each
     message seen from where the vehicle is at the send (the wall ahead nearer by the
-    velocity times the time)."""
+    velocity times the time).
+
+    On a loaded machine the whole process is held off the CPU now and then (measured at
+    load 12 on two cores: one gap of the thread's over the autopilots' 0.5 s). The main
+    thread sees such a stall as one long pass of its loop, so the thread's longest gap is
+    bounded by its own two periods plus the longest pass: a thread held up by the main
+    thread's work (a lock, the interpreter) fails that bound, a busy machine does not."""
     rng = np.random.default_rng(0)
     left = rng.integers(0, 255, (240, 320), dtype=np.uint8)
     right = np.roll(left, -8, axis=1)
     matcher = cv2.StereoSGBM_create(numDisparities=64, blockSize=5)
     link = _Link(vel_n_mps=2.0)
     stream, sender = _stream(link)
+    passes = [time.monotonic()]
     stream.start()
     try:
-        busy_until = time.monotonic() + 1.0
-        frames = 0
-        while time.monotonic() < busy_until:
+        busy_until = passes[0] + 1.0
+        while passes[-1] < busy_until:
             matcher.compute(left, right)
-            frames += 1
+            passes.append(time.monotonic())
     finally:
         stream.close()
     times = np.array([t for t, _ in link.sent])
@@ -134,32 +148,67 @@ def test_the_stream_keeps_its_rate_while_the_main_thread_matches_frames():
     gaps = np.diff(times)
     # 1.5 periods, looked at every half period: 75-100 ms, and the process's scheduling
     assert np.median(gaps) <= 2.0 * sender.period_s + 0.03, gaps
-    assert sender.late == 0 and stream.errors == 0
+    longest_pass_s = float(np.max(np.diff(passes)))  # matching, and any stall of the process
+    bound_s = 2.0 * sender.period_s + longest_pass_s + 0.03
+    assert sender.longest_gap_s <= bound_s, (sender.longest_gap_s, longest_pass_s, sender.late)
+    assert stream.errors == 0
+    polled = np.array(link.polled_at)
     for t, msg in link.sent:
         assert msg.time_usec == 5_000  # the snapshot's capture time
-        expected = WALL_N_M - link.vel_n_mps * (t - link.t0)
-        # below: floor to cm and the far layer's footprint; above: the vehicle moves on
-        # while the sectors are computed (up to 50 ms on a loaded machine)
-        travel_m = link.vel_n_mps * 0.05
-        got_m = msg.distances[0] / 100.0
-        assert expected - VOXEL_DIAG_M - 0.05 <= got_m <= expected + 0.01 + travel_m
-    print(f"{frames} frames matched: {len(times)} sends in 1 s, longest gap {gaps.max():.3f} s")
+        # Between where the vehicle was at the position the thread read last before the
+        # send (it carries that forward to when it computes) and where it is at the send;
+        # below also the floor to cm and the far layer's footprint.
+        read_s = polled[polled <= t].max()
+        nearest_m = WALL_N_M - link.vel_n_mps * (t - link.t0) - VOXEL_DIAG_M - 0.05
+        farthest_m = WALL_N_M - link.vel_n_mps * (read_s - link.t0) + 0.01
+        assert nearest_m <= msg.distances[0] / 100.0 <= farthest_m, (t - read_s, msg.distances[0])
+    print(
+        f"{len(passes) - 1} frames matched: {len(times)} sends in 1 s, longest gap "
+        f"{gaps.max():.3f} s, longest pass of the main thread {longest_pass_s:.3f} s"
+    )
 
 
 def test_a_position_older_than_half_a_second_makes_every_sector_unknown():
+    """Telemetry stops: the sends placed with the last position show the wall; every send
+    computed more than :data:`POSE_STALE_S` after that position was read is all unknown.
+    Which send that is follows from the sends' own times (the thread reads, then computes,
+    then sends, in turn), not from sleeping a fixed time, so a stalled thread cannot make
+    the test look at a send computed early."""
     link = _Link(vel_n_mps=0.0)
     stream, sender = _stream(link)
     stream.start()
     try:
-        time.sleep(0.2)
+        assert _wait_for(lambda: len(link.sent) >= 2, 10.0), link.sent
         link.positions = False  # telemetry stops
-        time.sleep(0.9)
+        last_read_s = link.polled_at[-1]
+        # the send of the pass that read the last position: it was read (received_ns) before
+        assert _wait_for(lambda: any(t >= last_read_s for t, _ in link.sent), 10.0)
+        read_by_s = min(t for t, _ in link.sent if t >= last_read_s)
+        # two more sends, the first of them after the position has gone stale: the second
+        # was computed after the first went out, so with a position older than 0.5 s
+        assert _wait_for(
+            lambda: sum(t >= read_by_s + POSE_STALE_S for t, _ in link.sent) >= 2, 10.0
+        ), link.sent
     finally:
         stream.close()
-    first, last = link.sent[1][1], link.sent[-1][1]
+    first = link.sent[1][1]
     assert first.distances[0] / 100.0 == pytest.approx(WALL_N_M, abs=VOXEL_DIAG_M)
-    assert list(last.distances) == [UINT16_MAX] * 72
+    stale = [t for t, _ in link.sent].index(
+        next(t for t, _ in link.sent if t >= read_by_s + POSE_STALE_S)
+    )
+    for _, msg in link.sent[stale + 1 :]:
+        assert list(msg.distances) == [UINT16_MAX] * 72
     assert sender.stale_pose > 0
+
+
+def _wait_for(cond, timeout_s: float) -> bool:
+    """Poll ``cond`` every 10 ms until it holds or ``timeout_s`` passes."""
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
 
 
 def test_what_the_thread_reads_reaches_the_main_loop_in_order():
@@ -169,8 +218,8 @@ def test_what_the_thread_reads_reaches_the_main_loop_in_order():
     try:
         readable, _, _ = select.select([stream.fileno()], [], [], 1.0)
         assert readable, "the thread wakes the main loop"
-        time.sleep(0.2)
-        got = stream.take_inbox()
+        got = []  # three reads of the link (one each 1.5 periods), however busy the machine
+        assert _wait_for(lambda: got.extend(stream.take_inbox()) or len(got) >= 2 * 3, 10.0)
     finally:
         stream.close()
     assert len(got) >= 2 * 3
@@ -180,20 +229,29 @@ def test_what_the_thread_reads_reaches_the_main_loop_in_order():
 
 
 def test_the_thread_sends_nothing_while_the_main_loop_keeps_the_rate():
-    """At 5 Hz (the thread steps in after 0.3 s) the test's loop sends every 5 ms."""
+    """At 5 Hz (the thread steps in after 0.3 s) the test's loop sends at the rate,
+    looking every 5 ms. The thread may step in only where the loop itself was held off
+    that long (a loaded machine stops the whole process now and then): at most one send
+    per 0.3 s of each gap between the loop's own sends, so none when it kept the rate."""
     link = _Link(vel_n_mps=0.0)
     sender = ProximitySender(ProximityConfig(rate_hz=5.0))
     stream = ProximityStream(sender, link.poll, link.send, (1, 1))
+    space = _walled_map()
+    mains = [time.monotonic()]  # the loop's sends, after the start
     stream.start()
     try:
-        space = _walled_map()
-        until = time.monotonic() + 1.0
+        until = mains[0] + 1.0
         while time.monotonic() < until:  # the main loop's sends, at the rate
             now_s = time.monotonic()
             if sender.due(now_s):
                 sender.on_timer(space, POS, 0.0, now_s)
+                mains.append(now_s)
             time.sleep(0.005)
     finally:
         stream.close()
-    assert stream.fills == 0 and link.sent == [] and link.polled == 0
-    assert sender.sent >= 4
+        mains.append(time.monotonic())
+    step_in_s = GAP_PERIODS * sender.period_s
+    explained = sum(math.floor(g / step_in_s) for g in np.diff(mains))
+    assert stream.fills <= explained, (stream.fills, np.diff(mains))
+    assert len(link.sent) == link.polled == stream.fills  # it reads only when it sends
+    assert sender.sent - stream.fills >= 4
