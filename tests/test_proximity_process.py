@@ -39,7 +39,6 @@ from companion.proximity.sectors import UINT16_MAX, ProximityConfig, sectors_fro
 from companion.proximity.sender import ProximitySender
 from companion.proximity.shared import SharedLink, SharedMap, SharedPose
 from companion.proximity.stream import SLAB_MARGIN_M, snapshot_map
-from evaluation.sil import free_port
 from protocols.signing import SignatureVerifier, SigningKey, signing_timestamp_now
 
 pytestmark = pytest.mark.processes
@@ -127,7 +126,7 @@ class _Autopilot:
 
     def __init__(self, key: SigningKey | None = None) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", free_port()))
+        self.sock.bind(("127.0.0.1", _free_port()))
         # the kernel's arrival time: this test's own thread may be held off the interpreter
         self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         self.sock.settimeout(0.02)
@@ -143,6 +142,7 @@ class _Autopilot:
         self.frames: list[bytes] = []  # every frame from the companion, in arrival order
         self.peers: list = []
         self.telemetry_sent = 0
+        self.telemetry_at: list[float] = []  # when each LOCAL_POSITION_NED left [s monotonic]
         self.vel_n_mps = 0.0  # fly(): north at this speed from POS
         self.t0: float | None = None
         self.streaming = threading.Event()
@@ -176,6 +176,7 @@ class _Autopilot:
                 for m in (pos, att):
                     self.sock.sendto(m.pack(self.mav), self.peers[0])
                     self.telemetry_sent += 1
+                self.telemetry_at.append(now)
 
     def fly(self, vel_n_mps: float) -> None:
         """From now on, the telemetry's vehicle flies north at ``vel_n_mps`` from POS."""
@@ -255,6 +256,16 @@ def _wait(cond, timeout_s: float) -> bool:
             return True
         time.sleep(0.01)
     return cond()
+
+
+def _free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    """:func:`evaluation.sil.free_port`, imported when called: the main loop that
+    :mod:`test_proximity_reader` starts in a process of its own imports this module, and
+    the evaluation package (plant_sim, python-control, scipy) took 24 s of its start at
+    load 17 on two cores, past the test's 60 s once."""
+    from evaluation.sil import free_port
+
+    return free_port(kind)
 
 
 def _spin_holding_the_gil(seconds: float) -> None:
@@ -373,7 +384,7 @@ def _signed_since(ap: _Autopilot, floor: int) -> int:
 def test_on_a_udpin_link_the_process_sends_to_the_peers_the_main_loop_heard():
     """``udpin``: no peer until the autopilot writes (counted, nothing sent); then the
     process answers it from the companion's port."""
-    port = free_port()
+    port = _free_port()
     main = _MainLoop(f"udpin:127.0.0.1:{port}")
     peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     peer.settimeout(5.0)
@@ -447,7 +458,7 @@ def test_a_sigkilled_companion_leaves_no_obstacle_distance_process():
     from evaluation.sil import ChildProcess
 
     ap = _Autopilot()
-    zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    zenoh = f"tcp/127.0.0.1:{_free_port(socket.SOCK_STREAM)}"
     companion = ChildProcess(
         "companion",
         "companion",

@@ -152,6 +152,7 @@ def test_the_process_places_the_moving_vehicle_while_the_main_loop_is_stopped():
         assert select.select([parent.stdout], [], [], 60.0)[0], "the main loop did not start"
         int(parent.stdout.readline())  # the process's pid: it is running
         assert _wait(lambda: any(m.time_usec == 5_000 for _, m, _ in ap.received), 10.0)
+        reset_s = time.monotonic()
         before = _ask(parent, "reset")
         ap.fly(vel_n_mps)
         time.sleep(0.3)
@@ -161,6 +162,7 @@ def test_the_process_places_the_moving_vehicle_while_the_main_loop_is_stopped():
         os.kill(parent.pid, signal.SIGCONT)
         end = time.monotonic()
         after = _ask(parent, "figures")
+        asked_s = time.monotonic()
         got = [(t, m) for t, m, _ in ap.received if start + 0.1 <= t <= end]
         assert len(got) >= 10 * 1.4 * 0.8, len(got)  # >= 10 Hz with slack for load
         for t, msg in got:
@@ -169,7 +171,14 @@ def test_the_process_places_the_moving_vehicle_while_the_main_loop_is_stopped():
             tol_m = VOXEL_DIAG_M + 0.1 + vel_n_mps * 0.1  # a voxel, and a pose 0.1 s old
             assert msg.distances[0] / 100.0 == pytest.approx(expected_m, abs=tol_m), t - start
         assert after["stale_pose"] == before["stale_pose"], (before, after)
-        assert after["pose_age_max_s"] < 0.1, after
+        # Never older than the autopilot's longest silence in the window plus the 80 ms
+        # the process may take between reading a position and sending (0.1 s at the
+        # autopilot's 50 Hz). The silence is this test's thread, which a loaded machine
+        # holds off now and then; the main loop's stopped copy would age by the full 1.5 s
+        # (stale after 0.5 s, counted above).
+        sent_s = [t for t in ap.telemetry_at if reset_s <= t <= asked_s]
+        silence_s = float(np.max(np.diff([reset_s, *sent_s, asked_s])))
+        assert after["pose_age_max_s"] < silence_s + 0.08, (after, silence_s)
         assert after["own_pose"] > before["own_pose"] and after["alive"], after
         assert after["takeovers"] == 0  # the process read the socket throughout
         ap.streaming.clear()
