@@ -20,6 +20,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import zenoh
 from pymavlink import mavutil
@@ -39,10 +40,16 @@ from protocols import stereo_frame
 from protocols.keys import stereo_key
 
 SPEEDUP = 4.0
+# A child's start (imports, numba's cached kernels) is seconds on an idle machine; plant-sim
+# took over 60 s at load 28 on two cores. The wait ends at the readiness line.
+READY_TIMEOUT_S = 180.0
 GOAL = (0.0, 0.0, -7.0)
 
 
-def _assert_close_to_lockstep(v, ref, what=""):
+def _assert_close_to_lockstep(v, ref, what="", stood_s=0.0):
+    """``v`` flies like lockstep's ``ref``; ``stood_s``: the time the SIL flight stood still
+    in failsafe holds for late frames beyond what ``ref`` stood (:func:`_stood_in_holds_s`),
+    which lockstep, with every frame on time, cannot have."""
     # Since guidance avoids the map's boundary pieces (issue 13), a SIL flight (about half
     # the frames at 4x) varies more around lockstep: measured in CI, flight 29.2 vs 31.4 s,
     # avoidance 6.3 vs 9.0 s, clearance 1.16 vs 0.81 m. Bounds below cover that spread;
@@ -52,18 +59,66 @@ def _assert_close_to_lockstep(v, ref, what=""):
     # A busy companion flies slower by design (invariant 2: the stated speed follows the
     # measured data age), so the slow side is a ratio: the malformed flood took 31.1 s
     # against lockstep's 26.8 s in CI (data age p99 ~190 ms vs ~60 ms). The fast side
-    # stays tight: a SIL flight that beats lockstep by seconds cut a corner.
-    slowest_s = 1.35 * ref.sim_time_s + 1.0
-    assert ref.sim_time_s - 4.0 <= v.sim_time_s <= slowest_s, (what, v, ref)
-    slowest_avoid_s = 1.35 * ref.avoidance_time_s + 4.0
-    assert ref.avoidance_time_s - 4.0 <= v.avoidance_time_s <= slowest_avoid_s, (what, v, ref)
+    # stays tight: a SIL flight that beats lockstep by seconds cut a corner. A machine too
+    # busy to deliver frames on the simulation's clock (load 28 on two cores: frames 1.1
+    # and 1.6 s late, two holds) makes the vehicle stand still while it holds; that time
+    # is measured and added, the ratio is not widened.
+    slowest_s = 1.35 * ref.sim_time_s + 1.0 + stood_s
+    assert ref.sim_time_s - 4.0 <= v.sim_time_s <= slowest_s, (what, v, ref, stood_s)
+    slowest_avoid_s = 1.35 * ref.avoidance_time_s + 4.0 + stood_s
+    assert ref.avoidance_time_s - 4.0 <= v.avoidance_time_s <= slowest_avoid_s, (
+        what,
+        v,
+        ref,
+        stood_s,
+    )
     assert abs(v.min_surface_distance_m - ref.min_surface_distance_m) <= 0.45, (what, v, ref)
     assert v.max_pitch_cmd_deg <= 15.0 + 1e-6 and v.max_roll_cmd_deg <= 15.0 + 1e-6
 
 
+#: slower than this [m/s] the vehicle stands (a position hold settles well below it)
+_STANDING_MPS = 0.2
+
+
+def _standing_s(time_s, vel_ned_mps) -> float:
+    """Time [s] the vehicle stood (speed < :data:`_STANDING_MPS`) between its first and last
+    moment faster than 1.5x that: the rest before take-off and after arrival excluded."""
+    t = np.asarray(time_s, dtype=float)
+    speed = np.linalg.norm(np.asarray(vel_ned_mps, dtype=float), axis=0)
+    moving = np.flatnonzero(speed > 1.5 * _STANDING_MPS)
+    if len(moving) < 2:
+        return 0.0
+    first, last = moving[0], moving[-1]
+    dt = np.diff(t[first : last + 1])
+    return float(np.sum(dt[speed[first:last] < _STANDING_MPS]))
+
+
+def _stood_in_holds_s(events, truth, ref_standing_s: float) -> float:
+    """The time the SIL flight stood beyond lockstep's ``ref_standing_s`` [s], counted only
+    when the companion reported a failsafe hold for late frames (0 otherwise: standing for
+    any other reason is the companion's doing, and the time bounds stay as they are)."""
+    late = [f for name, f in events if name == "hold" and f.get("reason") == "stale_frames"]
+    if not late:
+        return 0.0
+    vel = [truth[k] for k in ("vel_n_mps", "vel_e_mps", "vel_d_mps")]
+    return max(_standing_s(truth["time_s"], vel) - ref_standing_s, 0.0)
+
+
 @pytest.fixture(scope="module")
-def lockstep_verdict():
-    return run_scene(paper_scene()).verdict
+def lockstep_run():
+    return run_scene(paper_scene())
+
+
+@pytest.fixture(scope="module")
+def lockstep_verdict(lockstep_run):
+    return lockstep_run.verdict
+
+
+@pytest.fixture(scope="module")
+def lockstep_standing_s(lockstep_run):
+    """How long lockstep's paper flight stood still between take-off and arrival [s]."""
+    h = lockstep_run.history
+    return _standing_s(h.column("time_s"), [h.column(k) for k in ("vn_mps", "ve_mps", "vd_mps")])
 
 
 class Rig:
@@ -93,7 +148,7 @@ class Rig:
             env,
         )
         self.children.append(c)
-        c.wait_line(r"^COMPANION READY ", 60)
+        c.wait_line(r"^COMPANION READY ", READY_TIMEOUT_S)
         return c
 
     def plant(
@@ -118,7 +173,7 @@ class Rig:
             env,
         )
         self.children.append(p)
-        p.wait_line(r"^PLANT_SIM READY ", 60)
+        p.wait_line(r"^PLANT_SIM READY ", READY_TIMEOUT_S)
         return p
 
     def wait_event(self, child: ChildProcess, name: str, timeout_s: float, cond=None) -> dict:
@@ -242,7 +297,9 @@ def _flight_verdict(rig: Rig, companion: ChildProcess, run: str):
 
 
 @pytest.mark.slow
-def test_sil_paper_scenario_with_signing_matches_lockstep(tmp_path, lockstep_verdict, monkeypatch):
+def test_sil_paper_scenario_with_signing_matches_lockstep(
+    tmp_path, lockstep_verdict, lockstep_standing_s, monkeypatch
+):
     """End to end, both processes signing with the same key: flies like lockstep.
 
     Run from a directory outside the source tree with a relative output folder, as a
@@ -258,7 +315,9 @@ def test_sil_paper_scenario_with_signing_matches_lockstep(tmp_path, lockstep_ver
     tmp_path = elsewhere / "run"
     assert (tmp_path / "truth.csv").is_file()
     v = result.verdict
-    _assert_close_to_lockstep(v, lockstep_verdict, "sil")
+    truth = _read_truth(tmp_path / "truth.csv")
+    stood_s = _stood_in_holds_s(result.events, truth, lockstep_standing_s)
+    _assert_close_to_lockstep(v, lockstep_verdict, "sil", stood_s)
     assert result.plant_stats["link"]["bad_signature_refused"] == 0
     assert result.plant_stats["link"]["unsigned_refused"] == 0
     assert result.companion_stats["mavlink"]["signing_refused"] == 0
@@ -304,7 +363,9 @@ def test_frames_stop_hold_within_half_a_second_then_resume(rig):
     assert min(v for v in truth["surface_distance_m"]) > 0.35
 
 
-def test_malformed_payloads_counted_and_flight_unchanged(rig, lockstep_verdict):
+def test_malformed_payloads_counted_and_flight_unchanged(
+    rig, lockstep_verdict, lockstep_standing_s
+):
     companion = rig.companion("--vehicle-id", "fwd")
     rig.plant(connect=False)
     fwd = Forwarder(rig, malformed_total=10_000, per_frame=15)
@@ -321,8 +382,9 @@ def test_malformed_payloads_counted_and_flight_unchanged(rig, lockstep_verdict):
     stats = companion.stats("COMPANION STATS ")
     assert fwd.malformed_sent == 10_000
     assert stats["frames_malformed"] == 10_000, (stats, rig.logs())
-    v, _ = _flight_verdict(rig, companion, "run0")
-    _assert_close_to_lockstep(v, lockstep_verdict, "malformed")
+    v, truth = _flight_verdict(rig, companion, "run0")
+    stood_s = _stood_in_holds_s(companion.events(), truth, lockstep_standing_s)
+    _assert_close_to_lockstep(v, lockstep_verdict, "malformed", stood_s)
     assert stats["pipeline_errors"] == 0
 
 
