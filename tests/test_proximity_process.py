@@ -316,8 +316,15 @@ def test_the_process_sends_through_the_companions_socket_at_rate_and_places_the_
         assert times.size >= 10 * 1.5 * 0.8, times.size  # >= 10 Hz, with slack for load
         assert np.max(np.diff(times)) < 0.5, np.diff(times)  # the autopilots' timeout
         # before the spin: the distance ahead is from the pose carried forward to the send
-        # (to a voxel)
-        t, msg = next((t, m) for t, m, _ in reversed(ap.received) if t < start)
+        # (to a voxel). The last send before it whose telemetry was flowing: this test's
+        # autopilot thread, held off the CPU on a loaded machine, may have let the pose
+        # go stale (all unknown, rightly) just before the spin.
+        sent_at = np.array(ap.telemetry_at)
+
+        def fresh(t: float) -> bool:  # a position left the autopilot < 0.4 s before
+            return bool(np.any((sent_at <= t) & (sent_at > t - 0.4)))
+
+        t, msg = next((t, m) for t, m, _ in reversed(ap.received) if t < start and fresh(t))
         assert msg.time_usec == 5_000
         expected_m = WALL_N_M - (north_m(t * 1e9) - POS[0])
         assert msg.distances[0] / 100.0 == pytest.approx(expected_m, abs=VOXEL_DIAG_M + 0.1)
