@@ -55,7 +55,9 @@ def connect(plant: PlantProcess, *, key: bytes | None = None, sysid: int = 255, 
     m = plant.client(source_system=sysid, source_component=compid, dialect="ardupilotmega")
     if key is not None:
         m.setup_signing(key, sign_outgoing=True)
-    deadline = time.monotonic() + 10.0
+    # seconds on an idle machine; over 10 s once at load 27 on two cores (the wait ends at
+    # the first heartbeat)
+    deadline = time.monotonic() + 60.0
     while time.monotonic() < deadline:
         m.mav.heartbeat_send(
             mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0
