@@ -25,7 +25,9 @@ class PlantProcess(ChildProcess):
         self.mavlink_port: int | None = None
         self.clients: list = []  # pymavlink connections closed by close()
 
-    def wait_ready(self, timeout_s: float = 60.0) -> re.Match:
+    def wait_ready(self, timeout_s: float = 180.0) -> re.Match:
+        # seconds on an idle machine; over 60 s at load 24 on two cores with numba's kernels
+        # to compile (a fresh checkout). The wait ends at the line.
         m = self.wait_line(READY_RE.pattern, timeout_s)
         self.ready = m
         port = re.search(r"udpin:[^,]*:(\d+)", m.group(1))
