@@ -210,8 +210,10 @@ def test_a_killed_process_hands_the_socket_back_to_the_main_loop_at_once():
         main.start()
         main.heartbeat()
         killed = switched = None
-        deadline = time.monotonic() + 4.0
+        passes = [time.monotonic()]  # this loop's passes: how long this process was held off
+        deadline = passes[0] + 4.0
         while time.monotonic() < deadline:
+            passes.append(time.monotonic())
             for msg in main.link.poll():
                 if msg.get_type() == "LOCAL_POSITION_NED":
                     arrivals.append(time.monotonic())
@@ -223,9 +225,18 @@ def test_a_killed_process_hands_the_socket_back_to_the_main_loop_at_once():
                 switched = time.monotonic()
             time.sleep(0.01)
         assert killed is not None and switched is not None, main.process.figures()
-        assert switched - killed <= FORWARD_STALL_S, switched - killed
+        # This loop and the fake autopilot are threads of the test's process; on a loaded
+        # machine it is held off now and then (0.5 s gap at load 28), which delays the
+        # take-over and the telemetry alike: that hold-off, beyond the loop's 10 ms and the
+        # autopilot's 20 ms, is measured and added.
+        held_s = max(
+            float(np.max(np.diff(passes))) - 0.01,
+            float(np.max(np.diff(ap.telemetry_at))) - 0.02,
+            0.0,
+        )
+        assert switched - killed <= FORWARD_STALL_S + held_s, (switched - killed, held_s)
         gaps = np.diff(arrivals)
-        assert gaps.max() <= FORWARD_STALL_S + 0.1, gaps.max()
+        assert gaps.max() <= FORWARD_STALL_S + 0.1 + held_s, (gaps.max(), held_s)
         ap.streaming.clear()
         time.sleep(0.1)
         after = [m for m in main.link.poll() if m.get_type() == "LOCAL_POSITION_NED"]
