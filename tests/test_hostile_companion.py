@@ -7,7 +7,9 @@ freeze it, reset its mission or let two companions steer one vehicle.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import json
 import socket
 import threading
 import time
@@ -18,6 +20,7 @@ from test_companion_sil import Forwarder, Rig, _flight_verdict
 
 from evaluation.sil import ChildProcess, free_port
 from protocols import stereo_frame
+from protocols.keys import companion_status_key
 
 _S = 1_000_000_000
 
@@ -38,7 +41,35 @@ class StampForger(Forwarder):
         self.forged = 0
         self.forging = threading.Event()  # set once the companion has a clock (steering)
         self.genuine_ns: set[int] = set()  # the capture times it relayed unchanged
+        self.newest_genuine_ns = -1
+        self.processed_ns = -1  # the newest capture time in the companion's status
         super().__init__(rig)
+        self.status_sub = self.session.declare_subscriber(
+            companion_status_key("fwd"), self._on_status
+        )
+
+    def _on_status(self, sample) -> None:
+        with contextlib.suppress(ValueError, TypeError, KeyError):
+            doc = json.loads(bytes(sample.payload.to_bytes()))
+            self.processed_ns = max(self.processed_ns, int(doc["capture_ns"]))
+
+    def drained(self, timeout_s: float) -> bool:
+        """Stop forging, then wait (at most ``timeout_s``) until the companion has processed
+        a genuine frame relayed after the last forged one: samples from this relay reach
+        its intake in order, so every forged frame has been judged by then."""
+        self.forging.clear()
+        time.sleep(0.2)  # the relay thread finishes the frame it is on
+        after_ns = self.newest_genuine_ns
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.processed_ns > after_ns:
+                return True
+            time.sleep(0.05)
+        return False
+
+    def close(self) -> None:
+        self.status_sub.undeclare()
+        super().close()
 
     def _run(self) -> None:
         import queue
@@ -53,6 +84,7 @@ class StampForger(Forwarder):
             self.forwarded += 1
             frame = stereo_frame.decode(payload)
             self.genuine_ns.add(frame.capture_ns)
+            self.newest_genuine_ns = max(self.newest_genuine_ns, frame.capture_ns)
             n += 1
             if n % self.every or not self.forging.is_set():
                 continue
@@ -76,6 +108,12 @@ def _fly(rig: Rig, run: str, forger_every: int | None):
         if forger_every:
             fwd.forging.set()
         rig.wait_event(companion, "goal_reached", 120)
+        if forger_every:
+            # Every forged frame judged while the plant still runs: once it stops, the
+            # companion loses the link after 1.5 s (wall) and has no clock, and a forged
+            # frame still on its way (a loaded machine) would count as "before the clock"
+            # (seen once at load 20: 300 refused of 301 forged, frames_before_clock 1).
+            assert fwd.drained(60.0), (fwd.processed_ns, fwd.newest_genuine_ns)
     finally:
         fwd.close()
     plant.stop()
