@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import select
 import signal
@@ -38,6 +39,7 @@ from test_proximity_process import (
 
 from companion.proximity.process import FORWARD_STALL_S
 from companion.proximity.sectors import UINT16_MAX
+from companion.proximity.sender import POSE_STALE_S
 from companion.proximity.stream import snapshot_map
 from protocols.signing import SigningKey, signing_timestamp_now
 
@@ -170,14 +172,22 @@ def test_the_process_places_the_moving_vehicle_while_the_main_loop_is_stopped():
             expected_m = WALL_N_M - (ap.north_m(t) - POS[0])
             tol_m = VOXEL_DIAG_M + 0.1 + vel_n_mps * 0.1  # a voxel, and a pose 0.1 s old
             assert msg.distances[0] / 100.0 == pytest.approx(expected_m, abs=tol_m), t - start
-        assert after["stale_pose"] == before["stale_pose"], (before, after)
+        # None stale, unless this test's autopilot thread itself fell silent for over the
+        # 0.5 s (less the 80 ms the process may take between reading and sending; a loaded
+        # machine holds the pytest process off now and then): at most one send per 0.1 s
+        # of such a silence.
+        sent_s = [t for t in ap.telemetry_at if reset_s <= t <= asked_s]
+        silences = np.diff([reset_s, *sent_s, asked_s])
+        quiet_s = POSE_STALE_S - 0.08
+        allowed = sum(math.floor((g - quiet_s) / 0.1) + 1 for g in silences if g > quiet_s)
+        stale = after["stale_pose"] - before["stale_pose"]
+        assert stale <= allowed, (stale, allowed, float(silences.max()), before, after)
         # Never older than the autopilot's longest silence in the window plus the 80 ms
         # the process may take between reading a position and sending (0.1 s at the
         # autopilot's 50 Hz). The silence is this test's thread, which a loaded machine
         # holds off now and then; the main loop's stopped copy would age by the full 1.5 s
         # (stale after 0.5 s, counted above).
-        sent_s = [t for t in ap.telemetry_at if reset_s <= t <= asked_s]
-        silence_s = float(np.max(np.diff([reset_s, *sent_s, asked_s])))
+        silence_s = float(silences.max())
         assert after["pose_age_max_s"] < silence_s + 0.08, (after, silence_s)
         assert after["own_pose"] > before["own_pose"] and after["alive"], after
         assert after["takeovers"] == 0  # the process read the socket throughout
