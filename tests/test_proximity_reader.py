@@ -167,8 +167,15 @@ def test_the_process_places_the_moving_vehicle_while_the_main_loop_is_stopped():
         asked_s = time.monotonic()
         got = [(t, m) for t, m, _ in ap.received if start + 0.1 <= t <= end]
         assert len(got) >= 10 * 1.4 * 0.8, len(got)  # >= 10 Hz with slack for load
+        telemetry_s = np.array(ap.telemetry_at)
+        quiet_s = POSE_STALE_S - 0.08  # the stale age, less the process's read-to-send time
         for t, msg in got:
-            assert msg.distances[0] != UINT16_MAX, "unknown while the main loop is stopped"
+            if msg.distances[0] == UINT16_MAX:
+                # only if this test's own autopilot thread (held off on a loaded machine) sent
+                # no position for that long: the pose is stale, rightly
+                last_s = telemetry_s[telemetry_s <= t].max()
+                assert t - last_s > quiet_s, ("unknown while the main loop is stopped", t - last_s)
+                continue
             expected_m = WALL_N_M - (ap.north_m(t) - POS[0])
             tol_m = VOXEL_DIAG_M + 0.1 + vel_n_mps * 0.1  # a voxel, and a pose 0.1 s old
             assert msg.distances[0] / 100.0 == pytest.approx(expected_m, abs=tol_m), t - start
@@ -178,7 +185,6 @@ def test_the_process_places_the_moving_vehicle_while_the_main_loop_is_stopped():
         # of such a silence.
         sent_s = [t for t in ap.telemetry_at if reset_s <= t <= asked_s]
         silences = np.diff([reset_s, *sent_s, asked_s])
-        quiet_s = POSE_STALE_S - 0.08
         allowed = sum(math.floor((g - quiet_s) / 0.1) + 1 for g in silences if g > quiet_s)
         stale = after["stale_pose"] - before["stale_pose"]
         assert stale <= allowed, (stale, allowed, float(silences.max()), before, after)
