@@ -18,7 +18,12 @@ import pytest
 
 from companion.guidance.config import GuidanceConfig
 from companion.guidance.envelope import EnvelopeConfig, envelope_step
-from companion.guidance.vertical_leg import MIN_GAIN_M, VERTICAL_ACCEL_MPS2, vertical_leg
+from companion.guidance.vertical_leg import (
+    MIN_GAIN_M,
+    VERTICAL_ACCEL_MPS2,
+    steeper_elevations_rad,
+    vertical_leg,
+)
 from companion.link.speed_limit import SPEED_TYPE_CLIMB, SPEED_TYPE_DESCENT, Pacing, climb_limit
 from companion.perception import PerceptionConfig
 
@@ -30,16 +35,20 @@ POS = np.array([3.0, -2.0, -8.0])
 EAST = 0.5 * math.pi
 
 
-def _map(vertical_m: float, other_m: float = 1.0):
-    """Known-free metres: ``vertical_m`` straight up or down, ``other_m`` elsewhere;
-    records each query's (direction, half-height, body, near field)."""
+def _map(vertical_m: float, other_m: float = 1.0, steeper_m: float = 0.3):
+    """Known-free metres: ``vertical_m`` straight up or down, ``steeper_m`` along a
+    direction steeper than the path limit, ``other_m`` elsewhere; records each query's
+    (direction, half-height, body, near field)."""
     calls = []
 
     def free(pos, direction, radius_m, limit_m, half_height_m, body_m, near_field_m):
         u = np.asarray(direction, dtype=float)
         calls.append((u.copy(), half_height_m, body_m, near_field_m))
-        vertical = math.hypot(u[0], u[1]) < 1e-9
-        return min(vertical_m if vertical else other_m, limit_m)
+        horizontal = math.hypot(u[0], u[1])
+        if horizontal < 1e-9:
+            return min(vertical_m, limit_m)
+        steeper = abs(u[2]) > math.sin(ELEV_RAD) + 1e-9
+        return min(steeper_m if steeper else other_m, limit_m)
 
     free.calls = calls
     return free
@@ -113,7 +122,7 @@ def test_the_leg_is_taken_only_when_it_goes_farther_than_the_stage():
 def test_moving_the_carrot_leaves_room_for_the_vertical_stop():
     vel = np.array([0.3, 0.0, 0.5])
     speed = float(np.linalg.norm(vel))
-    out = _step(POS + np.array([0.0, 0.0, 5.0]), _map(3.0, other_m=0.6), vel=vel)
+    out = _step(POS + np.array([0.0, 0.0, 5.0]), _map(3.0, 3.0, 3.0), vel=vel)
     d_stop = CFG.latency_s * speed + speed**2 / (2.0 * VERTICAL_ACCEL_MPS2)
     assert out.setpoint_ned_m[2] - POS[2] == pytest.approx(3.0 - d_stop - CFG.margin_m)
 
@@ -163,3 +172,40 @@ def test_no_leg_for_bad_or_level_targets(target):
         max_speed_mps=10.0,
     )  # fmt: skip
     assert leg is None
+
+
+def test_steeper_stages_stop_where_the_vertical_stop_fits_the_paths():
+    """``(v sin e)²/(2 a_z) ≤ v² sin e/(2 a)`` ⟺ ``sin e ≤ a_z/a``: 30° at the default
+    2 m/s², none beyond 14.5° at 4 m/s², both tried at 1 m/s²."""
+    deg = [round(math.degrees(e), 9) for e in steeper_elevations_rad(CFG.accel_mps2, ELEV_RAD)]
+    assert deg == [20.0, 30.0]
+    assert steeper_elevations_rad(4.0, ELEV_RAD) == ()
+    assert len(steeper_elevations_rad(1.0, ELEV_RAD)) == 2
+    for e in steeper_elevations_rad(CFG.accel_mps2, ELEV_RAD):
+        v = 1.7
+        vertical_stop = (v * math.sin(e)) ** 2 / (2.0 * VERTICAL_ACCEL_MPS2)
+        assert vertical_stop <= v * v / (2.0 * CFG.accel_mps2) * math.sin(e) + 1e-12
+
+
+@pytest.mark.parametrize("steeper_m", [1.5, 3.0, 6.0])
+def test_a_descent_seen_free_steeper_descends_along_the_steepest_stage_that_gains(steeper_m):
+    """Column below unseen (0.3 m), 2 m free along the 12° stage, ``steeper_m`` along 20°
+    and 30° down the heading (in the camera's view): the stage whose carrot sinks farthest
+    is flown, at the envelope's bound along it; its carrot stays in known-free space."""
+    goal = POS + np.array([0.02, 0.0, 5.0])
+    out = _step(goal, _map(0.3, other_m=2.0, steeper_m=steeper_m))
+    gains = {
+        e: min(5.0 / math.sin(math.radians(e)), (f - CFG.margin_m)) * math.sin(math.radians(e))
+        for e, f in ((12.0, 2.0), (20.0, steeper_m), (30.0, steeper_m))
+    }
+    best = max(gains, key=gains.get)
+    elev = math.radians(best)
+    np.testing.assert_allclose(out.path_dir_ned, (0.0, math.cos(elev), math.sin(elev)), atol=1e-12)
+    assert out.setpoint_ned_m[2] - POS[2] == pytest.approx(gains[best])
+    assert out.free_distance_m == min(steeper_m, 2.0) if best == 12.0 else steeper_m
+    a, tau = CFG.accel_mps2, CFG.latency_s
+    limit = a * (-tau + math.sqrt(tau**2 + 2.0 * (out.free_distance_m - CFG.margin_m) / a))
+    assert out.speed_limit_mps == pytest.approx(limit, rel=1e-12)
+    if best != 12.0:  # the stated descent speed grows with the slope: tan e × the speed flown
+        _, stated = climb_limit(out.path_dir_ned, 1.0, 0.5)
+        assert stated == pytest.approx(0.5 * math.tan(elev))

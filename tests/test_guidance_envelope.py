@@ -232,13 +232,14 @@ def test_a_drop_to_the_body_bubble_while_slow_states_a_stop_that_fits(speed_mps)
 
 
 def _blind_column(free_m: float):
-    """``free_m`` known free along every direction with a horizontal part, the body's own
-    0.3 m straight up and down (a forward camera's view; step 7b flies a column known
-    free, tests/test_envelope_vertical_leg.py)."""
+    """``free_m`` known free along every direction up to the path limit, the body's own
+    0.3 m steeper and straight up and down (step 7b flies a column or a steeper stage
+    known free, tests/test_envelope_vertical_leg.py)."""
 
     def free(pos, direction, radius_m, limit_m, half_height_m, body_m, near_field_m):
-        vertical = math.hypot(float(direction[0]), float(direction[1])) < 1e-9
-        return min(0.3 if vertical else free_m, limit_m)
+        elev = math.atan2(abs(float(direction[2])), math.hypot(direction[0], direction[1]))
+        steeper = elev > SECTION["max_path_elevation_rad"] + 1e-9
+        return min(0.3 if steeper else free_m, limit_m)
 
     return free
 
