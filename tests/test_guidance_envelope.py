@@ -231,17 +231,31 @@ def test_a_drop_to_the_body_bubble_while_slow_states_a_stop_that_fits(speed_mps)
     assert not out.overspeed
 
 
+def _blind_column(free_m: float):
+    """``free_m`` known free along every direction up to the path limit, the body's own
+    0.3 m steeper and straight up and down (step 7b flies a column or a steeper stage
+    known free, tests/test_envelope_vertical_leg.py)."""
+
+    def free(pos, direction, radius_m, limit_m, half_height_m, body_m, near_field_m):
+        elev = math.atan2(abs(float(direction[2])), math.hypot(direction[0], direction[1]))
+        steeper = elev > SECTION["max_path_elevation_rad"] + 1e-9
+        return min(0.3 if steeper else free_m, limit_m)
+
+    return free
+
+
 @pytest.mark.parametrize("rise_m", [5.0, -4.0])
 def test_a_goal_straight_above_or_below_is_flown_in_stages_along_the_heading(rise_m):
-    """Straight up or down (2 cm aside) facing east: the path climbs or descends at the
-    path limit along the heading, where the camera looks, and the carrot stops inside the
-    known-free space (a stage); without a heading the old purely vertical path."""
+    """Straight up or down (2 cm aside) facing east, the column itself not seen free: the
+    path climbs or descends at the path limit along the heading, where the camera looks,
+    and the carrot stops inside the known-free space (a stage); without a heading the old
+    purely vertical path."""
     pos = np.array([0.0, 0.0, -7.0])
     goal = pos + np.array([0.02, 0.0, -rise_m])
     elev = SECTION["max_path_elevation_rad"]
     out = envelope_step(
         **SECTION, pos_ned_m=pos, vel_ned_mps=(0, 0, 0), setpoint_ned_m=goal,
-        free_distance=_const_free(3.0), heading_rad=0.5 * math.pi,
+        free_distance=_blind_column(3.0), heading_rad=0.5 * math.pi,
     )  # fmt: skip
     expected = (0.0, math.cos(elev), -math.copysign(math.sin(elev), rise_m))
     np.testing.assert_allclose(out.path_dir_ned, expected, atol=1e-12)
@@ -252,7 +266,7 @@ def test_a_goal_straight_above_or_below_is_flown_in_stages_along_the_heading(ris
     near = goal + np.array([0.0, 0.0, math.copysign(0.6, rise_m)])
     out = envelope_step(
         **SECTION, pos_ned_m=near, vel_ned_mps=(0, 0, 0), setpoint_ned_m=goal,
-        free_distance=_const_free(10.0), heading_rad=0.5 * math.pi,
+        free_distance=_blind_column(10.0), heading_rad=0.5 * math.pi,
     )  # fmt: skip
     assert abs(out.setpoint_ned_m[2] - near[2]) < 0.6
     assert np.sign(out.setpoint_ned_m[2] - near[2]) == np.sign(goal[2] - near[2])

@@ -56,9 +56,8 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    heading at the path limit, where the camera looks, so each stage is certified like any
    other path and ends inside space seen free; a stage is never longer than ``|s − p|``,
    so it climbs less than ``|s − p| · sin e < |Δz|`` and never passes the setpoint's
-   altitude. Once level with it the rest is a short level move, which guidance's yaw
-   looks at first. Without a heading the old rule holds: the horizontal part of ``s − p``
-   (a purely vertical ``u`` when there is none).
+   altitude; then a short level move (no heading: ``s − p``'s horizontal part). **7b**:
+   straight along the vertical where known free farther (:mod:`~.vertical_leg`).
 6. **Look before moving**: the yaw guidance commands faces ``u`` (not the carrot, which
    may be at the vehicle), so a vehicle that must travel where it has not looked turns
    first; the carrot grows only as the view fills the map with free space.
@@ -86,8 +85,8 @@ Per frame, with ``p`` the vehicle position, ``v`` its speed and ``s`` guidance's
    stopping point): re-targeting a brake at a moving vehicle each frame does not stop
    a laggy airframe. The bound stated is the one along ``v`` (as in step 5's braking)
    and ``momentum_brake`` reports it (the core counts it and tells the operator). When
-   braking would carry it farther out (a velocity toward less free space than the
-   turn), the carrot stands. The cases that found it: docs/safety-envelope.md.
+   braking would carry it farther out (a velocity toward less free space than the turn),
+   the carrot stands. The cases that found it: docs/safety-envelope.md.
 9. **The room along the velocity** (issue 36 item 5): moving at ≥ 0.1 m/s, the stop must
    also fit ``F_v``. When steps 5 and 8 did not brake and ``d_stop + margin > F_v`` (a
    velocity swung off the path toward space little seen free), the frame brakes as step
@@ -107,6 +106,7 @@ import numpy as np
 from companion.guidance.autopilot_path import ReferenceLimits, predict_path, straight_stop_m
 from companion.guidance.envelope_direction import brake_direction, looked_along, path_direction
 from companion.guidance.velocity_bound import MIN_SPEED_MPS, stop_fits, velocity_room_m
+from companion.guidance.vertical_leg import vertical_step
 from protocols.config import Checked, bounded, dataclass_from_mapping
 
 __all__ = [
@@ -124,9 +124,8 @@ pipeline's obstacle extents bound: :func:`companion.guidance.map_boundaries.soli
 
 
 _BRAKE_MIN_SPEED_MPS = MIN_SPEED_MPS  # below: no direction of motion to state a bound for
-# Step 8 (momentum): a carrot more than this angle off the velocity (at or above this
-# speed) or off the acceleration (at or above this acceleration) is certified along the
-# path the autopilot flies to it, not only along the straight line.
+# Step 8 (momentum): a carrot more than this angle off the velocity (at or above this speed)
+# or the acceleration (at or above this) is certified along the path flown to it, not only straight.
 _MOMENTUM_MIN_SPEED_MPS = 0.1
 _MOMENTUM_MIN_ACCEL_MPS2 = 1.0
 _MOMENTUM_COS = math.cos(math.radians(15.0))
@@ -328,17 +327,21 @@ def _brake_limit_mps(free_m: float, tau_s: float, cfg: EnvelopeConfig) -> float:
     return min(speed_limit_mps(free_m, tau_s, cfg.accel_mps2, 0.0), cfg.max_speed_mps)
 
 
-def _path_and_carrot(pos, target, d_stop, free_distance, radius_m, max_elev_rad, heading, cfg):
-    """Steps 1, 2, 4 and 7: the path direction, its known-free distance, the carrot and
-    whether it falls short of ``target``."""
+def _path_and_carrot(pos, target, motion, free_distance, radius_m, max_elev_rad, heading, cfg):
+    """Steps 1, 2, 4, 7 and 7b for ``motion`` = (speed, τ, d_stop): the path direction, its
+    known-free distance, the carrot, whether it is short of ``target``, the speed bound."""
+    speed, tau, d_stop = motion
     to_setpoint = target - pos
     if float(to_setpoint @ to_setpoint) < 1e-12:
-        return np.zeros(3), 0.0, target.copy(), False
+        return np.zeros(3), 0.0, target.copy(), False, _limit_mps(0.0, tau, cfg)
     direction = path_direction(to_setpoint, max_elev_rad, heading, cfg.stage_horizontal_m)
     looked = looked_along(direction, heading, cfg.look_half_angle_deg)
     free = _free_m(free_distance, pos, direction, radius_m, cfg, looked)
     carrot, limited = _carrot(pos, target, direction, free - d_stop - cfg.margin_m, cfg)
-    return direction, free, carrot, limited
+    chosen = (direction, free, carrot, limited, _limit_mps(free, tau, cfg))
+    return vertical_step(
+        pos, target, speed, chosen, free_distance, radius_m, max_elev_rad, heading, tau, cfg
+    )
 
 
 def _along(x: np.ndarray, to_carrot: np.ndarray, reach_m: float, floor: float) -> bool:
@@ -494,12 +497,10 @@ def _brake_steps(
     )
     brake = None
     if (speed > limit or momentum) and speed >= _BRAKE_MIN_SPEED_MPS:
-        # Too fast to turn onto the path (or the path's free space shrank, or the
-        # autopilot's way to the carrot is not seen free): brake, and state the bound
-        # for the way the vehicle moves. Step 8's brake targets the stopping point and
-        # holds it (also through frames where step 5 brakes) until the vehicle has
-        # stopped or a certified carrot replaces it; step 5's alone keeps step 4's
-        # target at the vehicle.
+        # Too fast for the path (or its free space shrank, or the way to the carrot is
+        # not seen free): brake, the bound stated for the way the vehicle moves. Step 8's
+        # brake holds the stopping point (also through step 5's frames) until the vehicle
+        # stopped or a certified carrot replaces it; step 5's alone targets the vehicle.
         if momentum or held is not None:
             brake = brake_target()
             carrot, limited = brake.copy(), True
@@ -510,9 +511,9 @@ def _brake_steps(
         carrot, limited = pos.copy(), True
     if brake is not None:
         brake.setflags(write=False)
-    # a stopping point at the vehicle (no room ahead) is not held: held, it would pull
-    # the vehicle back to where it was while it moves on (a climb along an unseen
-    # vertical velocity); re-taken at the vehicle each frame, it brakes as step 5 does
+    # a stopping point at the vehicle (no room ahead) is not held: held, it would pull the
+    # vehicle back while it moves on (a climb along an unseen vertical velocity); re-taken
+    # at the vehicle each frame, it brakes as step 5 does
     hold = brake is not None and math.dist(brake, pos) >= cfg.min_advance_m
     return carrot, limited, direction, free, limit, momentum, brake if hold else None
 
@@ -568,10 +569,9 @@ def envelope_step(
     free_v = velocity_room_m(
         vel, max_path_elevation_rad,
         lambda unit: _free_m(free_distance, pos, unit, vehicle_radius_m, cfg))  # fmt: skip
-    direction, free, carrot, limited = _path_and_carrot(
-        pos, target, d_stop, free_distance, vehicle_radius_m, max_path_elevation_rad,
-        heading_rad, cfg)  # fmt: skip
-    limit = _limit_mps(free, tau, cfg)
+    direction, free, carrot, limited, limit = _path_and_carrot(
+        pos, target, (speed, tau, d_stop), free_distance, vehicle_radius_m,
+        max_path_elevation_rad, heading_rad, cfg)  # fmt: skip
     braked = speed > limit
     carrot, limited, direction, free, limit, momentum, brake = _brake_steps(
         pos, vel, (carrot, limited, direction, free, limit), free_distance, tau, cfg,

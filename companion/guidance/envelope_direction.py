@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-__all__ = ["CLIMB_SLACK_MPS", "brake_direction", "looked_along", "path_direction"]
+__all__ = ["CLIMB_SLACK_MPS", "brake_direction", "looked_along", "path_direction", "staged"]
 
 CLIMB_SLACK_MPS = 0.1
 """Vertical speed a climb or descent may run beyond the path's slope [m/s]: the least
@@ -42,6 +42,19 @@ def path_direction(
     else:
         h = (float(to_setpoint[0]) / horiz_m, float(to_setpoint[1]) / horiz_m)
     return _at_elevation(h, math.copysign(max_elev_rad, elev))
+
+
+def staged(
+    to_setpoint: np.ndarray, max_elev_rad: float, heading_rad: float | None, stage_m: float
+) -> bool:
+    """Whether :func:`path_direction` stages this move (step 7): steeper than
+    ``max_elev_rad``, its horizontal part shorter than ``stage_m``, a heading given."""
+    dist = math.sqrt(float(to_setpoint @ to_setpoint))
+    if heading_rad is None or not dist > 0.0:
+        return False
+    horiz_m = math.hypot(float(to_setpoint[0]), float(to_setpoint[1]))
+    elev = math.atan2(-float(to_setpoint[2]), horiz_m)
+    return abs(elev) > max_elev_rad and horiz_m < stage_m
 
 
 def looked_along(unit: np.ndarray, heading_rad: float | None, look_half_angle_deg: float) -> bool:
