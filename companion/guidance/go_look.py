@@ -1,0 +1,282 @@
+"""One bounded look at a goal held only by a blind spot, from a side no piece hides it.
+
+The collision safety boundary of a piece covers the blind spot behind it as the vehicle
+sees it (paper Fig. 4; :mod:`companion.guidance.map_boundaries`): an unseen goal within
+``inflate_m + blind_depth_m`` of a piece's seen surface, *behind* it along the line of
+sight (:func:`~companion.guidance.map_boundaries.in_shadow`), may be inside the obstacle,
+and guidance stops short of it (``GOAL_UNREACHABLE``, :mod:`companion.guidance.goal_stop`).
+Seen from straight in front, a thin wall and a solid block look the same. Issue 36,
+passages goal_surface-22 (stereo): the goal 1.70 m behind a wall 4.7 m wide and 0.3 m
+thick; one cell of depth error put the nearest occupied voxel 1.71 m from the goal,
+inside the 1.85 m threshold, and the vehicle stopped 4.8 m short; with ground truth's
+surface 1.9 m away it flew on. A pilot would look round the edge first.
+
+So before a ``GOAL_UNREACHABLE`` hold stands for a goal held *only* by a blind spot (every
+boundary holding it keeps ``inflate_m`` from its seen surface: not
+:func:`~companion.guidance.map_boundaries.goal_surely_blocked`), guidance flies once to a
+*viewpoint* from which the straight line of sight to the goal passes no piece, and looks:
+
+* **Viewpoint** (:func:`look_viewpoint`, pure geometry): on horizontal circles about the
+  goal, at the vehicle's height, of radius the vehicle's horizontal distance from the
+  goal times 1, 0.75 and 1.25 (no nearer the goal than ``min_view_m``), swung from the
+  vehicle's bearing in steps of ``step_deg`` up to ``max_swing_deg`` either way. A
+  candidate qualifies when (a) it is within ``max_look_m`` of the vehicle, (b) no piece
+  near the goal hides the goal from it (the piece's centroid more than its radius plus
+  ``sight_clear_m`` from the line of sight, or not between the candidate and the goal:
+  :func:`~companion.guidance.map_boundaries.in_shadow` with the wider radius), (c) it lies
+  outside every boundary sphere and the straight move to it crosses none, and (d) the
+  caller's ``reachable`` says the straight move is seen free for the vehicle's section
+  (the pipeline asks the known-space map: invariant 1). Of those, the nearest to the
+  vehicle; ties to the smaller swing, then to the right (positive swing, clockwise seen
+  from above in NED).
+* **The look** (:func:`look_step`, a frozen state per goal): started on the first frame
+  guidance holds for a goal held only by a blind spot; guidance steers to the viewpoint
+  as its goal (the cone rule, the path search and the safety envelope unchanged: carrots
+  only into space seen free, the stated speed bound, never inside a margin). It *resolves*
+  when no boundary holds the goal any more (the goal seen free, or no piece hides it from
+  where the vehicle is): guidance steers to the goal again. It *ends unresolved* after
+  ``look_time_s``, after ``dwell_s`` within ``arrive_m`` of the viewpoint with the goal
+  still held, when guidance holds on the way (any reason), or when the goal turns out
+  surely blocked; guidance then steers to the goal and stops short of it as before, the
+  stop reported. One look per goal: a new goal starts afresh.
+
+A goal inside the inflated boundary of a seen surface is never looked at: its hold is
+latched as before (:mod:`companion.guidance.progress`), no go-around.
+
+Pure: no clock (time is the caller's simulation time), no I/O; the map enters only
+through the ``reachable`` callable.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.guidance.map_boundaries import in_shadow
+from protocols.config import Checked, bounded
+
+__all__ = [
+    "GoLookConfig",
+    "LookPhase",
+    "LookState",
+    "held_by_blind_spot_only",
+    "look_step",
+    "look_viewpoint",
+]
+
+_RADIUS_FACTORS = (1.0, 0.75, 1.25)  # candidate circles, × the vehicle's distance [-]
+
+ReachableFn = Callable[[np.ndarray, np.ndarray], bool]
+"""``(start_ned_m, end_ned_m) → bool``: the straight move is seen free for the vehicle."""
+
+
+@dataclass(frozen=True)
+class GoLookConfig(Checked):
+    """Where to look from and for how long (module docstring).
+
+    Attributes
+    ----------
+    max_look_m : float
+        Farthest viewpoint from the vehicle [m].
+    max_swing_deg : float
+        Farthest swing about the goal from the vehicle's bearing, either way [deg].
+    step_deg : float
+        Swing between candidates [deg].
+    min_view_m : float
+        No viewpoint nearer the goal than this, horizontally [m].
+    sight_clear_m : float
+        The line of sight passes every piece's centroid by its radius plus this [m] (a
+        voxel: the map's pieces change by a voxel from frame to frame).
+    look_time_s : float
+        The look ends unresolved after this long [s].
+    arrive_m : float
+        At the viewpoint within this distance [m].
+    dwell_s : float
+        At the viewpoint this long with the goal still held ends the look [s].
+    """
+
+    max_look_m: float = bounded(6.0, "m", gt=0)
+    max_swing_deg: float = bounded(90.0, "deg", gt=0, le=180)
+    step_deg: float = bounded(5.0, "deg", gt=0, le=90)
+    min_view_m: float = bounded(2.0, "m", gt=0)
+    sight_clear_m: float = bounded(0.2, "m", ge=0)
+    look_time_s: float = bounded(25.0, "s", gt=0)
+    arrive_m: float = bounded(0.5, "m", gt=0)
+    dwell_s: float = bounded(2.0, "s", ge=0)
+
+
+def held_by_blind_spot_only(boundaries: Sequence, goal_ned_m, inflate_m: float) -> bool:
+    """Whether a boundary holds the goal and none holds it for certain: every sphere
+    holding it keeps ``inflate_m`` from its piece's seen surface (``goal_gap_m``), so only
+    the blind spot behind a piece holds it
+    (:func:`~companion.guidance.map_boundaries.goal_surely_blocked` is False)."""
+    goal = np.asarray(goal_ned_m, dtype=float)
+    holding = [
+        b
+        for b in boundaries
+        if float(np.linalg.norm(goal - np.asarray(b.center_ned_m))) < float(b.radius_m)
+    ]
+    return bool(holding) and all(float(b.goal_gap_m) >= inflate_m for b in holding)
+
+
+def _sees_goal(view: np.ndarray, goal: np.ndarray, pieces: Sequence, clear_m: float) -> bool:
+    """No piece ``(centroid_ned_m, radius_m)`` hides the goal from ``view``."""
+    return not any(in_shadow(view, goal, c, float(r) + clear_m) for c, r in pieces)
+
+
+def look_viewpoint(
+    pos_ned_m,
+    goal_ned_m,
+    pieces: Sequence[tuple[Sequence[float], float]],
+    spheres: Sequence,
+    reachable: ReachableFn,
+    config: GoLookConfig | None = None,
+) -> np.ndarray | None:
+    """The viewpoint for a look at the goal (module docstring), or None when none qualifies.
+
+    Parameters
+    ----------
+    pos_ned_m, goal_ned_m : array_like, shape (3,)
+        Vehicle and goal [m, NED].
+    pieces : sequence of (centroid_ned_m, radius_m)
+        The map's pieces near the goal: what may hide it [m, NED; m].
+    spheres : sequence of SphereLike
+        The inflated boundary spheres: a viewpoint lies outside every one.
+    reachable : callable(start_ned_m, end_ned_m) -> bool
+        The straight move is seen free for the vehicle's section.
+    config : GoLookConfig, optional
+    """
+    cfg = GoLookConfig() if config is None else config
+    pos = np.asarray(pos_ned_m, dtype=float)
+    goal = np.asarray(goal_ned_m, dtype=float)
+    rel = pos[:2] - goal[:2]
+    rho = math.hypot(float(rel[0]), float(rel[1]))
+    bearing = math.atan2(float(rel[1]), float(rel[0])) if rho > 1e-9 else 0.0
+    n_steps = math.floor(cfg.max_swing_deg / cfg.step_deg + 1e-9)
+    candidates = []
+    for factor in _RADIUS_FACTORS:
+        radius = max(rho * float(factor), cfg.min_view_m)
+        for k in range(1, n_steps + 1):
+            for side in (1, -1):
+                swing = side * math.radians(k * cfg.step_deg)
+                a = bearing + swing
+                view = np.array(
+                    [goal[0] + radius * math.cos(a), goal[1] + radius * math.sin(a), pos[2]]
+                )
+                travel = float(np.linalg.norm(view - pos))
+                if travel <= cfg.max_look_m:
+                    candidates.append((round(travel, 3), k, -side, view))
+    candidates.sort(key=lambda c: c[:3])
+    for _, _, _, view in candidates:
+        if not _sees_goal(view, goal, pieces, cfg.sight_clear_m):
+            continue
+        if any(_inside(view, s) for s in spheres):
+            continue
+        if reachable(pos, view):
+            return view
+    return None
+
+
+def _inside(point: np.ndarray, sphere) -> bool:
+    return float(np.linalg.norm(point - np.asarray(sphere.center_ned_m))) < float(sphere.radius_m)
+
+
+class LookPhase(enum.Enum):
+    """Where one goal's look stands."""
+
+    NONE = "none"
+    """Not looked yet."""
+    LOOKING = "looking"
+    """Steering to the viewpoint."""
+    DONE = "done"
+    """Looked (resolved or not), or no viewpoint qualified: no second look."""
+
+
+@dataclass(frozen=True)
+class LookState:
+    """One goal's look: its phase, viewpoint [m, NED], start and arrival times [s]."""
+
+    goal_ned_m: tuple[float, float, float] | None = None
+    phase: LookPhase = LookPhase.NONE
+    viewpoint_ned_m: tuple[float, float, float] | None = None
+    since_s: float = 0.0
+    arrived_s: float | None = None
+    resolved: bool = False
+
+    def steer_to(self, goal_ned_m) -> np.ndarray:
+        """Guidance's goal this frame: the viewpoint while looking, else the goal."""
+        if self.phase is LookPhase.LOOKING and self.viewpoint_ned_m is not None:
+            return np.array(self.viewpoint_ned_m)
+        return np.asarray(goal_ned_m, dtype=float)
+
+
+def look_step(
+    state: LookState,
+    *,
+    time_s: float,
+    pos_ned_m,
+    goal_ned_m,
+    blind_only: bool,
+    held: bool,
+    holding: bool,
+    viewpoint: Callable[[], np.ndarray | None],
+    config: GoLookConfig | None = None,
+) -> LookState:
+    """Advance the look by one frame (module docstring).
+
+    Parameters
+    ----------
+    time_s : float
+        Simulation time [s].
+    blind_only : bool
+        The goal is held by a blind spot only (:func:`held_by_blind_spot_only`).
+    held : bool
+        A boundary holds the goal (surely or not).
+    holding : bool
+        Guidance's last step held: for the goal (``GOAL_UNREACHABLE``) before a look, for
+        any reason while looking.
+    viewpoint : callable() -> ndarray or None
+        :func:`look_viewpoint` bound to this frame (called only when a look starts).
+    """
+    cfg = GoLookConfig() if config is None else config
+    goal = tuple(float(x) for x in goal_ned_m)
+    if state.goal_ned_m != goal:
+        state = LookState(goal_ned_m=goal)
+    if state.phase is LookPhase.NONE:
+        if not (holding and blind_only):
+            return state
+        view = viewpoint()
+        if view is None:
+            return LookState(goal_ned_m=goal, phase=LookPhase.DONE)
+        return LookState(
+            goal_ned_m=goal,
+            phase=LookPhase.LOOKING,
+            viewpoint_ned_m=tuple(float(x) for x in view),
+            since_s=float(time_s),
+        )
+    if state.phase is LookPhase.DONE:
+        return state
+    if not held:
+        return LookState(goal_ned_m=goal, phase=LookPhase.DONE, resolved=True)
+    pos = np.asarray(pos_ned_m, dtype=float)
+    at_view = float(np.linalg.norm(pos - np.asarray(state.viewpoint_ned_m))) <= cfg.arrive_m
+    arrived_s = (state.arrived_s if state.arrived_s is not None else time_s) if at_view else None
+    ended = (
+        not blind_only
+        or holding
+        or time_s - state.since_s >= cfg.look_time_s
+        or (arrived_s is not None and time_s - arrived_s >= cfg.dwell_s)
+    )
+    if ended:
+        return LookState(goal_ned_m=goal, phase=LookPhase.DONE)
+    return LookState(
+        goal_ned_m=goal,
+        phase=LookPhase.LOOKING,
+        viewpoint_ned_m=state.viewpoint_ned_m,
+        since_s=state.since_s,
+        arrived_s=arrived_s,
+    )
