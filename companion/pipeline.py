@@ -23,12 +23,16 @@ from companion.depth_source import DepthSource
 from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput, Mode, Reason
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
 from companion.guidance.go_look import (
+    BLOCKED,
+    SEEN_FREE,
+    UNSEEN,
     GoLookConfig,
     LookPhase,
     LookState,
     held_by_blind_spot_only,
     look_step,
     look_viewpoint,
+    look_yaw_rad,
 )
 from companion.guidance.hold import (
     HoldPlacement,
@@ -241,7 +245,9 @@ class AvoidancePipeline:
             boundaries=boundaries,
             hold_escape=escape is not None and kept_out is None,
             target_kept_out=None if kept_out is None else kept_out.placement,
-            look_yaw_rad=None if moved is None else moved.look_yaw_rad,
+            look_yaw_rad=look_yaw_rad(self._look, pose.pos_ned_m, self.goal_ned_m, self.look_config)
+            if moved is None
+            else moved.look_yaw_rad,
             widening=widened,
             look_ned_m=self._look.viewpoint_ned_m
             if self._look.phase is LookPhase.LOOKING
@@ -354,19 +360,19 @@ class AvoidancePipeline:
 
     def _viewpoint(self, pose: PoseAtCapture, boundaries) -> np.ndarray | None:
         """Where to look at the goal from (:func:`~companion.guidance.go_look.look_viewpoint`):
-        the map's pieces near the goal may hide it; the move there must be seen free."""
+        the map's surfaces near the goal may hide it; the move there must be seen free."""
         pos, goal = np.asarray(pose.pos_ned_m, dtype=float), self.goal_ned_m
-        reach_m = float(np.linalg.norm(goal - pos)) * 1.25 + 1.0
-        pieces = self.known_space.pieces(goal, reach_m, goal)
+        reach_m = float(np.linalg.norm(goal - pos)) * 1.25 + self.look_config.max_look_m
+        occupied = self.known_space.occupied_points_ned_m()
+        occupied = occupied[np.linalg.norm(occupied - goal, axis=1) <= reach_m]
         check = self.way_check(boundaries, pose.yaw_rad)
-        return look_viewpoint(
-            pos,
-            goal,
-            list(zip(pieces.centroid_ned_m, pieces.radius_m.tolist(), strict=True)),
-            boundaries,
-            lambda a, b: check.seen_free(a, b, looked=True),
-            self.look_config,
-        )
+
+        def reachable(start, end) -> int:
+            if check.seen_free(start, end, looked=True):
+                return SEEN_FREE
+            return BLOCKED if self._way_blocked(start, end) else UNSEEN
+
+        return look_viewpoint(pos, goal, occupied, boundaries, reachable, self.look_config)
 
     def _goal_surely_blocked(self, boundaries) -> bool:
         """A boundary holds the goal for certain (``map_boundaries.goal_surely_blocked``)

@@ -11,14 +11,18 @@ import numpy as np
 import pytest
 
 from companion.guidance.go_look import (
+    BLOCKED,
+    SEEN_FREE,
+    UNSEEN,
     GoLookConfig,
     LookPhase,
     LookState,
     held_by_blind_spot_only,
     look_step,
     look_viewpoint,
+    look_yaw_rad,
 )
-from companion.guidance.map_boundaries import in_shadow, map_boundaries
+from companion.guidance.map_boundaries import map_boundaries
 from companion.known_space import FREE, OCCUPIED, KnownSpace
 
 CFG = GoLookConfig()
@@ -35,8 +39,8 @@ def _off(point, *offset_m: float) -> np.ndarray:
     return np.asarray(point, dtype=float) + np.array(offset_m)
 
 
-def _always(_a, _b) -> bool:
-    return True
+def _always(_a, _b) -> int:
+    return SEEN_FREE
 
 
 def _swing_deg(pos, goal, view) -> float:
@@ -46,69 +50,90 @@ def _swing_deg(pos, goal, view) -> float:
     return math.degrees(math.remainder(b - a, 2.0 * math.pi))
 
 
-def test_the_viewpoint_is_the_nearest_that_sees_past_one_piece_closed_form():
-    """One piece of radius r at s from the goal on the line to the vehicle (ρ away): from a
-    point swung α about the goal the line of sight passes the centroid at s·sin α, so the
-    goal is seen once s·sin α > r + sight_clear; the first 5° step past it, on whichever
+def _wall(goal, s_m: float, west_m: float, east_m: float) -> np.ndarray:
+    """OCCUPIED voxel centres every 0.2 m on a line across the axis ``s_m`` north of the
+    goal, from ``west_m`` to ``east_m`` east of it, at its height."""
+    east = np.arange(west_m, east_m + 1e-9, 0.2)
+    return np.column_stack(
+        [np.full_like(east, goal[0] + s_m), goal[1] + east, np.full_like(east, goal[2])]
+    )
+
+
+def test_the_viewpoint_is_the_nearest_that_sees_past_the_walls_edge_closed_form():
+    """A wall s north of the goal reaching w either side of the axis; the vehicle ρ north.
+    From a point swung α about the goal the line of sight passes the edge voxel (s, w) by
+    R·sin(α − φ) (R = √(s² + w²), φ = atan2(w, s)), so the goal is seen once that exceeds
+    sight_clear: the first 5° step past α_min = φ + asin(sight_clear / R), on whichever
     circle (ρ·f, f ∈ {0.75, 1, 1.25}) is nearest the vehicle: ρ·√(1 + f² − 2f·cos α)."""
     goal = np.array([0.0, 0.0, -6.0])
-    rho, s, r = 5.0, 1.8, 0.9
+    rho, s, w = 5.0, 1.8, 2.3
     pos = _off(goal, rho, 0.0, 0.0)
-    piece = (_off(goal, s, 0.0, 0.0), r)
-    view = look_viewpoint(pos, goal, [piece], [], _always, CFG)
-    alpha_min = math.degrees(math.asin((r + CFG.sight_clear_m) / s))
+    wall = _wall(goal, s, -w, w)
+    view = look_viewpoint(pos, goal, wall, [], _always, CFG)
+    big_r, phi = math.hypot(s, w), math.atan2(w, s)
+    alpha_min = math.degrees(phi + math.asin(CFG.sight_clear_m / big_r))
     alpha = math.radians(CFG.step_deg * math.ceil(alpha_min / CFG.step_deg))
     f = min((0.75, 1.0, 1.25), key=lambda f: 1.0 + f * f - 2.0 * f * math.cos(alpha))
     expected = _off(goal, rho * f * math.cos(alpha), rho * f * math.sin(alpha), 0.0)
     np.testing.assert_allclose(view, expected, atol=1e-9, err_msg="nearest sighted candidate")
     assert _swing_deg(pos, goal, view) > 0.0, "a tie goes to the positive swing (east here)"
     assert view[2] == pos[2], "the look keeps the vehicle's height"
-    assert not in_shadow(view, goal, piece[0], r + CFG.sight_clear_m)
-    # one step less swing and the piece would still hide the goal
+    # one step less swing on the same circle and the edge would hide the goal
     back = alpha - math.radians(CFG.step_deg)
     nearer = _off(goal, rho * f * math.cos(back), rho * f * math.sin(back), 0.0)
-    assert in_shadow(nearer, goal, piece[0], r + CFG.sight_clear_m)
+    only_nearer = look_viewpoint(
+        pos, goal, wall, [], lambda a, b: SEEN_FREE if np.allclose(b, nearer) else BLOCKED, CFG
+    )
+    assert only_nearer is None
 
 
 def test_a_wall_off_to_one_side_is_looked_past_on_its_short_side():
-    """Pieces of a wall reaching 3.6 m west of the line of sight but 1.2 m east: the look
-    swings east (the shorter way round the wall's edge)."""
+    """A wall reaching 3.6 m west of the line of sight but 1.2 m east: the look swings
+    east (the shorter way round the wall's edge)."""
     goal = np.array([0.0, 0.0, -6.0])
     pos = _off(goal, 5.0, 0.0, 0.0)
-    wall = [(_off(goal, 1.8, e, 0.0), 0.85) for e in (-3.6, -2.4, -1.2, 0.0, 1.2)]
-    view = look_viewpoint(pos, goal, wall, [], _always, CFG)
+    view = look_viewpoint(pos, goal, _wall(goal, 1.8, -3.6, 1.2), [], _always, CFG)
     assert view is not None and view[1] > 0.0
-    assert all(not in_shadow(view, goal, c, r + CFG.sight_clear_m) for c, r in wall)
 
 
 def test_no_viewpoint_when_none_is_reachable_near_or_outside_the_spheres():
     goal = np.array([0.0, 0.0, -6.0])
     pos = _off(goal, 5.0, 0.0, 0.0)
-    piece = [(_off(goal, 1.8, 0.0, 0.0), 0.9)]
-    assert look_viewpoint(pos, goal, piece, [], lambda a, b: False, CFG) is None
-    short = GoLookConfig(max_look_m=1.0)  # the first sighted candidate is ~3.4 m away
-    assert look_viewpoint(pos, goal, piece, [], _always, short) is None
+    wall = _wall(goal, 1.8, -2.3, 2.3)
+    assert look_viewpoint(pos, goal, wall, [], lambda a, b: BLOCKED, CFG) is None
+    short = GoLookConfig(max_look_m=3.0)  # the first sighted candidate is ~4.5 m away
+    assert look_viewpoint(pos, goal, wall, [], _always, short) is None
     # a boundary sphere round both candidate sides: every sighted view inside it
     big = _Ball((float(goal[0] + 1.8), 0.0, -6.0), 6.0)
-    assert look_viewpoint(pos, goal, piece, [big], _always, CFG) is None
+    assert look_viewpoint(pos, goal, wall, [big], _always, CFG) is None
     # a sphere only on the east side: the look goes west instead
-    east = _Ball((float(goal[0] + 3.0), 3.0, -6.0), 2.0)
-    view = look_viewpoint(pos, goal, piece, [east], _always, CFG)
+    east = _Ball((float(goal[0] + 2.5), 4.0, -6.0), 2.5)
+    view = look_viewpoint(pos, goal, wall, [east], _always, CFG)
     assert view is not None and view[1] < 0.0
 
 
-def test_the_reachability_question_is_the_straight_move_from_the_vehicle():
+def test_a_view_seen_free_wins_over_a_nearer_one_not_yet_seen():
+    """The question is the straight move from the vehicle; a move seen free wins over a
+    nearer one not yet seen (still flown, looked at first, when it is the only one), and
+    a move with a surface seen in its way is never taken."""
     goal = np.array([0.0, 0.0, -6.0])
     pos = _off(goal, 5.0, 0.0, 0.0)
+    wall = _wall(goal, 1.8, -3.0, 2.3)  # east is the shorter way round
     asked = []
 
-    def reachable(a, b):
+    def west_seen(a, b):
         asked.append((np.array(a), np.array(b)))
-        return b[1] < 0.0  # only the west side is seen free
+        return SEEN_FREE if b[1] < 0.0 else UNSEEN
 
-    view = look_viewpoint(pos, goal, [(_off(goal, 1.8, 0.0, 0.0), 0.9)], [], reachable, CFG)
+    view = look_viewpoint(pos, goal, wall, [], west_seen, CFG)
     assert view is not None and view[1] < 0.0
     assert all(np.array_equal(a, pos) for a, _ in asked)
+    unseen = look_viewpoint(pos, goal, wall, [], lambda a, b: UNSEEN, CFG)
+    assert unseen is not None and unseen[1] > 0.0, "none seen free: the nearest not seen"
+    east_blocked = look_viewpoint(
+        pos, goal, wall, [], lambda a, b: BLOCKED if b[1] > 0.0 else UNSEEN, CFG
+    )
+    assert east_blocked is not None and east_blocked[1] < 0.0
 
 
 def test_held_by_blind_spot_only_is_every_holding_sphere_clear_of_its_surface():
@@ -191,7 +216,8 @@ def test_a_look_ends_after_dwelling_at_the_viewpoint_with_the_goal_still_held():
 def test_from_the_viewpoint_the_map_no_longer_holds_the_goal_behind_a_thin_wall():
     """goal_surface-22's shape on a map: a wall 4.6 m wide, 1 voxel thick, the goal 1.7 m
     behind its face, never seen. From in front the wall's pieces hold it (the blind
-    spot, not the surface); from the viewpoint chosen, no boundary holds it."""
+    spot, not the surface); the viewpoint chosen sees past the wall's edge, and once the
+    goal's voxel is seen free from there no boundary holds it."""
     space = KnownSpace()
     pos = np.array([0.1, 0.1, -6.1])  # a voxel centre
     space.mark_vehicle(pos)
@@ -206,10 +232,26 @@ def test_from_the_viewpoint_the_map_no_longer_holds_the_goal_behind_a_thin_wall(
     here = map_boundaries(space, pos, goal)
     assert space.state_at(goal) != int(FREE)
     assert held_by_blind_spot_only(here, goal, inflate)
-    near = space.pieces(goal, 8.0, goal)
-    pieces = list(zip(near.centroid_ned_m, near.radius_m.tolist(), strict=True))
-    view = look_viewpoint(pos, goal, pieces, here, _always, CFG)
+    view = look_viewpoint(pos, goal, space.occupied_points_ned_m(), here, _always, CFG)
     assert view is not None
     assert np.linalg.norm(view - pos) <= CFG.max_look_m
+    sight = goal - view
+    occupied = space.occupied_points_ned_m()
+    t = np.clip((occupied - view) @ sight / float(sight @ sight), 0.0, 1.0)
+    passing_m = np.linalg.norm(occupied - (view + t[:, None] * sight), axis=1)
+    assert passing_m.min() > CFG.sight_clear_m, "the line of sight passes the wall's edge"
+    # seen from there (the goal's voxel FREE once looked at), no boundary holds it
+    space.grid[tuple(np.floor(goal / c.voxel_m).astype(int) - o)] = FREE
     there = map_boundaries(space, view, goal)
     assert not any(np.linalg.norm(goal - np.asarray(b.center_ned_m)) < b.radius_m for b in there)
+
+
+def test_near_the_viewpoint_the_vehicle_faces_the_goal():
+    s = _step(LookState(), 0.0, holding=True)
+    far = _off(VIEW, 0.0, -CFG.face_m - 0.1, 0.0)
+    assert look_yaw_rad(s, far, GOAL, CFG) is None, "on the way: guidance's yaw"
+    near = _off(VIEW, 0.0, -CFG.face_m + 0.1, 0.0)
+    to_goal = np.asarray(GOAL) - near
+    assert look_yaw_rad(s, near, GOAL, CFG) == pytest.approx(math.atan2(to_goal[1], to_goal[0]))
+    done = _step(s, 1.0, held=False)
+    assert look_yaw_rad(done, near, GOAL, CFG) is None, "not looking: guidance's yaw"

@@ -1,4 +1,4 @@
-"""One bounded look at a goal held only by a blind spot, from a side no piece hides it.
+"""One bounded look at a goal held only by a blind spot, from a side no surface hides it.
 
 The collision safety boundary of a piece covers the blind spot behind it as the vehicle
 sees it (paper Fig. 4; :mod:`companion.guidance.map_boundaries`): an unseen goal within
@@ -14,16 +14,18 @@ surface 1.9 m away it flew on. A pilot would look round the edge first.
 So before a ``GOAL_UNREACHABLE`` hold stands for a goal held *only* by a blind spot (every
 boundary holding it keeps ``inflate_m`` from its seen surface: not
 :func:`~companion.guidance.map_boundaries.goal_surely_blocked`), guidance flies once to a
-*viewpoint* from which the straight line of sight to the goal passes no piece, and looks:
+*viewpoint* from which the straight line of sight to the goal passes no surface seen, and
+looks at the goal from there:
 
 * **Viewpoint** (:func:`look_viewpoint`, pure geometry): on horizontal circles about the
   goal, at the vehicle's height, of radius the vehicle's horizontal distance from the
   goal times 1, 0.75 and 1.25 (no nearer the goal than ``min_view_m``), swung from the
   vehicle's bearing in steps of ``step_deg`` up to ``max_swing_deg`` either way. A
-  candidate qualifies when (a) it is within ``max_look_m`` of the vehicle, (b) no piece
-  near the goal hides the goal from it (the piece's centroid more than its radius plus
-  ``sight_clear_m`` from the line of sight, or not between the candidate and the goal:
-  :func:`~companion.guidance.map_boundaries.in_shadow` with the wider radius), (c) it lies
+  candidate qualifies when (a) it is within ``max_look_m`` of the vehicle, (b) the line
+  of sight from it to the goal passes every OCCUPIED voxel centre near the goal by more
+  than ``sight_clear_m`` (a piece's bounding sphere is too coarse here: at a thin wall's
+  edge it reaches ~0.8 m past the last voxel, and only a view from beside the wall, in
+  space never seen, would pass it), (c) it lies
   outside every boundary sphere and the straight move to it crosses none, and (d) the
   caller's ``reachable`` says the straight move is seen free for the vehicle's section
   (the pipeline asks the known-space map: invariant 1). Of those, the nearest to the
@@ -32,9 +34,11 @@ boundary holding it keeps ``inflate_m`` from its seen surface: not
 * **The look** (:func:`look_step`, a frozen state per goal): started on the first frame
   guidance holds for a goal held only by a blind spot; guidance steers to the viewpoint
   as its goal (the cone rule, the path search and the safety envelope unchanged: carrots
-  only into space seen free, the stated speed bound, never inside a margin). It *resolves*
-  when no boundary holds the goal any more (the goal seen free, or no piece hides it from
-  where the vehicle is): guidance steers to the goal again. It *ends unresolved* after
+  only into space seen free, the stated speed bound, never inside a margin); within
+  ``face_m`` of the viewpoint the vehicle faces the goal (:func:`look_yaw_rad`), so the
+  camera looks at it. It *resolves* when no boundary holds the goal any more (the goal's
+  voxel seen free, or no piece hides it from where the vehicle is): guidance steers to
+  the goal again. It *ends unresolved* after
   ``look_time_s``, after ``dwell_s`` within ``arrive_m`` of the viewpoint with the goal
   still held, when guidance holds on the way (any reason), or when the goal turns out
   surely blocked; guidance then steers to the goal and stops short of it as before, the
@@ -56,22 +60,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.guidance.map_boundaries import in_shadow
 from protocols.config import Checked, bounded
 
 __all__ = [
+    "BLOCKED",
+    "SEEN_FREE",
+    "UNSEEN",
     "GoLookConfig",
     "LookPhase",
     "LookState",
     "held_by_blind_spot_only",
     "look_step",
     "look_viewpoint",
+    "look_yaw_rad",
 ]
 
 _RADIUS_FACTORS = (1.0, 0.75, 1.25)  # candidate circles, × the vehicle's distance [-]
 
-ReachableFn = Callable[[np.ndarray, np.ndarray], bool]
-"""``(start_ned_m, end_ned_m) → bool``: the straight move is seen free for the vehicle."""
+SEEN_FREE, UNSEEN, BLOCKED = 0, 1, 2
+"""How a straight move to a viewpoint stands on the map: seen free for the vehicle's section;
+not yet seen free, but no surface seen in its way; a surface seen in its way."""
+
+ReachableFn = Callable[[np.ndarray, np.ndarray], int]
+"""``(start_ned_m, end_ned_m) → SEEN_FREE | UNSEEN | BLOCKED``: the straight move."""
 
 
 @dataclass(frozen=True)
@@ -89,24 +100,27 @@ class GoLookConfig(Checked):
     min_view_m : float
         No viewpoint nearer the goal than this, horizontally [m].
     sight_clear_m : float
-        The line of sight passes every piece's centroid by its radius plus this [m] (a
-        voxel: the map's pieces change by a voxel from frame to frame).
+        The line of sight passes every OCCUPIED voxel centre by this much [m] (half a
+        voxel, and a voxel of margin: a surface moves by a voxel from frame to frame).
     look_time_s : float
         The look ends unresolved after this long [s].
     arrive_m : float
         At the viewpoint within this distance [m].
     dwell_s : float
         At the viewpoint this long with the goal still held ends the look [s].
+    face_m : float
+        Within this distance of the viewpoint the vehicle faces the goal [m].
     """
 
     max_look_m: float = bounded(6.0, "m", gt=0)
     max_swing_deg: float = bounded(90.0, "deg", gt=0, le=180)
     step_deg: float = bounded(5.0, "deg", gt=0, le=90)
     min_view_m: float = bounded(2.0, "m", gt=0)
-    sight_clear_m: float = bounded(0.2, "m", ge=0)
+    sight_clear_m: float = bounded(0.3, "m", ge=0)
     look_time_s: float = bounded(25.0, "s", gt=0)
     arrive_m: float = bounded(0.5, "m", gt=0)
-    dwell_s: float = bounded(2.0, "s", ge=0)
+    dwell_s: float = bounded(3.0, "s", ge=0)
+    face_m: float = bounded(1.5, "m", ge=0)
 
 
 def held_by_blind_spot_only(boundaries: Sequence, goal_ned_m, inflate_m: float) -> bool:
@@ -123,15 +137,24 @@ def held_by_blind_spot_only(boundaries: Sequence, goal_ned_m, inflate_m: float) 
     return bool(holding) and all(float(b.goal_gap_m) >= inflate_m for b in holding)
 
 
-def _sees_goal(view: np.ndarray, goal: np.ndarray, pieces: Sequence, clear_m: float) -> bool:
-    """No piece ``(centroid_ned_m, radius_m)`` hides the goal from ``view``."""
-    return not any(in_shadow(view, goal, c, float(r) + clear_m) for c, r in pieces)
+def _sees_goal(view: np.ndarray, goal: np.ndarray, occupied: np.ndarray, clear_m: float) -> bool:
+    """No OCCUPIED voxel centre (rows of ``occupied``) within ``clear_m`` of the line of
+    sight from ``view`` to ``goal``."""
+    if occupied.shape[0] == 0:
+        return True
+    sight = goal - view
+    length_sq = float(sight @ sight)
+    if length_sq <= 0.0:
+        return True
+    t = np.clip((occupied - view) @ sight / length_sq, 0.0, 1.0)
+    nearest = view + t[:, None] * sight[None, :]
+    return bool(np.min(np.sum((occupied - nearest) ** 2, axis=1)) > clear_m * clear_m)
 
 
 def look_viewpoint(
     pos_ned_m,
     goal_ned_m,
-    pieces: Sequence[tuple[Sequence[float], float]],
+    occupied_ned_m,
     spheres: Sequence,
     reachable: ReachableFn,
     config: GoLookConfig | None = None,
@@ -142,17 +165,18 @@ def look_viewpoint(
     ----------
     pos_ned_m, goal_ned_m : array_like, shape (3,)
         Vehicle and goal [m, NED].
-    pieces : sequence of (centroid_ned_m, radius_m)
-        The map's pieces near the goal: what may hide it [m, NED; m].
+    occupied_ned_m : array_like, shape (n, 3)
+        Centres of the map's OCCUPIED voxels near the goal: what may hide it [m, NED].
     spheres : sequence of SphereLike
         The inflated boundary spheres: a viewpoint lies outside every one.
-    reachable : callable(start_ned_m, end_ned_m) -> bool
-        The straight move is seen free for the vehicle's section.
+    reachable : callable(start_ned_m, end_ned_m) -> int
+        How the straight move stands: ``SEEN_FREE``, ``UNSEEN`` or ``BLOCKED``.
     config : GoLookConfig, optional
     """
     cfg = GoLookConfig() if config is None else config
     pos = np.asarray(pos_ned_m, dtype=float)
     goal = np.asarray(goal_ned_m, dtype=float)
+    occupied = np.asarray(occupied_ned_m, dtype=float).reshape(-1, 3)
     rel = pos[:2] - goal[:2]
     rho = math.hypot(float(rel[0]), float(rel[1]))
     bearing = math.atan2(float(rel[1]), float(rel[0])) if rho > 1e-9 else 0.0
@@ -162,8 +186,7 @@ def look_viewpoint(
         radius = max(rho * float(factor), cfg.min_view_m)
         for k in range(1, n_steps + 1):
             for side in (1, -1):
-                swing = side * math.radians(k * cfg.step_deg)
-                a = bearing + swing
+                a = bearing + side * math.radians(k * cfg.step_deg)
                 view = np.array(
                     [goal[0] + radius * math.cos(a), goal[1] + radius * math.sin(a), pos[2]]
                 )
@@ -171,14 +194,18 @@ def look_viewpoint(
                 if travel <= cfg.max_look_m:
                     candidates.append((round(travel, 3), k, -side, view))
     candidates.sort(key=lambda c: c[:3])
+    unseen = None
     for _, _, _, view in candidates:
-        if not _sees_goal(view, goal, pieces, cfg.sight_clear_m):
+        if not _sees_goal(view, goal, occupied, cfg.sight_clear_m):
             continue
         if any(_inside(view, s) for s in spheres):
             continue
-        if reachable(pos, view):
+        way = reachable(pos, view)
+        if way == SEEN_FREE:
             return view
-    return None
+        if way == UNSEEN and unseen is None:
+            unseen = view
+    return unseen
 
 
 def _inside(point: np.ndarray, sphere) -> bool:
@@ -280,3 +307,20 @@ def look_step(
         since_s=state.since_s,
         arrived_s=arrived_s,
     )
+
+
+def look_yaw_rad(
+    state: LookState, pos_ned_m, goal_ned_m, config: GoLookConfig | None = None
+) -> float | None:
+    """The yaw facing the goal [rad, NED] while looking within ``face_m`` of the
+    viewpoint (the camera looks at the goal); None otherwise (guidance's yaw stands)."""
+    cfg = GoLookConfig() if config is None else config
+    if state.phase is not LookPhase.LOOKING or state.viewpoint_ned_m is None:
+        return None
+    pos = np.asarray(pos_ned_m, dtype=float)
+    if float(np.linalg.norm(pos - np.asarray(state.viewpoint_ned_m))) > cfg.face_m:
+        return None
+    to_goal = np.asarray(goal_ned_m, dtype=float) - pos
+    if math.hypot(float(to_goal[0]), float(to_goal[1])) < 1e-6:
+        return None
+    return math.atan2(float(to_goal[1]), float(to_goal[0]))
