@@ -4,6 +4,7 @@ on a map, that from the viewpoint no piece hides the goal any more."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -23,7 +24,9 @@ from companion.guidance.go_look import (
     look_yaw_rad,
 )
 from companion.guidance.map_boundaries import map_boundaries
+from companion.guidance.modes import Mode
 from companion.known_space import FREE, OCCUPIED, KnownSpace
+from companion.pipeline import AvoidancePipeline, PoseAtCapture
 
 CFG = GoLookConfig()
 
@@ -255,3 +258,37 @@ def test_near_the_viewpoint_the_vehicle_faces_the_goal():
     assert look_yaw_rad(s, near, GOAL, CFG) == pytest.approx(math.atan2(to_goal[1], to_goal[0]))
     done = _step(s, 1.0, held=False)
     assert look_yaw_rad(done, near, GOAL, CFG) is None, "not looking: guidance's yaw"
+
+
+def _pipeline_before_a_wall(goal_behind_m: float):
+    """A pipeline whose map holds a wall 3 m south of the vehicle (as in the test above),
+    its guidance just held for the goal ``goal_behind_m`` behind the wall's face (the
+    pipeline's wiring of the look, ``AvoidancePipeline._look_goal``)."""
+    pipe = AvoidancePipeline(goal_ned_m=(-3.0 - goal_behind_m + 0.05, 0.1, -6.1))
+    space = pipe.known_space
+    pos = np.array([0.1, 0.1, -6.1])
+    space.mark_vehicle(pos)
+    c, o = space.config, space.origin_vox
+    i = math.floor(-3.0 / c.voxel_m) - o[0]
+    j0, j1 = (math.floor(e / c.voxel_m) - o[1] for e in (0.1 - 2.3, 0.1 + 2.3))
+    k0, k1 = (math.floor(d / c.voxel_m) - o[2] for d in (-6.1 - 2.0, -6.1 + 2.0))
+    space.grid[i, j0:j1, k0:k1] = OCCUPIED
+    pipe.guidance.state = dataclasses.replace(pipe.guidance.state, mode=Mode.HOLD, unreachable=True)
+    pose = PoseAtCapture(pos, np.zeros(3), np.eye(3))
+    boundaries = map_boundaries(space, pos, pipe.goal_ned_m, pipe.boundary_config)
+    return pipe, pose, boundaries
+
+
+def test_the_pipeline_steers_guidance_to_the_viewpoint_for_a_blind_spot_goal_only():
+    """Held for a goal 1.7 m behind the wall (its blind spot only): guidance's goal becomes
+    the viewpoint, and the output names it. Held for a goal 0.4 m behind the face (within
+    the inflation of the wall's surface): no look, guidance keeps the goal."""
+    pipe, pose, boundaries = _pipeline_before_a_wall(1.7)
+    steer = pipe._look_goal(10.0, pose, boundaries)
+    assert pipe._look.phase is LookPhase.LOOKING
+    np.testing.assert_array_equal(steer, pipe._look.viewpoint_ned_m)
+    assert np.linalg.norm(steer - pipe.goal_ned_m) > 1.0
+    near, pose, boundaries = _pipeline_before_a_wall(0.4)
+    assert not held_by_blind_spot_only(boundaries, near.goal_ned_m, near.boundary_config.inflate_m)
+    np.testing.assert_array_equal(near._look_goal(10.0, pose, boundaries), near.goal_ned_m)
+    assert near._look.phase is LookPhase.NONE
