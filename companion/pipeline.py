@@ -29,6 +29,7 @@ from companion.guidance.go_look import (
     GoLookConfig,
     LookPhase,
     LookState,
+    Move,
     held_by_blind_spot_only,
     look_step,
     look_viewpoint,
@@ -367,7 +368,7 @@ class AvoidancePipeline:
         occupied = occupied[np.linalg.norm(occupied - goal, axis=1) <= reach_m]
         check = self.way_check(boundaries, pose.yaw_rad)
 
-        def reachable(start, end) -> int:
+        def reachable(start, end) -> Move:
             if check.seen_free(start, end, looked=True):
                 return SEEN_FREE
             return BLOCKED if self._way_blocked(start, end) else UNSEEN

@@ -25,12 +25,17 @@ looks at the goal from there:
   of sight from it to the goal passes every OCCUPIED voxel centre near the goal by more
   than ``sight_clear_m`` (a piece's bounding sphere is too coarse here: at a thin wall's
   edge it reaches ~0.8 m past the last voxel, and only a view from beside the wall, in
-  space never seen, would pass it), (c) it lies
-  outside every boundary sphere and the straight move to it crosses none, and (d) the
-  caller's ``reachable`` says the straight move is seen free for the vehicle's section
-  (the pipeline asks the known-space map: invariant 1). Of those, the nearest to the
-  vehicle; ties to the smaller swing, then to the right (positive swing, clockwise seen
-  from above in NED).
+  space never seen, would pass it), (c) it lies outside every boundary sphere, and (d)
+  the caller's ``reachable`` finds no surface seen in the way of the straight move there.
+  Of those, one whose move is seen free for the vehicle's section (the pipeline asks the
+  known-space map) is taken before one whose move is not yet seen: goal_surface-22's map
+  knew only 2.2-3.3 m to either side of the stop point free, and every view past the
+  wall's edge lay 3.3-6 m away. A move not yet seen is flown like any goal's: guidance
+  faces its setpoint, so the camera looks before the vehicle moves, and the safety
+  envelope puts every carrot only into space seen free (invariant 1). The straight move
+  may graze a boundary sphere (a wall's edge piece, grown by its blind spot): guidance
+  steers round it by the cone rule like any goal. Then the nearest to the vehicle; ties
+  to the smaller swing, then to the positive swing (clockwise seen from above in NED).
 * **The look** (:func:`look_step`, a frozen state per goal): started on the first frame
   guidance holds for a goal held only by a blind spot; guidance steers to the viewpoint
   as its goal (the cone rule, the path search and the safety envelope unchanged: carrots
@@ -38,17 +43,17 @@ looks at the goal from there:
   ``face_m`` of the viewpoint the vehicle faces the goal (:func:`look_yaw_rad`), so the
   camera looks at it. It *resolves* when no boundary holds the goal any more (the goal's
   voxel seen free, or no piece hides it from where the vehicle is): guidance steers to
-  the goal again. It *ends unresolved* after
-  ``look_time_s``, after ``dwell_s`` within ``arrive_m`` of the viewpoint with the goal
-  still held, when guidance holds on the way (any reason), or when the goal turns out
-  surely blocked; guidance then steers to the goal and stops short of it as before, the
-  stop reported. One look per goal: a new goal starts afresh.
+  the goal again. It *ends unresolved* after ``look_time_s``, after ``dwell_s`` within
+  ``arrive_m`` of the viewpoint with the goal still held, when guidance holds on the way
+  (any reason), or when the goal turns out surely blocked; guidance then steers to the
+  goal and stops short of it as before, the stop reported. One look per goal: a new goal
+  starts afresh.
 
 A goal inside the inflated boundary of a seen surface is never looked at: its hold is
 latched as before (:mod:`companion.guidance.progress`), no go-around.
 
-Pure: no clock (time is the caller's simulation time), no I/O; the map enters only
-through the ``reachable`` callable.
+Pure: no clock (time is the caller's simulation time), no I/O; the map enters as its
+OCCUPIED voxel centres and the ``reachable`` callable.
 """
 
 from __future__ import annotations
@@ -69,6 +74,7 @@ __all__ = [
     "GoLookConfig",
     "LookPhase",
     "LookState",
+    "Move",
     "held_by_blind_spot_only",
     "look_step",
     "look_viewpoint",
@@ -77,11 +83,21 @@ __all__ = [
 
 _RADIUS_FACTORS = (1.0, 0.75, 1.25)  # candidate circles, × the vehicle's distance [-]
 
-SEEN_FREE, UNSEEN, BLOCKED = 0, 1, 2
-"""How a straight move to a viewpoint stands on the map: seen free for the vehicle's section;
-not yet seen free, but no surface seen in its way; a surface seen in its way."""
 
-ReachableFn = Callable[[np.ndarray, np.ndarray], int]
+class Move(enum.Enum):
+    """How a straight move to a viewpoint stands on the map."""
+
+    SEEN_FREE = "seen_free"
+    """Seen free for the vehicle's section."""
+    UNSEEN = "unseen"
+    """Not yet seen free, but no surface seen in its way."""
+    BLOCKED = "blocked"
+    """A surface seen in its way."""
+
+
+SEEN_FREE, UNSEEN, BLOCKED = Move.SEEN_FREE, Move.UNSEEN, Move.BLOCKED
+
+ReachableFn = Callable[[np.ndarray, np.ndarray], Move]
 """``(start_ned_m, end_ned_m) → SEEN_FREE | UNSEEN | BLOCKED``: the straight move."""
 
 
@@ -169,7 +185,7 @@ def look_viewpoint(
         Centres of the map's OCCUPIED voxels near the goal: what may hide it [m, NED].
     spheres : sequence of SphereLike
         The inflated boundary spheres: a viewpoint lies outside every one.
-    reachable : callable(start_ned_m, end_ned_m) -> int
+    reachable : callable(start_ned_m, end_ned_m) -> Move
         How the straight move stands: ``SEEN_FREE``, ``UNSEEN`` or ``BLOCKED``.
     config : GoLookConfig, optional
     """
@@ -201,9 +217,9 @@ def look_viewpoint(
         if any(_inside(view, s) for s in spheres):
             continue
         way = reachable(pos, view)
-        if way == SEEN_FREE:
+        if way is Move.SEEN_FREE:
             return view
-        if way == UNSEEN and unseen is None:
+        if way is Move.UNSEEN and unseen is None:
             unseen = view
     return unseen
 
