@@ -7,10 +7,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from companion.core.mission import Mission
 from companion.guidance.go_look import (
     BLOCKED,
     SEEN_FREE,
@@ -292,3 +294,20 @@ def test_the_pipeline_steers_guidance_to_the_viewpoint_for_a_blind_spot_goal_onl
     assert not held_by_blind_spot_only(boundaries, near.goal_ned_m, near.boundary_config.inflate_m)
     np.testing.assert_array_equal(near._look_goal(10.0, pose, boundaries), near.goal_ned_m)
     assert near._look.phase is LookPhase.NONE
+
+
+def test_the_mission_says_when_a_look_starts_and_ends_once_each():
+    """After "Holding (goal_unreachable)" the vehicle moves on: the operator hears why (a
+    STATUSTEXT within MAVLink's 50 characters) and the log has the viewpoint."""
+    mission = Mission([GOAL], goal_tolerance_m=0.5)
+    said: list = []
+    logged: list = []
+    view = (-29.66, -19.43, -5.44)
+    for look in (None, view, view, view, None, None):
+        mission._report_look(SimpleNamespace(look_ned_m=look), 0, said, logged)
+    assert [n.text for n in said] == ["Looking at goal from N-29.7 E-19.4 (blind spot)"]
+    assert len(said[0].text) <= 50
+    assert [(e.name, e.fields["viewpoint_ned_m"]) for e in logged] == [
+        ("goal_look", list(view)),
+        ("goal_look", None),
+    ]
