@@ -22,6 +22,19 @@ import numpy as np
 from companion.depth_source import DepthSource
 from companion.guidance import Guidance, GuidanceConfig, GuidanceOutput, Mode, Reason
 from companion.guidance.envelope import EnvelopeConfig, EnvelopeOutput, envelope_step
+from companion.guidance.go_look import (
+    BLOCKED,
+    SEEN_FREE,
+    UNSEEN,
+    GoLookConfig,
+    LookPhase,
+    LookState,
+    Move,
+    held_by_blind_spot_only,
+    look_step,
+    look_viewpoint,
+    look_yaw_rad,
+)
 from companion.guidance.hold import (
     HoldPlacement,
     HoldPoint,
@@ -97,6 +110,9 @@ class PipelineOutput:
     # how much wider the vehicle counted for the position estimate's uncertainty, and
     # whether the margins covered it (companion.position_uncertainty)
     widening: Widening = NO_WIDENING
+    # the viewpoint guidance steers to for a look at a goal held only by a blind spot
+    # [m, NED] (companion.guidance.go_look), None when not looking
+    look_ned_m: tuple[float, float, float] | None = None
     # guidance, the envelope and the hold's way out ran; False: the companion was not in
     # control (a pilot's mode), only the map and its boundaries were made, ``guidance``
     # and ``envelope`` stand still at the vehicle (:func:`not_guided`) and are never flown
@@ -154,6 +170,8 @@ class AvoidancePipeline:
         self._last_path = None  # (map frame, goal, KnownPath or None) of the last search
         self._last_vel = None  # (capture_ns, vel_ned_mps) of the last frame: acceleration
         self._brake_ned_m = None  # the envelope's held brake target (step 8), or None
+        self.look_config = GoLookConfig()
+        self._look = LookState()  # a look at a goal held only by a blind spot (go_look)
         # runs and skips of each phase (timed when the service injects clocks)
         self.phases = PhaseTimes()
         self._widen(self.perception.config.position_uncertainty_m)
@@ -228,17 +246,23 @@ class AvoidancePipeline:
             boundaries=boundaries,
             hold_escape=escape is not None and kept_out is None,
             target_kept_out=None if kept_out is None else kept_out.placement,
-            look_yaw_rad=None if moved is None else moved.look_yaw_rad,
+            look_yaw_rad=look_yaw_rad(self._look, pose.pos_ned_m, self.goal_ned_m, self.look_config)
+            if moved is None
+            else moved.look_yaw_rad,
             widening=widened,
+            look_ned_m=self._look.viewpoint_ned_m
+            if self._look.phase is LookPhase.LOOKING
+            else None,
         )
 
     def _guide(self, frame: StereoFrame, pose: PoseAtCapture, boundaries, steering: bool):
-        """Guidance's decision on this frame (Fig. 5), with the map's path search."""
+        """Guidance's decision on this frame (Fig. 5), with the map's path search; its goal
+        is a look's viewpoint while it looks (:meth:`_look_goal`)."""
         return self.guidance.step(
             time_s=frame.capture_ns * 1e-9,
             pos_ned_m=pose.pos_ned_m,
             vel_ned_mps=pose.vel_ned_mps,
-            goal_ned_m=self.goal_ned_m,
+            goal_ned_m=self._look_goal(frame.capture_ns * 1e-9, pose, boundaries),
             detections=boundaries,
             yaw_rad=pose.yaw_rad,
             steering=steering,
@@ -314,6 +338,42 @@ class AvoidancePipeline:
             heading_rad=heading_rad,
             look_half_angle_deg=e.look_half_angle_deg,
         )
+
+    def _look_goal(self, time_s: float, pose: PoseAtCapture, boundaries) -> np.ndarray:
+        """Guidance's goal this frame: the viewpoint of the one look at a goal held only by
+        a blind spot, started when guidance holds for it (:mod:`companion.guidance.go_look`),
+        else the goal."""
+        goal = self.goal_ned_m
+        state = self.guidance.state
+        looking = self._look.phase is LookPhase.LOOKING
+        self._look = look_step(
+            self._look,
+            time_s=time_s,
+            pos_ned_m=pose.pos_ned_m,
+            goal_ned_m=goal,
+            blind_only=held_by_blind_spot_only(boundaries, goal, self.boundary_config.inflate_m),
+            held=inside_any(goal, boundaries),
+            holding=state.mode is Mode.HOLD and (looking or state.unreachable),
+            viewpoint=functools.partial(self._viewpoint, pose, boundaries),
+            config=self.look_config,
+        )
+        return self._look.steer_to(goal)
+
+    def _viewpoint(self, pose: PoseAtCapture, boundaries) -> np.ndarray | None:
+        """Where to look at the goal from (:func:`~companion.guidance.go_look.look_viewpoint`):
+        the map's surfaces near the goal may hide it; the move there must be seen free."""
+        pos, goal = np.asarray(pose.pos_ned_m, dtype=float), self.goal_ned_m
+        reach_m = float(np.linalg.norm(goal - pos)) * 1.25 + self.look_config.max_look_m
+        occupied = self.known_space.occupied_points_ned_m()
+        occupied = occupied[np.linalg.norm(occupied - goal, axis=1) <= reach_m]
+        check = self.way_check(boundaries, pose.yaw_rad)
+
+        def reachable(start, end) -> Move:
+            if check.seen_free(start, end, looked=True):
+                return SEEN_FREE
+            return BLOCKED if self._way_blocked(start, end) else UNSEEN
+
+        return look_viewpoint(pos, goal, occupied, boundaries, reachable, self.look_config)
 
     def _goal_surely_blocked(self, boundaries) -> bool:
         """A boundary holds the goal for certain (``map_boundaries.goal_surely_blocked``)

@@ -75,6 +75,7 @@ class Mission:
         self._guidance_state: tuple[Mode, Reason] | None = None
         self._avoiding = False
         self._hold_escaped = False  # this hold already said its target was moved out
+        self._look_ned_m = None  # the viewpoint of a look at the goal said last, or None
         self._kept_out_until_s = -math.inf  # a carrot kept out of a boundary was said until
         self._momentum_until_s = -math.inf  # a momentum brake was said until
         self.tracking = TrackingMonitor(self.pipeline.envelope_config.margin_m)
@@ -121,6 +122,7 @@ class Mission:
             self._report_changes(out, frame.capture_ns, notices, events)
         self._check_tracking(pose, frame.capture_ns, notices, events)
         self._report_kept_out(out, frame.capture_ns, notices, events)
+        self._report_look(out, frame.capture_ns, notices, events)
         self._report_momentum(out, frame.capture_ns, notices, events)
         self._flown_target = np.array(out.setpoint_ned_m) if steering else None
         return MissionStep(out, self.waypoint, tuple(notices), tuple(events))
@@ -278,3 +280,28 @@ class Mission:
                 notices.append(Notice(f"Avoiding obstacle{where}", warning=True))
             else:
                 notices.append(Notice("Avoidance ended, heading to goal"))
+
+    def _report_look(self, out: PipelineOutput, capture_ns: int, notices, events) -> None:
+        """Say when a look at a goal held only by a blind spot starts and ends
+        (:mod:`companion.guidance.go_look`): after "Holding (goal_unreachable)" the
+        vehicle moves on, and the pilot hears why."""
+        look = out.look_ned_m
+        if look == self._look_ned_m:
+            return
+        self._look_ned_m = look
+        if look is not None:
+            notices.append(
+                Notice(
+                    f"Looking at goal from N{look[0]:.1f} E{look[1]:.1f} (blind spot)",
+                    warning=True,
+                )
+            )
+        events.append(
+            Event(
+                "goal_look",
+                {
+                    "viewpoint_ned_m": None if look is None else [float(x) for x in look],
+                    "capture_s": capture_ns * 1e-9,
+                },
+            )
+        )

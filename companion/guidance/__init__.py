@@ -13,6 +13,8 @@ a mode, the avoidance flag of Fig. 11, a position setpoint and a yaw out.
   step); its :mod:`~companion.guidance.modes`, :mod:`~companion.guidance.step_types`
   (state and output), :mod:`~companion.guidance.goal_stop` (the stop short of an
   unreachable goal) and :mod:`~companion.guidance.progress` (every stall reported).
+* :mod:`~companion.guidance.go_look` — one bounded look, from a side no surface hides it,
+  at a goal held only by a blind spot, before the stop short of it stands.
 * :mod:`~companion.guidance.config` — the tuning, one frozen dataclass.
 * :mod:`~companion.guidance.envelope` — the safety envelope: the carrot inside known-free
   space (:mod:`companion.known_space`) and the stopping-distance speed limit.
