@@ -10,6 +10,7 @@ import random
 from dataclasses import replace
 
 import pytest
+from _guided_airframe import guided_airframe
 
 from plant_sim.autopilot.commands import MavCmd, MavResult, handle_command
 from plant_sim.autopilot.modes import (
@@ -309,35 +310,7 @@ def _fly_leg(
     through plant-sim's GUIDED (SIM_GUID_SHAPE 1) with the goal itself as the target (no
     companion, as SITL flew it before the safety envelope), at ``speed_mps`` if given
     (DO_CHANGE_SPEED). Returns (top speed, farthest north) [m/s, m]."""
-    from plant_sim.profiles import profile
-    from plant_sim.vehicle import Quadrotor
-
-    prof = profile(profile_name)
-    quad = Quadrotor(prof.vehicle, prof.control, pos_ned_m=(0.0, 0.0, -7.0), ground_down_m=0.0)
-    table = ParamTable({"ANGLE_MAX": prof.control.max_tilt_deg * 100.0, "SIM_GUID_SHAPE": 1.0})
-    for name, value in params.items():
-        assert table.set(name, value) is None
-
-    def kin():
-        s = quad.snapshot()
-        p, v = s.pos_ned_m, s.vel_ned_mps
-        return Kinematics(
-            s.time_s,
-            tuple(map(float, p)),
-            tuple(map(float, v)),
-            s.yaw_rad,
-            s.on_ground,
-            s.tilt_saturated,
-        )
-
-    m = FlightModeMachine(
-        timings_from_params(ModeTimings(), table),
-        home_ned_m=(0.0, 0.0, 0.0),
-        ground_down_m=0.0,
-        mode=FlightMode.GUIDED,
-        armed=True,
-        kin=kin(),
-    )
+    quad, m, kin = guided_airframe(profile_name, params)
     m.guided_target(GuidedTarget(pos_ned_m=(distance_m, 0.0, -7.0)), kin())
     if speed_mps is not None:
         assert m.change_speed("ne", speed_mps) is None

@@ -13,18 +13,10 @@ import math
 
 import numpy as np
 import pytest
+from _guided_airframe import guided_airframe
 
-from plant_sim.autopilot.modes import (
-    FlightMode,
-    FlightModeMachine,
-    GuidedTarget,
-    Kinematics,
-    ModeTimings,
-)
-from plant_sim.autopilot.params import ParamTable, timings_from_params
+from plant_sim.autopilot.modes import GuidedTarget
 from plant_sim.flight_control import limit_tilt
-from plant_sim.profiles import profile
-from plant_sim.vehicle import Quadrotor
 
 TAN15 = math.tan(math.radians(15.0))
 G = 9.81
@@ -74,29 +66,7 @@ def _fly_line(yaw_off_deg: float, seconds: float = 26.0) -> tuple[float, float]:
     on a line due north, re-sent at 10 Hz, its nose ``yaw_off_deg`` off the line. Returns
     the largest distance from the line and the largest velocity bearing off it after the
     first 6 s [m, deg]."""
-    prof = profile("paper")
-    quad = Quadrotor(prof.vehicle, prof.control, pos_ned_m=(0.0, 0.0, -7.0), ground_down_m=0.0)
-    table = ParamTable({"ANGLE_MAX": prof.control.max_tilt_deg * 100.0, "SIM_GUID_SHAPE": 1.0})
-
-    def kin():
-        s = quad.snapshot()
-        return Kinematics(
-            s.time_s,
-            tuple(map(float, s.pos_ned_m)),
-            tuple(map(float, s.vel_ned_mps)),
-            s.yaw_rad,
-            s.on_ground,
-            s.tilt_saturated,
-        )
-
-    m = FlightModeMachine(
-        timings_from_params(ModeTimings(), table),
-        home_ned_m=(0.0, 0.0, 0.0),
-        ground_down_m=0.0,
-        mode=FlightMode.GUIDED,
-        armed=True,
-        kin=kin(),
-    )
+    quad, m, kin = guided_airframe("paper")
     yaw = math.radians(yaw_off_deg)
     m.guided_target(GuidedTarget(pos_ned_m=(5.0, 0.0, -7.0), yaw_rad=yaw), kin())
     assert m.change_speed("ne", 4.25) is None
