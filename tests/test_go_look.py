@@ -178,23 +178,29 @@ def test_a_look_starts_only_when_guidance_holds_for_a_goal_held_by_a_blind_spot(
     np.testing.assert_array_equal(none.steer_to(GOAL), GOAL)
 
 
-def test_a_look_resolves_when_no_boundary_holds_the_goal_and_happens_once_per_goal():
+def test_a_look_resolves_when_no_boundary_holds_the_goal_within_one_time_bound_per_goal():
     s = _step(_step(LookState(), 0.0, holding=True), 1.0)
     assert s.phase is LookPhase.LOOKING
     s = _step(s, 2.0, held=False)
     assert s.phase is LookPhase.DONE and s.resolved
     np.testing.assert_array_equal(s.steer_to(GOAL), GOAL)
-    again = _step(s, 3.0, holding=True)  # held again later: no second look
-    assert again.phase is LookPhase.DONE
-    other = _step(again, 4.0, goal=(9.0, 9.0, -6.0), holding=True)  # a new goal: afresh
-    assert other.phase is LookPhase.LOOKING
+    # held again within the look's time (a frame's map let the goal go, the next held
+    # it: goal_surface-22): another viewpoint, the same start time, counted
+    again = _step(s, 3.0, holding=True)
+    assert again.phase is LookPhase.LOOKING and again.views == 2 and again.since_s == 0.0
+    done = _step(again, 4.0, held=False)
+    assert done.phase is LookPhase.DONE and done.resolved
+    late = _step(done, CFG.look_time_s, holding=True)  # past the look's time: no more
+    assert late.phase is LookPhase.DONE
+    other = _step(late, 30.0, goal=(9.0, 9.0, -6.0), holding=True)  # a new goal: afresh
+    assert other.phase is LookPhase.LOOKING and other.views == 1
 
 
 @pytest.mark.parametrize(
     ("why", "kwargs", "t_end"),
     [
         ("time", {}, CFG.look_time_s),
-        ("held on the way", {"holding": True}, 0.5),
+        ("held on the way to every viewpoint", {"holding": True}, 0.5 * CFG.max_views),
         ("surely blocked after all", {"blind": False}, 0.5),
     ],
 )
@@ -206,6 +212,33 @@ def test_a_look_ends_unresolved_bounded(why, kwargs, t_end):
         s = _step(s, t, **kwargs)
     assert s.phase is LookPhase.DONE and not s.resolved, why
     assert t == pytest.approx(t_end), why
+
+
+def test_a_hold_on_the_way_chooses_the_next_viewpoint_from_where_the_vehicle_stands():
+    """goal_surface-22 (stereo, with the direction-keeping tilt limit) and -206: surfaces
+    seen on the way put the first viewpoint inside a boundary, guidance held, and the one
+    look ended 4 s after it began. The next viewpoint is chosen from where the vehicle
+    stands; the look's time bound runs from its start; no viewpoint left ends it."""
+    views = iter([VIEW, np.array([2.0, -3.0, -6.0]), None])
+
+    def step(state, t, **kw):
+        return look_step(
+            state, time_s=t, pos_ned_m=kw.get("pos", (4.0, 1.0, -6.0)), goal_ned_m=GOAL,
+            blind_only=True, held=True, holding=kw.get("holding", False),
+            viewpoint=lambda: next(views), config=CFG,
+        )  # fmt: skip
+
+    s = step(LookState(), 0.0, holding=True)
+    assert s.phase is LookPhase.LOOKING and s.views == 1
+    s = step(s, 4.0, holding=True)  # held on the way
+    assert s.phase is LookPhase.LOOKING and s.viewpoint_ned_m == (2.0, -3.0, -6.0)
+    assert s.views == 2 and s.since_s == 0.0
+    np.testing.assert_array_equal(s.steer_to(GOAL), (2.0, -3.0, -6.0))
+    s = step(s, 5.0)
+    assert s.phase is LookPhase.LOOKING
+    s = step(s, 6.0, holding=True)  # held again, no viewpoint qualifies from here
+    assert s.phase is LookPhase.DONE and not s.resolved
+    np.testing.assert_array_equal(s.steer_to(GOAL), GOAL)
 
 
 def test_a_look_ends_after_dwelling_at_the_viewpoint_with_the_goal_still_held():

@@ -45,8 +45,10 @@ looks at the goal from there:
   voxel seen free, or no piece hides it from where the vehicle is): guidance steers to
   the goal again. It *ends unresolved* after ``look_time_s``, after ``dwell_s`` within
   ``arrive_m`` of the viewpoint with the goal still held, when guidance holds on the way
-  (any reason), or when the goal turns out surely blocked; guidance then steers to the
-  goal and stops short of it as before, the stop reported. One look per goal: a new goal
+  (any reason) to the last of ``max_views`` viewpoints (a hold on the way to an earlier
+  one chooses the next from where the vehicle stands), or when the goal turns out surely
+  blocked; guidance then steers to the goal and stops short of it as before, the stop
+  reported. One look per goal: a new goal
   starts afresh.
 
 A goal inside the inflated boundary of a seen surface is never looked at: its hold is
@@ -61,7 +63,7 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -126,6 +128,10 @@ class GoLookConfig(Checked):
         At the viewpoint this long with the goal still held ends the look [s].
     face_m : float
         Within this distance of the viewpoint the vehicle faces the goal [m].
+    max_views : int
+        Viewpoints tried in one look: when guidance holds on the way to one (newly seen
+        surfaces put it inside a boundary, or left no free direction to it), the next is
+        chosen from where the vehicle stands, all within one ``look_time_s`` [-].
     """
 
     max_look_m: float = bounded(6.0, "m", gt=0)
@@ -137,6 +143,7 @@ class GoLookConfig(Checked):
     arrive_m: float = bounded(0.5, "m", gt=0)
     dwell_s: float = bounded(3.0, "s", ge=0)
     face_m: float = bounded(1.5, "m", ge=0)
+    max_views: int = bounded(3, integer=True, ge=1, le=10)
 
 
 def held_by_blind_spot_only(boundaries: Sequence, goal_ned_m, inflate_m: float) -> bool:
@@ -249,6 +256,7 @@ class LookState:
     since_s: float = 0.0
     arrived_s: float | None = None
     resolved: bool = False
+    views: int = 0  # viewpoints chosen in this look
 
     def steer_to(self, goal_ned_m) -> np.ndarray:
         """Guidance's goal this frame: the viewpoint while looking, else the goal."""
@@ -300,20 +308,29 @@ def look_step(
             phase=LookPhase.LOOKING,
             viewpoint_ned_m=tuple(float(x) for x in view),
             since_s=float(time_s),
+            views=1,
         )
     if state.phase is LookPhase.DONE:
+        # resolved, then held again (a frame's map let the goal go, the next held it):
+        # another viewpoint, within the same look's time and count
+        again = state.resolved and holding and blind_only and state.views < cfg.max_views
+        if again and time_s - state.since_s < cfg.look_time_s:
+            return _next_view(state, goal, viewpoint)
         return state
     if not held:
-        return LookState(goal_ned_m=goal, phase=LookPhase.DONE, resolved=True)
+        return replace(state, phase=LookPhase.DONE, resolved=True, arrived_s=None)
     pos = np.asarray(pos_ned_m, dtype=float)
     at_view = float(np.linalg.norm(pos - np.asarray(state.viewpoint_ned_m))) <= cfg.arrive_m
     arrived_s = (state.arrived_s if state.arrived_s is not None else time_s) if at_view else None
     ended = (
         not blind_only
-        or holding
         or time_s - state.since_s >= cfg.look_time_s
         or (arrived_s is not None and time_s - arrived_s >= cfg.dwell_s)
     )
+    if holding and not ended:  # held on the way: the next viewpoint, from here
+        if state.views < cfg.max_views:
+            return _next_view(state, goal, viewpoint)
+        return LookState(goal_ned_m=goal, phase=LookPhase.DONE)
     if ended:
         return LookState(goal_ned_m=goal, phase=LookPhase.DONE)
     return LookState(
@@ -322,6 +339,22 @@ def look_step(
         viewpoint_ned_m=state.viewpoint_ned_m,
         since_s=state.since_s,
         arrived_s=arrived_s,
+        views=state.views,
+    )
+
+
+def _next_view(state: LookState, goal: tuple, viewpoint: Callable) -> LookState:
+    """The look goes on to a viewpoint chosen from where the vehicle stands now, its start
+    time kept; none qualifies: the look is over, unresolved."""
+    view = viewpoint()
+    if view is None:
+        return LookState(goal_ned_m=goal, phase=LookPhase.DONE)
+    return LookState(
+        goal_ned_m=goal,
+        phase=LookPhase.LOOKING,
+        viewpoint_ned_m=tuple(float(x) for x in view),
+        since_s=state.since_s,
+        views=state.views + 1,
     )
 
 
