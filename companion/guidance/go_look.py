@@ -300,16 +300,7 @@ def look_step(
     if state.phase is LookPhase.NONE:
         if not (holding and blind_only):
             return state
-        view = viewpoint()
-        if view is None:
-            return LookState(goal_ned_m=goal, phase=LookPhase.DONE)
-        return LookState(
-            goal_ned_m=goal,
-            phase=LookPhase.LOOKING,
-            viewpoint_ned_m=tuple(float(x) for x in view),
-            since_s=float(time_s),
-            views=1,
-        )
+        return _next_view(LookState(goal_ned_m=goal, since_s=float(time_s)), goal, viewpoint)
     if state.phase is LookPhase.DONE:
         # resolved, then held again (a frame's map let the goal go, the next held it):
         # another viewpoint, within the same look's time and count
